@@ -1,0 +1,41 @@
+"""The typer application objects shared by every command module."""
+
+from __future__ import annotations
+
+import typer
+from rich.console import Console
+
+from .. import __version__
+
+app = typer.Typer(
+    name="fingerloc",
+    help="Topological global localization with fingerprints and Bayesian programming.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+bench_app = typer.Typer(help="Speed and accuracy benchmarks (print, and write JSON with --json).", no_args_is_help=True)
+reproduce_app = typer.Typer(help="Reproduce the paper's tables.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+app.add_typer(reproduce_app, name="reproduce")
+
+#: Normal output.
+console = Console(highlight=False)
+#: Progress bars and notes, on stderr so stdout stays clean for pipes.
+err_console = Console(stderr=True, highlight=False)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"fingerloc {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Topological global localization with fingerprints and Bayesian programming."""

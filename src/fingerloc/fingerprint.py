@@ -1,0 +1,309 @@
+"""Fingerprints: circular strings of features around the robot (SPEC.md §1-2).
+
+A fingerprint lists the features an observation holds by increasing bearing,
+one letter each, with ``n`` letters for empty space:
+
+==========  ============================================================
+letter      meaning
+==========  ============================================================
+``v``       vertical edge
+``A``-``P`` colour patch, hue bin ``floor(hue / 22.5 deg)``, ``A`` = 0
+``c``       corner
+``b``       beacon
+``f``       a corner and a vertical edge at (nearly) the same bearing
+``n``       one per ``empty_step_deg`` (20 deg) of seen, empty bearing
+==========  ============================================================
+
+Extremities (``Ex``) enter the Bayesian program but never the string.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .angles import TWO_PI, rad_to_deg360, wrap, wrap_deg360
+from .errors import InvalidParameterError, UnknownLetterError
+from .observation import Observation
+
+__all__ = [
+    "ALPHABET",
+    "HUE_LETTERS",
+    "Fingerprint",
+    "hue_letter",
+    "make_fingerprint",
+    "parse_fingerprint",
+]
+
+#: Colour-patch letters, hue bin 0 (``A``, hue 0-22.5 deg) to 15 (``P``).
+HUE_LETTERS = "ABCDEFGHIJKLMNOP"
+#: Every letter a fingerprint may hold.
+ALPHABET = "v" + HUE_LETTERS + "cbfn"
+#: Hue bin width in degrees.
+HUE_BIN_DEG = 22.5
+#: Tolerance (degrees) when counting empty-space steps: a seen gap of exactly 40 deg gives two ``n``.
+GAP_TOL_DEG = 1e-6
+
+# Order of letters at one bearing (ties), so generation is deterministic.
+_TIE_ORDER = {ch: i for i, ch in enumerate(ALPHABET)}
+
+
+def hue_letter(hue_deg: float) -> str:
+    """The colour-patch letter of a hue in degrees, ``[0, 360)``."""
+    h = float(hue_deg)
+    if not (0.0 <= h < 360.0):
+        raise InvalidParameterError(f"hue must be in [0, 360) degrees, got {hue_deg!r}")
+    return HUE_LETTERS[min(int(h // HUE_BIN_DEG), len(HUE_LETTERS) - 1)]
+
+
+def _check_letters(letters: str) -> None:
+    for i, ch in enumerate(letters):
+        if ch not in ALPHABET:
+            raise UnknownLetterError(
+                f"unknown fingerprint letter {ch!r} at position {i} of {letters!r} (alphabet: {ALPHABET})"
+            )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Fingerprint:
+    """A circular fingerprint string and the bearing of each letter.
+
+    Parameters
+    ----------
+    letters : str
+        Letters of :data:`ALPHABET`, in increasing bearing from the first
+        feature at or after bearing 0.
+    bearings : array_like of float, shape (len(letters),)
+        Bearing of each letter in radians (wrapped to ``[-pi, pi)``). ``n``
+        letters sit evenly inside the seen part of their gap.
+    """
+
+    letters: str
+    bearings: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.letters, str):
+            raise InvalidParameterError(f"letters: must be a string, got {type(self.letters).__name__}")
+        _check_letters(self.letters)
+        b = wrap(np.array(self.bearings, dtype=np.float64, copy=True).reshape(-1))
+        if b.size != len(self.letters):
+            raise InvalidParameterError(
+                f"bearings: one bearing per letter is needed, got {b.size} for {len(self.letters)} letters"
+            )
+        if not np.all(np.isfinite(b)):
+            raise InvalidParameterError("bearings: must be finite")
+        b.setflags(write=False)
+        object.__setattr__(self, "bearings", b)
+
+    def __str__(self) -> str:
+        return self.letters
+
+    def __repr__(self) -> str:
+        return f"Fingerprint({self.letters!r})"
+
+    def __len__(self) -> int:
+        return len(self.letters)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Fingerprint):
+            return NotImplemented
+        return self.letters == other.letters and np.allclose(self.bearings, other.bearings, atol=1e-12)
+
+    __hash__ = None  # type: ignore[assignment]
+
+    @property
+    def bearings_deg(self) -> NDArray[np.float64]:
+        """Bearing of each letter in degrees, ``[0, 360)``."""
+        return rad_to_deg360(self.bearings)
+
+    def rotate(self, k: int) -> Fingerprint:
+        """The same circular string started at letter ``k`` (letters keep their bearings)."""
+        n = len(self.letters)
+        if n == 0:
+            return self
+        k %= n
+        return Fingerprint(self.letters[k:] + self.letters[:k], np.roll(self.bearings, -k))
+
+    def turned(self, angle: float) -> Fingerprint:
+        """The fingerprint seen by a robot whose bearings all moved by ``angle`` radians.
+
+        Bearings shift by ``angle`` and the string restarts at the first letter
+        whose new bearing is at or after 0 degrees.
+        """
+        if not self.letters:
+            return self
+        deg = wrap_deg360(np.rad2deg(self.bearings + angle))
+        k = int(np.argmin(deg))
+        return Fingerprint(self.letters[k:] + self.letters[:k], np.roll(self.bearings + angle, -k))
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready form: the string and bearings in degrees."""
+        return {"fingerprint": self.letters, "bearings_deg": [round(float(x), 6) for x in self.bearings_deg]}
+
+
+def parse_fingerprint(text: str, bearings_deg: ArrayLike | None = None) -> Fingerprint:
+    """Parse a fingerprint string.
+
+    Parameters
+    ----------
+    text : str
+        Letters of :data:`ALPHABET`; surrounding white space is ignored.
+    bearings_deg : array_like of float, optional
+        Bearing of each letter in degrees. When omitted the letters are
+        spread evenly around the circle from 0 deg (a string alone does not
+        carry its bearings).
+
+    Raises
+    ------
+    UnknownLetterError
+        On a letter outside the alphabet, naming it and its position.
+    """
+    letters = text.strip()
+    _check_letters(letters)
+    if bearings_deg is None:
+        b = np.arange(len(letters), dtype=np.float64) * (TWO_PI / max(len(letters), 1))
+    else:
+        b = np.deg2rad(np.asarray(bearings_deg, dtype=np.float64))
+    return Fingerprint(letters, b)
+
+
+# -- field of view in degrees -----------------------------------------------
+
+
+def _seen_pieces_deg(fov: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Disjoint, sorted ``[lo, hi)`` pieces of ``[0, 360)`` covered by ``fov`` (radians)."""
+    pieces: list[tuple[float, float]] = []
+    for start, width in fov:
+        s = float(rad_to_deg360(start))
+        w = float(np.rad2deg(width))
+        if w >= 360.0 - 1e-9:
+            return [(0.0, 360.0)]
+        e = s + w
+        if e <= 360.0:
+            pieces.append((s, e))
+        else:
+            pieces.append((s, 360.0))
+            pieces.append((0.0, e - 360.0))
+    pieces.sort()
+    merged: list[tuple[float, float]] = []
+    for lo, hi in pieces:
+        if merged and lo <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], hi))
+        else:
+            merged.append((lo, hi))
+    return merged
+
+
+def _seen_intervals(a: float, b: float, pieces: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Parts of ``[a, b]`` (degrees, ``0 <= a < 360``, ``a <= b <= a + 360``) inside the seen pieces."""
+    out: list[tuple[float, float]] = []
+    for shift in (0.0, 360.0):
+        for lo, hi in pieces:
+            lo2, hi2 = max(a, lo + shift), min(b, hi + shift)
+            if hi2 > lo2:
+                out.append((lo2, hi2))
+    return out
+
+
+def _place_empty(intervals: list[tuple[float, float]], count: int) -> list[float]:
+    """Bearings (degrees) of ``count`` empty-space letters spread evenly over the seen intervals."""
+    total = sum(hi - lo for lo, hi in intervals)
+    out: list[float] = []
+    for j in range(count):
+        target = (j + 0.5) * total / count
+        for lo, hi in intervals:
+            if target <= hi - lo:
+                out.append(lo + target)
+                break
+            target -= hi - lo
+        else:  # round-off at the very end
+            out.append(intervals[-1][1])
+    return out
+
+
+def make_fingerprint(
+    obs: Observation,
+    *,
+    empty_step_deg: float = 20.0,
+    merge_tol_deg: float = 5.0,
+) -> Fingerprint:
+    """Generate the fingerprint of an observation (SPEC.md §2).
+
+    1. Vertical edges give ``v``, colour patches their hue letter, corners
+       ``c``, beacons ``b``; extremities give nothing.
+    2. A corner and a vertical edge within ``merge_tol_deg`` of each other
+       (closest pairs first, each feature used once) become one ``f`` at their
+       circular mean bearing.
+    3. Letters are listed by increasing bearing in ``[0, 360)`` deg, from the
+       first at or after 0. After each letter, ``floor(s / empty_step_deg)``
+       letters ``n`` follow, ``s`` being the part of the gap to the next letter
+       (circularly; the wrap-around gap's ``n`` come last) that lies inside the
+       field of view, computed in degrees with a tolerance of 1e-6 deg. With no
+       feature at all the string is ``floor(seen / empty_step_deg)`` ``n``.
+
+    Parameters
+    ----------
+    obs : Observation
+    empty_step_deg : float, default 20
+        Degrees of seen, empty bearing per ``n`` letter; positive.
+    merge_tol_deg : float, default 5
+        Largest corner-to-edge angle (degrees) merged into ``f``; ``>= 0``.
+
+    Returns
+    -------
+    Fingerprint
+    """
+    if not (math.isfinite(empty_step_deg) and empty_step_deg > 0):
+        raise InvalidParameterError(f"empty_step_deg must be a positive number of degrees, got {empty_step_deg!r}")
+    if not (math.isfinite(merge_tol_deg) and merge_tol_deg >= 0):
+        raise InvalidParameterError(f"merge_tol_deg must be >= 0 degrees, got {merge_tol_deg!r}")
+
+    feats: list[tuple[float, str]] = []
+    ve = list(rad_to_deg360(obs.ve))
+    cs = list(rad_to_deg360(obs.c))
+    # Step 2: merge corner/edge pairs, closest first.
+    pairs = []
+    for i, cb in enumerate(cs):
+        for j, vb in enumerate(ve):
+            d = abs((vb - cb + 180.0) % 360.0 - 180.0)
+            if d <= merge_tol_deg + GAP_TOL_DEG:
+                pairs.append((d, i, j))
+    pairs.sort()
+    used_c: set[int] = set()
+    used_v: set[int] = set()
+    for _, i, j in pairs:
+        if i in used_c or j in used_v:
+            continue
+        used_c.add(i)
+        used_v.add(j)
+        mid = cs[i] + ((ve[j] - cs[i] + 180.0) % 360.0 - 180.0) / 2.0
+        feats.append((float(wrap_deg360(mid)), "f"))
+    feats += [(v, "v") for j, v in enumerate(ve) if j not in used_v]
+    feats += [(c, "c") for i, c in enumerate(cs) if i not in used_c]
+    feats += [(float(x), hue_letter(h)) for x, h in zip(rad_to_deg360(obs.cp), obs.cp_hue, strict=True)]
+    feats += [(float(x), "b") for x in rad_to_deg360(obs.b)]
+    feats.sort(key=lambda t: (t[0], _TIE_ORDER[t[1]]))
+
+    pieces = _seen_pieces_deg(obs.fov)
+
+    def empty_space(a: float, b: float) -> list[float]:
+        # bearings (deg) of the n letters of the gap [a, b]
+        intervals = _seen_intervals(a, b, pieces)
+        seen = sum(hi - lo for lo, hi in intervals)
+        return _place_empty(intervals, math.floor((seen + GAP_TOL_DEG) / empty_step_deg))
+
+    letters: list[str] = []
+    bearings: list[float] = []
+    if not feats:
+        bearings = empty_space(0.0, 360.0)
+        letters = ["n"] * len(bearings)
+    for k, (bearing, letter) in enumerate(feats):
+        nxt = feats[k + 1][0] if k + 1 < len(feats) else feats[0][0] + 360.0
+        empty = empty_space(bearing, nxt)
+        letters += [letter] + ["n"] * len(empty)
+        bearings += [bearing, *empty]
+    return Fingerprint("".join(letters), np.deg2rad(np.asarray(bearings, dtype=np.float64)))

@@ -1,0 +1,215 @@
+"""Observations as JSON Lines (DESIGN.md, "Files a user touches").
+
+One observation a line, bearings and angles in degrees::
+
+    {"place": "office-3", "pose": [x, y, theta_deg], "fov": [[-90, 90]],
+     "features": {"VE": [12.5, 80.0], "CP": [{"bearing": 40.0, "hue": 130.0}],
+                  "Ex": [...], "c": [...], "B": [...]},
+     "timestamp": 12.5}
+
+``fov`` lists counter-clockwise ``[start, end]`` ranges in degrees; a record
+without it saw the full circle. ``place``, ``pose`` and ``timestamp`` are
+optional; ``features`` is required (it may be empty). Blank lines are skipped.
+Other top-level keys are ignored, so tools may carry their own.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..angles import rad_to_deg360
+from ..errors import DataFormatError, EmptyInputError, FingerlocError
+from ..observation import FEATURE_TYPES, Observation
+
+__all__ = [
+    "iter_observations",
+    "observation_from_record",
+    "observation_to_record",
+    "read_observations",
+    "write_observations",
+]
+
+
+def _number(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise DataFormatError(f"{what} must be a number, got {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise DataFormatError(f"{what} must be finite, got {value!r}")
+    return x
+
+
+def _bearing_list(value: Any, key: str) -> list[float]:
+    if not isinstance(value, list):
+        raise DataFormatError(f"features.{key} must be a list of bearings in degrees, got {value!r}")
+    return [_number(v, f"bearing in features.{key}") for v in value]
+
+
+def observation_from_record(record: Any) -> Observation:
+    """Build an :class:`Observation` from one decoded JSON record.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the bad key or value (without a location: callers add it).
+    """
+    if not isinstance(record, Mapping):
+        raise DataFormatError(f"a record must be a JSON object, got {type(record).__name__}")
+    if "features" not in record:
+        raise DataFormatError('missing key "features" (use {} for an observation without features)')
+    feats = record["features"]
+    if not isinstance(feats, Mapping):
+        raise DataFormatError(f'"features" must be an object, got {feats!r}')
+    out: dict[str, Any] = {}
+    for key, value in feats.items():
+        if key not in FEATURE_TYPES:
+            raise DataFormatError(f"unknown feature type {key!r} (expected one of {', '.join(FEATURE_TYPES)})")
+        if key == "CP":
+            if not isinstance(value, list):
+                raise DataFormatError(f"features.CP must be a list of {{bearing, hue}} objects, got {value!r}")
+            cps = []
+            for p in value:
+                if not isinstance(p, Mapping) or "bearing" not in p or "hue" not in p:
+                    raise DataFormatError(f'each colour patch must be {{"bearing": .., "hue": ..}}, got {p!r}')
+                b = _number(p["bearing"], "bearing in features.CP")
+                h = _number(p["hue"], "hue in features.CP")
+                if not 0.0 <= h < 360.0:
+                    raise DataFormatError(f"hue must be in [0, 360) degrees, got {p['hue']!r}")
+                cps.append((b, h))
+            out[key] = cps
+        else:
+            out[key] = _bearing_list(value, key)
+    place = record.get("place")
+    if place is not None and not isinstance(place, str):
+        raise DataFormatError(f'"place" must be a string or null, got {place!r}')
+    pose = record.get("pose")
+    if pose is not None:
+        if not isinstance(pose, list) or len(pose) != 3:
+            raise DataFormatError(f'"pose" must be [x, y, theta_deg], got {pose!r}')
+        pose = [_number(v, "pose value") for v in pose]
+    fov = record.get("fov")
+    if fov is not None:
+        if not isinstance(fov, list) or not fov:
+            raise DataFormatError(f'"fov" must be a non-empty list of [start, end] ranges in degrees, got {fov!r}')
+        for r in fov:
+            if not isinstance(r, list) or len(r) != 2:
+                raise DataFormatError(f'each "fov" range must be [start, end] in degrees, got {r!r}')
+        fov = [[_number(r[0], "fov bound"), _number(r[1], "fov bound")] for r in fov]
+    ts = record.get("timestamp")
+    if ts is not None:
+        ts = _number(ts, '"timestamp"')
+    try:
+        return Observation.from_degrees(out, fov=fov, label=place, pose=pose, timestamp=ts)
+    except DataFormatError:
+        raise
+    except FingerlocError as err:
+        raise DataFormatError(str(err)) from err
+
+
+def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, Any]:
+    """The JSON-ready record of an observation (degrees)."""
+
+    def degs(a: np.ndarray) -> list[float]:
+        return [round(float(x), ndigits) for x in rad_to_deg360(a)]
+
+    feats: dict[str, Any] = {}
+    for key in FEATURE_TYPES:
+        if key == "CP":
+            if obs.cp.size:
+                feats["CP"] = [
+                    {"bearing": b, "hue": round(float(h), ndigits)}
+                    for b, h in zip(degs(obs.cp), obs.cp_hue, strict=True)
+                ]
+        elif obs.bearings(key).size:
+            feats[key] = degs(obs.bearings(key))
+    rec: dict[str, Any] = {}
+    if obs.label is not None:
+        rec["place"] = obs.label
+    if obs.pose is not None:
+        x, y, th = obs.pose
+        rec["pose"] = [x, y, round(float(np.rad2deg(th)), ndigits)]
+    if not obs.full_fov:
+        rec["fov"] = []
+        for s, w in obs.fov:
+            start = round(float(np.rad2deg(s)), ndigits)
+            rec["fov"].append([start, round(start + float(np.rad2deg(w)), ndigits)])
+    if obs.timestamp is not None:
+        rec["timestamp"] = obs.timestamp
+    rec["features"] = feats
+    return rec
+
+
+def iter_observations(path: str | Path) -> Iterator[Observation]:
+    """Stream the observations of a JSON Lines file, one per non-blank line.
+
+    Raises
+    ------
+    DataFormatError
+        On a malformed line, naming the path, the line number and the bad value.
+    EmptyInputError
+        When the file holds no observation.
+    """
+    p = Path(path)
+    try:
+        fh = p.open("r", encoding="utf-8")
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
+    count = 0
+    with fh:
+        lineno = 0
+        try:
+            for lineno, line in enumerate(fh, start=1):
+                if not line.strip():
+                    continue
+                try:
+                    record = json.loads(line)
+                except json.JSONDecodeError as err:
+                    raise DataFormatError(
+                        f"malformed JSON ({err.msg} at column {err.colno})", path=p, line=lineno
+                    ) from err
+                try:
+                    obs = observation_from_record(record)
+                except DataFormatError as err:
+                    raise err.at(path=p, line=lineno) from err
+                count += 1
+                yield obs
+        except UnicodeDecodeError as err:
+            raise DataFormatError("not a UTF-8 text file", path=p, line=lineno + 1) from err
+    if count == 0:
+        raise EmptyInputError("no observation in file (empty)", path=p)
+
+
+def read_observations(path: str | Path) -> list[Observation]:
+    """Read every observation of a JSON Lines file (see :func:`iter_observations`)."""
+    return list(iter_observations(path))
+
+
+def write_observations(path: str | Path, observations: Iterable[Observation]) -> int:
+    """Write observations as JSON Lines, atomically (a temporary file renamed over ``path``).
+
+    Returns
+    -------
+    int
+        Number of observations written.
+    """
+    p = Path(path)
+    n = 0
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            for obs in observations:
+                fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": ")) + "\n")
+                n += 1
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return n

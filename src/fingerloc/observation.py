@@ -1,0 +1,278 @@
+"""The core measurement type: one :class:`Observation` at one pose.
+
+An observation holds, per feature type, the bearings (radians, wrapped to
+``[-pi, pi)``) at which the sensors saw features, the hue of each colour patch,
+and the field of view the sensors covered. It is immutable: its arrays are
+read-only and every field is validated on construction.
+
+Feature types (SPEC.md §1):
+
+========  =====================================  ===========
+key       feature                                letter
+========  =====================================  ===========
+``VE``    vertical edge (camera)                 ``v``
+``CP``    colour patch with a hue (camera)       ``A``-``P``
+``Ex``    extremity of a laser line segment      (none)
+``c``     corner (laser)                         ``c``
+``B``     beacon (laser, high reflectance)       ``b``
+========  =====================================  ===========
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .angles import TWO_PI, deg_to_rad, wrap
+from .errors import InvalidParameterError
+
+__all__ = ["FEATURE_TYPES", "FULL_FOV", "Observation", "fov_from_degrees"]
+
+#: Feature-type keys, in the order used everywhere (files, models, output).
+FEATURE_TYPES: tuple[str, ...] = ("VE", "CP", "Ex", "c", "B")
+
+#: The full circle as a field of view: one range, start -pi, width 2 pi.
+FULL_FOV: tuple[tuple[float, float], ...] = ((-np.pi, TWO_PI),)
+
+FArray = NDArray[np.float64]
+
+
+def _readonly(a: ArrayLike, name: str) -> FArray:
+    arr = np.array(a, dtype=np.float64, copy=True).reshape(-1)
+    if not np.all(np.isfinite(arr)):
+        bad = arr[~np.isfinite(arr)][0]
+        raise InvalidParameterError(f"{name}: bearings must be finite, got {bad!r}")
+    arr.setflags(write=False)
+    return arr
+
+
+def fov_from_degrees(ranges: Sequence[Sequence[float]] | None) -> tuple[tuple[float, float], ...]:
+    """Convert ``[[start, end], ...]`` in degrees into ``((start, width), ...)`` in radians.
+
+    Each range runs counter-clockwise from ``start`` to ``end``. ``end - start``
+    of a multiple of 360 other than 0 (e.g. ``[0, 360]``) is the full circle;
+    ``start == end`` is an empty range and an error. ``None`` means the full
+    circle.
+
+    Returns
+    -------
+    tuple of (start_rad, width_rad)
+        ``start`` wrapped to ``[-pi, pi)``, ``width`` in ``(0, 2 pi]``.
+    """
+    if ranges is None:
+        return FULL_FOV
+    out: list[tuple[float, float]] = []
+    for r in ranges:
+        if len(r) != 2:
+            raise InvalidParameterError(f"fov: each range must be [start, end] in degrees, got {list(r)!r}")
+        start, end = float(r[0]), float(r[1])
+        if not (np.isfinite(start) and np.isfinite(end)):
+            raise InvalidParameterError(f"fov: range bounds must be finite, got {[start, end]!r}")
+        if start == end:
+            raise InvalidParameterError(f"fov: empty range [{start}, {end}] (start equals end)")
+        width = float(np.mod(end - start, 360.0))
+        if width < 1e-9 or width > 360.0 - 1e-9:
+            width = 360.0
+        out.append((float(deg_to_rad(start)), float(np.deg2rad(width))))
+    if not out:
+        raise InvalidParameterError("fov: at least one range is needed (omit fov for the full circle)")
+    return tuple(out)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Observation:
+    """One measurement: feature bearings seen from one pose.
+
+    Parameters
+    ----------
+    ve, ex, c, b : array_like of float, shape (n,)
+        Bearings in radians of vertical edges, extremities, corners and
+        beacons. Wrapped to ``[-pi, pi)`` and sorted on construction.
+    cp : array_like of float, shape (m,)
+        Bearings in radians of colour patches.
+    cp_hue : array_like of float, shape (m,)
+        Hue of each colour patch in degrees, in ``[0, 360)``.
+    fov : tuple of (start, width), optional
+        Field of view in radians: ranges running counter-clockwise from
+        ``start`` for ``width`` (``0 < width <= 2 pi``). Default: full circle.
+        Build it from degrees with :func:`fov_from_degrees`.
+    label : str, optional
+        The place this observation was taken at, when known.
+    pose : (x, y, theta), optional
+        Pose in metres and radians, when known.
+    timestamp : float, optional
+        Seconds, when known.
+    """
+
+    ve: FArray = field(default_factory=lambda: np.empty(0))
+    cp: FArray = field(default_factory=lambda: np.empty(0))
+    cp_hue: FArray = field(default_factory=lambda: np.empty(0))
+    ex: FArray = field(default_factory=lambda: np.empty(0))
+    c: FArray = field(default_factory=lambda: np.empty(0))
+    b: FArray = field(default_factory=lambda: np.empty(0))
+    fov: tuple[tuple[float, float], ...] = FULL_FOV
+    label: str | None = None
+    pose: tuple[float, float, float] | None = None
+    timestamp: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("ve", "ex", "c", "b"):
+            arr = np.sort(wrap(_readonly(getattr(self, name), name)))
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        cp = wrap(_readonly(self.cp, "cp"))
+        hue = _readonly(self.cp_hue, "cp_hue")
+        if cp.shape != hue.shape:
+            raise InvalidParameterError(
+                f"cp_hue: one hue per colour patch is needed, got {hue.size} hues for {cp.size} patches"
+            )
+        if np.any((hue < 0.0) | (hue >= 360.0)):
+            bad = hue[(hue < 0.0) | (hue >= 360.0)][0]
+            raise InvalidParameterError(f"cp_hue: hue must be in [0, 360) degrees, got {bad!r}")
+        order = np.lexsort((hue, cp))
+        for name, arr in (("cp", cp[order]), ("cp_hue", hue[order])):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        fov = tuple((float(s), float(w)) for s, w in self.fov)
+        if not fov:
+            raise InvalidParameterError("fov: at least one range is needed")
+        for s, w in fov:
+            if not (np.isfinite(s) and np.isfinite(w)) or not (0.0 < w <= TWO_PI + 1e-12):
+                raise InvalidParameterError(f"fov: width must be in (0, 2 pi] radians, got {w!r}")
+        object.__setattr__(self, "fov", tuple((float(wrap(s)), min(w, TWO_PI)) for s, w in fov))
+        if self.label is not None and not isinstance(self.label, str):
+            raise InvalidParameterError(f"label: must be a string or None, got {self.label!r}")
+        if self.pose is not None:
+            pose = tuple(float(v) for v in self.pose)
+            if len(pose) != 3 or not all(np.isfinite(pose)):
+                raise InvalidParameterError(f"pose: must be three finite numbers (x, y, theta), got {self.pose!r}")
+            object.__setattr__(self, "pose", pose)
+        if self.timestamp is not None:
+            ts = float(self.timestamp)
+            if not np.isfinite(ts):
+                raise InvalidParameterError(f"timestamp: must be finite, got {self.timestamp!r}")
+            object.__setattr__(self, "timestamp", ts)
+
+    # -- convenience -----------------------------------------------------
+    @classmethod
+    def from_degrees(
+        cls,
+        features: Mapping[str, Any] | None = None,
+        *,
+        fov: Sequence[Sequence[float]] | None = None,
+        label: str | None = None,
+        pose: Sequence[float] | None = None,
+        timestamp: float | None = None,
+    ) -> Observation:
+        """Build an observation from bearings in degrees.
+
+        Parameters
+        ----------
+        features : mapping
+            Keys among :data:`FEATURE_TYPES`. ``VE``, ``Ex``, ``c``, ``B``:
+            sequences of bearings in degrees. ``CP``: a sequence of
+            ``(bearing_deg, hue_deg)`` pairs or ``{"bearing": .., "hue": ..}``.
+        fov : list of [start, end] in degrees, optional
+            Counter-clockwise ranges; ``None`` for the full circle.
+        pose : (x, y, theta_deg), optional
+            Metres and degrees.
+        """
+        features = dict(features or {})
+        unknown = sorted(set(features) - set(FEATURE_TYPES))
+        if unknown:
+            raise InvalidParameterError(
+                f"unknown feature type {unknown[0]!r} (expected one of {', '.join(FEATURE_TYPES)})"
+            )
+        cps = list(features.get("CP", []))
+        cp_b: list[float] = []
+        cp_h: list[float] = []
+        for p in cps:
+            if isinstance(p, Mapping):
+                cp_b.append(p["bearing"])
+                cp_h.append(p["hue"])
+            else:
+                cp_b.append(p[0])
+                cp_h.append(p[1])
+        p3 = None
+        if pose is not None:
+            if len(pose) != 3:
+                raise InvalidParameterError(f"pose: must be [x, y, theta_deg], got {list(pose)!r}")
+            p3 = (float(pose[0]), float(pose[1]), float(deg_to_rad(pose[2])))
+        return cls(
+            ve=deg_to_rad(np.asarray(features.get("VE", []), dtype=float)),
+            cp=deg_to_rad(np.asarray(cp_b, dtype=float)),
+            cp_hue=np.asarray(cp_h, dtype=float),
+            ex=deg_to_rad(np.asarray(features.get("Ex", []), dtype=float)),
+            c=deg_to_rad(np.asarray(features.get("c", []), dtype=float)),
+            b=deg_to_rad(np.asarray(features.get("B", []), dtype=float)),
+            fov=fov_from_degrees(fov),
+            label=label,
+            pose=p3,
+            timestamp=timestamp,
+        )
+
+    def bearings(self, kind: str) -> FArray:
+        """Bearings (radians, shape ``(n,)``) of one feature type of :data:`FEATURE_TYPES`."""
+        try:
+            attr = _ATTR[kind]
+        except KeyError:
+            raise InvalidParameterError(
+                f"unknown feature type {kind!r} (expected one of {', '.join(FEATURE_TYPES)})"
+            ) from None
+        arr: FArray = getattr(self, attr)
+        return arr
+
+    def counts(self) -> dict[str, int]:
+        """Number of features of each type."""
+        return {k: int(self.bearings(k).size) for k in FEATURE_TYPES}
+
+    @property
+    def full_fov(self) -> bool:
+        """True when the field of view covers the whole circle."""
+        return any(w >= TWO_PI - 1e-12 for _, w in self.fov)
+
+    def fov_coverage(self) -> float:
+        """Covered part of the circle, in ``[0, 1]`` (overlapping ranges counted once)."""
+        from .fingerprint import _seen_pieces_deg  # local: fingerprint imports this module
+
+        return float(sum(hi - lo for lo, hi in _seen_pieces_deg(self.fov)) / 360.0)
+
+    def rotated(self, angle: float) -> Observation:
+        """The same view seen by a robot turned by ``-angle``: every bearing and the fov move by ``angle`` radians."""
+        return Observation(
+            ve=self.ve + angle,
+            cp=self.cp + angle,
+            cp_hue=self.cp_hue,
+            ex=self.ex + angle,
+            c=self.c + angle,
+            b=self.b + angle,
+            fov=tuple((s + angle, w) for s, w in self.fov),
+            label=self.label,
+            pose=self.pose,
+            timestamp=self.timestamp,
+        )
+
+    def with_label(self, label: str | None) -> Observation:
+        """A copy with another place label."""
+        return replace(self, label=label)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Observation):
+            return NotImplemented
+        return (
+            all(np.array_equal(getattr(self, n), getattr(other, n)) for n in _ARRAYS)
+            and self.fov == other.fov
+            and self.label == other.label
+            and self.pose == other.pose
+            and self.timestamp == other.timestamp
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+_ATTR = {"VE": "ve", "CP": "cp", "Ex": "ex", "c": "c", "B": "b"}
+_ARRAYS = ("ve", "cp", "cp_hue", "ex", "c", "b")
