@@ -20,8 +20,8 @@ __all__ = ["Panorama", "Scan"]
 FArray = NDArray[np.float64]
 
 
-def _ro(a: object, dtype: type = np.float64) -> NDArray:  # type: ignore[type-arg]
-    arr = np.array(a, dtype=dtype, copy=True)
+def _ro(a: object) -> FArray:
+    arr: FArray = np.array(a, dtype=np.float64, copy=True)
     arr.setflags(write=False)
     return arr
 
