@@ -1,0 +1,236 @@
+import math
+
+import numpy as np
+import pytest
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from fingerloc.errors import DataFormatError, InvalidParameterError
+from fingerloc.io.carmen import ReadStats
+from fingerloc.io.rosbag import bag_info, is_bag_path, iter_bag_scans, read_bag_scans, scan_topics
+
+TFMSG = "geometry_msgs/TransformStamped[] transforms"
+
+
+def _store(ros1):
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    if "tf2_msgs/msg/TFMessage" not in ts.types:
+        ts.register(get_types_from_msg(TFMSG, "tf2_msgs/msg/TFMessage"))
+    return ts
+
+
+def _quat(ts, yaw):
+    Q = ts.types["geometry_msgs/msg/Quaternion"]
+    return Q(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+
+
+def _header(ts, t, frame, ros1):
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    H = ts.types["std_msgs/msg/Header"]
+    stamp = Time(sec=int(t), nanosec=int(round((t - int(t)) * 1e9)))
+    return H(seq=0, stamp=stamp, frame_id=frame) if ros1 else H(stamp=stamp, frame_id=frame)
+
+
+def _scan_msg(ts, t, ros1, n=271, fov_deg=270.0, frame="laser", ranges=None, intensities=True):
+    LS = ts.types["sensor_msgs/msg/LaserScan"]
+    a0 = -math.radians(fov_deg) / 2
+    inc = math.radians(fov_deg) / (n - 1)
+    r = np.linspace(1.0, 5.0, n).astype(np.float32) if ranges is None else np.asarray(ranges, np.float32)
+    r[3] = np.inf
+    r[4] = 0.0  # below range_min: invalid
+    r[5] = 40.0  # above range_max
+    inten = np.arange(n, dtype=np.float32) * 100 if intensities else np.zeros(0, np.float32)
+    return LS(
+        header=_header(ts, t, frame, ros1),
+        angle_min=a0,
+        angle_max=a0 + inc * (n - 1),
+        angle_increment=inc,
+        time_increment=0.0,
+        scan_time=0.1,
+        range_min=0.05,
+        range_max=30.0,
+        ranges=r,
+        intensities=inten,
+    )
+
+
+def _odom_msg(ts, t, pose, ros1):
+    T = ts.types
+    P = T["geometry_msgs/msg/Point"](x=pose[0], y=pose[1], z=0.0)
+    pose_ = T["geometry_msgs/msg/Pose"](position=P, orientation=_quat(ts, pose[2]))
+    pwc = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_, covariance=np.zeros(36))
+    V = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    tw = T["geometry_msgs/msg/Twist"](linear=V, angular=V)
+    twc = T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.zeros(36))
+    return T["nav_msgs/msg/Odometry"](
+        header=_header(ts, t, "odom", ros1), child_frame_id="base_link", pose=pwc, twist=twc
+    )
+
+
+def _tf_msg(ts, t, links, ros1):
+    T = ts.types
+    out = []
+    for parent, child, (x, y, yaw) in links:
+        tr = T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0), rotation=_quat(ts, yaw)
+        )
+        out.append(
+            T["geometry_msgs/msg/TransformStamped"](
+                header=_header(ts, t, parent, ros1), child_frame_id=child, transform=tr
+            )
+        )
+    return T["tf2_msgs/msg/TFMessage"](transforms=out)
+
+
+def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_topic=None):
+    """Write a small bag. scans: list of (t, topic, msg-kwargs); odom: (t, pose); tf: (t, links)."""
+    ts = _store(ros1)
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        w = Writer(path)
+        ser = ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+
+        w = Writer(path, version=9)
+        ser = ts.serialize_cdr
+    LS, OD, TF = "sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage"
+    with w:
+        conns = {}
+
+        def conn(topic, typ):
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=ts)
+            return conns[topic]
+
+        items = []
+        for t, topic, kw in scans:
+            items.append((t, conn(topic, LS), LS, _scan_msg(ts, t, ros1, **kw)))
+        for t, pose in odom:
+            items.append((t, conn("/odom", OD), OD, _odom_msg(ts, t, pose, ros1)))
+        for t, links in tf:
+            items.append((t, conn("/tf", TF), TF, _tf_msg(ts, t, links, ros1)))
+        for t, links in tf_static:
+            items.append((t, conn("/tf_static", TF), TF, _tf_msg(ts, t, links, ros1)))
+        for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
+            w.write(c, int(t * 1e9), ser(msg, typ))
+    return path
+
+
+def _path(tmp_path, ros1, name="b"):
+    return tmp_path / (f"{name}.bag" if ros1 else name)
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_scans_with_odometry_round_trip(tmp_path, ros1):
+    p = write_bag(
+        _path(tmp_path, ros1),
+        ros1,
+        scans=[(10.0, "/scan", {}), (11.0, "/scan", {})],
+        odom=[(9.95, (1.0, 2.0, 0.3)), (10.5, (5.0, 5.0, 0.0)), (11.02, (3.0, 4.0, -1.0))],
+    )
+    assert is_bag_path(p)
+    assert scan_topics(p) == ["/scan"]
+    st = ReadStats()
+    scans = list(iter_bag_scans(p, stats=st))
+    assert len(scans) == 2 and st.scans == 2
+    s = scans[0]
+    assert s.ranges.size == 271 and s.max_range == pytest.approx(30.0)
+    assert np.degrees(s.bearings[0]) == pytest.approx(-135.0, abs=1e-4)
+    assert np.degrees(s.bearings[-1]) == pytest.approx(135.0, abs=1e-4)
+    assert np.degrees(s.fov[0][1]) == pytest.approx(271.0, abs=1e-3)
+    assert np.isinf(s.ranges[3:6]).all()  # inf, below range_min, above range_max
+    assert s.ranges[0] == pytest.approx(1.0)
+    assert np.allclose(s.intensities[:3], [0, 100, 200])
+    assert s.timestamp == pytest.approx(10.0)
+    assert s.pose == pytest.approx((1.0, 2.0, 0.3))
+    assert scans[1].pose == pytest.approx((3.0, 4.0, -1.0))
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_poses_from_tf_chain_and_sensor_offset(tmp_path, ros1):
+    p = write_bag(
+        _path(tmp_path, ros1),
+        ros1,
+        scans=[(20.0, "/scan", {"intensities": False})],
+        tf=[
+            (19.99, [("map", "odom", (1.0, 0.0, math.pi / 2)), ("odom", "base_link", (2.0, 0.0, 0.0))]),
+        ],
+        tf_static=[(0.5, [("base_link", "laser", (0.3, 0.0, math.pi))])],
+    )
+    (s,) = read_bag_scans(p)
+    # base_link in map: map->odom (1, 0, 90 deg) then odom->base_link (2, 0, 0): (1, 2, 90 deg)
+    assert s.pose == pytest.approx((1.0, 2.0, math.pi / 2))
+    assert s.sensor_offset[:2] == pytest.approx((0.3, 0.0))
+    assert abs(abs(s.sensor_offset[2]) - math.pi) < 1e-9
+    assert s.intensities is None
+    (s2,) = read_bag_scans(p, pose_source="none")
+    assert s2.pose is None
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_topic_choice(tmp_path, ros1):
+    p = write_bag(
+        _path(tmp_path, ros1),
+        ros1,
+        scans=[(1.0, "/front/scan", {}), (1.5, "/rear/scan", {"n": 181, "fov_deg": 180.0})],
+    )
+    with pytest.raises(InvalidParameterError, match="/front/scan, /rear/scan"):
+        read_bag_scans(p)
+    (s,) = read_bag_scans(p, topic="/rear/scan")
+    assert s.ranges.size == 181
+    with pytest.raises(InvalidParameterError, match="no topic '/nope'.*laser topics: /front/scan, /rear/scan"):
+        read_bag_scans(p, topic="/nope")
+    assert s.pose is None  # no pose source in this bag
+
+
+def test_no_laser_topic(tmp_path):
+    p = write_bag(tmp_path / "o.bag", True, odom=[(1.0, (0.0, 0.0, 0.0))])
+    with pytest.raises(DataFormatError, match="no sensor_msgs/msg/LaserScan topic.*topics: /odom"):
+        read_bag_scans(p)
+    assert bag_info(p).topics == {"/odom": ("nav_msgs/msg/Odometry", 1)}
+
+
+def test_pose_gap(tmp_path):
+    p = write_bag(tmp_path / "g.bag", True, scans=[(10.0, "/scan", {})], odom=[(5.0, (1.0, 1.0, 0.0))])
+    (s,) = read_bag_scans(p)
+    assert s.pose is None
+    (s,) = read_bag_scans(p, max_pose_gap=10.0)
+    assert s.pose == pytest.approx((1.0, 1.0, 0.0))
+
+
+def test_pose_source_errors(tmp_path):
+    p = write_bag(tmp_path / "e.bag", True, scans=[(10.0, "/scan", {})])
+    with pytest.raises(InvalidParameterError, match="no /tf"):
+        read_bag_scans(p, pose_source="tf")
+    with pytest.raises(InvalidParameterError, match="pose_source"):
+        read_bag_scans(p, pose_source="gps")
+    with pytest.raises(InvalidParameterError, match="odometry topics: none"):
+        read_bag_scans(p, odom_topic="/odom")
+
+
+def test_not_a_bag(tmp_path):
+    p = tmp_path / "x.bag"
+    p.write_bytes(b"this is not a bag")
+    with pytest.raises(DataFormatError, match="not a readable ROS bag"):
+        read_bag_scans(p)
+    with pytest.raises(DataFormatError, match="no such file"):
+        read_bag_scans(tmp_path / "missing.bag")
+
+
+def test_is_bag_path(tmp_path):
+    for name in ["a.bag", "b.db3", "c.mcap"]:
+        assert is_bag_path(name)
+    assert not is_bag_path("a.log.gz")
+    d = tmp_path / "ros2"
+    d.mkdir()
+    assert not is_bag_path(d)
+    (d / "metadata.yaml").write_text("x")
+    assert is_bag_path(d)
+
+
+def test_ros2_storage_file_directly(tmp_path):
+    p = write_bag(tmp_path / "r2", False, scans=[(1.0, "/scan", {})])
+    (db,) = [f for f in p.iterdir() if f.suffix in (".db3", ".mcap")]
+    assert is_bag_path(db)
+    assert len(read_bag_scans(db)) == 1
