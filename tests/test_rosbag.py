@@ -26,7 +26,7 @@ def _quat(ts, yaw):
 def _header(ts, t, frame, ros1):
     Time = ts.types["builtin_interfaces/msg/Time"]
     H = ts.types["std_msgs/msg/Header"]
-    stamp = Time(sec=int(t), nanosec=int(round((t - int(t)) * 1e9)))
+    stamp = Time(sec=int(t), nanosec=round((t - int(t)) * 1e9))
     return H(seq=0, stamp=stamp, frame_id=frame) if ros1 else H(stamp=stamp, frame_id=frame)
 
 
@@ -179,14 +179,14 @@ def test_topic_choice(tmp_path, ros1):
         read_bag_scans(p)
     (s,) = read_bag_scans(p, topic="/rear/scan")
     assert s.ranges.size == 181
-    with pytest.raises(InvalidParameterError, match="no topic '/nope'.*laser topics: /front/scan, /rear/scan"):
+    with pytest.raises(InvalidParameterError, match=r"no topic '/nope'.*laser topics: /front/scan, /rear/scan"):
         read_bag_scans(p, topic="/nope")
     assert s.pose is None  # no pose source in this bag
 
 
 def test_no_laser_topic(tmp_path):
     p = write_bag(tmp_path / "o.bag", True, odom=[(1.0, (0.0, 0.0, 0.0))])
-    with pytest.raises(DataFormatError, match="no sensor_msgs/msg/LaserScan topic.*topics: /odom"):
+    with pytest.raises(DataFormatError, match=r"no sensor_msgs/msg/LaserScan topic.*topics: /odom"):
         read_bag_scans(p)
     assert bag_info(p).topics == {"/odom": ("nav_msgs/msg/Odometry", 1)}
 
