@@ -1,0 +1,702 @@
+"""Laser features from one raw 2D scan: corners, extremities and beacons (SPEC.md §1).
+
+The pipeline, after Arras and Siegwart (the paper's reference [1]):
+
+1. **Segmentation** at range jumps. Two consecutive returns belong to one
+   segment when the distance between their end points is below an adaptive
+   threshold that grows with range and beam step (the "adaptive breakpoint"
+   rule: a surface seen at an incidence of at least ``breakpoint_angle_deg``
+   never breaks), plus a few range-noise standard deviations. Runs of beams
+   without a return also break segments (isolated drop-outs inside a surface
+   are bridged).
+2. **Line fitting** by split-and-merge on each segment: split at the point
+   farthest from the chord while it lies further than a range-dependent
+   tolerance, merge neighbouring nearly collinear pieces, and refit every line
+   by total least squares (orthogonal regression).
+3. **Corners** where two fitted lines of one segment meet at a real angle, or
+   where the last line of a segment and the first line of the next one meet
+   near both their ends (a corner whose apex fell between two beams).
+4. **Extremities**: segment ends next to a depth jump on the near (occluding)
+   side, or next to beams without a return: the ends of walls at door frames,
+   of furniture, of pillars.
+5. **Beacons** from the intensity (remission) channel. The threshold adapts
+   to the scan's own intensity distribution (median and spread of the log
+   intensities), so sensors with intensity scales from hundreds to tens of
+   thousands give the same beacons; ``beacon_threshold`` overrides it with an
+   absolute value in the sensor's unit. No intensities, no beacons.
+
+Every bearing returned is in radians in the robot frame (the sensor offset is
+applied), wrapped to ``[-pi, pi)``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..angles import TWO_PI, wrap
+from ..errors import InvalidParameterError
+from ..observation import Observation
+from ..sensors import Scan
+
+__all__ = [
+    "LaserFeatures",
+    "LaserParams",
+    "extract_laser_features",
+    "fit_lines",
+    "observation_from_scan",
+    "segment_scan",
+]
+
+FArray = NDArray[np.float64]
+
+# Boundary kinds between two consecutive segments.
+_EDGE = 0  # first or last beam of a scan that does not close the circle
+_JUMP = 1  # a depth discontinuity between two returns
+_GAP = 2  # one or more beams without a return
+_SEAM = 3  # artificial cut of a closed scan without any discontinuity
+
+
+@dataclass(frozen=True, slots=True)
+class LaserParams:
+    """Tuning of the laser extractor; every field is a keyword of :func:`extract_laser_features`.
+
+    Parameters
+    ----------
+    range_sigma : float, default 0.015
+        Standard deviation of the range noise, metres.
+    breakpoint_angle_deg : float, default 10
+        Smallest incidence angle (between beam and surface) at which a
+        surface stays one segment; grazing views break it. Degrees.
+    max_bridge_beams : int, default 2
+        Runs of at most this many beams without a return are bridged when the
+        returns on both sides are close (isolated drop-outs).
+    split_tol : float, default 0.04
+        Split-and-merge tolerance at zero range, metres.
+    split_tol_rel : float, default 0.01
+        Part of the range added to ``split_tol`` (1 % of the range).
+    min_line_points : int, default 5
+        Fewest beams a fitted line may have.
+    min_line_length : float, default 0.2
+        Shortest fitted line, metres.
+    merge_angle_deg : float, default 6
+        Neighbouring lines closer than this in direction are merged when the
+        joint fit stays within tolerance. Degrees.
+    corner_min_angle_deg : float, default 35
+        Two lines meeting at less than this (or more than 180 minus this)
+        degrees do not make a corner.
+    corner_max_dist : float, default 0.3
+        Largest distance, metres, between the lines' intersection and the
+        lines' facing end points for a corner.
+    min_segment_points : int, default 3
+        Segments with fewer beams are clutter: they give no feature (but
+        still occlude their neighbours).
+    min_extremity_extent : float, default 0.1
+        Smallest extent (metres, end point to end point) of a segment whose
+        ends count as extremities.
+    extremity_slack_beams : int, default 2
+        A segment end is a line extremity only when a fitted line reaches
+        within this many beams of it (ragged clutter ends are not).
+    beacon_threshold : float or None, default None
+        Absolute intensity above which a beam is bright, in the sensor's unit.
+        ``None``: adapt to the scan (see ``beacon_k`` and ``beacon_ratio``).
+    beacon_k : float, default 6
+        Adaptive threshold: this many robust standard deviations (1.4826 MAD)
+        of the log intensities above their median...
+    beacon_ratio : float, default 4
+        ...and at least this factor above the median intensity.
+    beacon_max_width : float, default 0.5
+        A bright run wider than this (metres) is a reflective surface, not a
+        beacon.
+    beacon_max_fraction : float, default 0.2
+        When more than this part of the returns is bright, the adaptive
+        threshold is not trusted and no beacon is reported.
+    """
+
+    range_sigma: float = 0.015
+    breakpoint_angle_deg: float = 10.0
+    max_bridge_beams: int = 2
+    split_tol: float = 0.04
+    split_tol_rel: float = 0.01
+    min_line_points: int = 5
+    min_line_length: float = 0.2
+    merge_angle_deg: float = 6.0
+    corner_min_angle_deg: float = 35.0
+    corner_max_dist: float = 0.3
+    min_segment_points: int = 3
+    min_extremity_extent: float = 0.1
+    extremity_slack_beams: int = 2
+    beacon_threshold: float | None = None
+    beacon_k: float = 6.0
+    beacon_ratio: float = 4.0
+    beacon_max_width: float = 0.5
+    beacon_max_fraction: float = 0.2
+
+    def __post_init__(self) -> None:
+        positive = (
+            "range_sigma",
+            "split_tol",
+            "min_line_length",
+            "corner_max_dist",
+            "beacon_ratio",
+            "beacon_max_width",
+            "beacon_max_fraction",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise InvalidParameterError(f"{name} must be a positive number, got {v!r}")
+        for name in ("split_tol_rel", "min_extremity_extent", "beacon_k"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise InvalidParameterError(f"{name} must be a number >= 0, got {v!r}")
+        if not 0 < self.breakpoint_angle_deg < 90:
+            raise InvalidParameterError(
+                f"breakpoint_angle_deg must be in (0, 90) degrees, got {self.breakpoint_angle_deg!r}"
+            )
+        if not 0 <= self.merge_angle_deg < 45:
+            raise InvalidParameterError(f"merge_angle_deg must be in [0, 45) degrees, got {self.merge_angle_deg!r}")
+        if not 0 < self.corner_min_angle_deg < 90:
+            raise InvalidParameterError(
+                f"corner_min_angle_deg must be in (0, 90) degrees, got {self.corner_min_angle_deg!r}"
+            )
+        for name, lo in (
+            ("max_bridge_beams", 0),
+            ("extremity_slack_beams", 0),
+            ("min_line_points", 2),
+            ("min_segment_points", 1),
+        ):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise InvalidParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
+        if self.beacon_threshold is not None and not np.isfinite(self.beacon_threshold):
+            raise InvalidParameterError(f"beacon_threshold must be finite or None, got {self.beacon_threshold!r}")
+
+    @classmethod
+    def from_kwargs(cls, params: dict[str, Any]) -> LaserParams:
+        """Build from keyword arguments, naming any unknown one."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(params) - known)
+        if unknown:
+            raise InvalidParameterError(
+                f"unknown laser feature parameter {unknown[0]!r} (known: {', '.join(sorted(known))})"
+            )
+        return cls(**params)
+
+
+def _ro(a: object, shape_tail: tuple[int, ...] = ()) -> FArray:
+    arr = np.array(a, dtype=np.float64, copy=True)
+    if arr.size == 0:
+        arr = arr.reshape((0, *shape_tail))
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class LaserFeatures:
+    """Features extracted from one scan.
+
+    Attributes
+    ----------
+    corners, extremities, beacons : ndarray of float, shape (n,)
+        Bearings in radians, robot frame, wrapped to ``[-pi, pi)``, sorted.
+    segments : ndarray of float, shape (k, 2, 2)
+        End points ``[[x0, y0], [x1, y1]]`` of the fitted lines, metres, robot
+        frame, in scan order.
+    """
+
+    corners: FArray
+    extremities: FArray
+    beacons: FArray
+    segments: FArray
+
+    def __post_init__(self) -> None:
+        for name in ("corners", "extremities", "beacons"):
+            a = np.sort(wrap(np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)))
+            object.__setattr__(self, name, _ro(a))
+        seg = np.asarray(self.segments, dtype=np.float64)
+        if seg.size == 0:
+            seg = seg.reshape(0, 2, 2)
+        if seg.ndim != 3 or seg.shape[1:] != (2, 2):
+            raise InvalidParameterError(f"segments must have shape (k, 2, 2), got {seg.shape}")
+        object.__setattr__(self, "segments", _ro(seg, (2, 2)))
+
+
+# ---------------------------------------------------------------------------
+# segmentation
+
+
+@dataclass(frozen=True, slots=True)
+class _Segment:
+    start: int  # first beam index (in the rolled arrays)
+    stop: int  # one past the last beam index
+    before: int  # boundary kind before the first beam
+    after: int  # boundary kind after the last beam
+
+
+def _is_circular(b: FArray) -> bool:
+    step = float(np.median(np.diff(b)))
+    return bool(b[-1] - b[0] + step >= TWO_PI - 0.5 * step)
+
+
+def _break_threshold(r_prev: FArray, dphi: FArray, p: LaserParams) -> FArray:
+    """Largest distance (m) between consecutive returns of one surface (adaptive breakpoint)."""
+    lam = np.deg2rad(p.breakpoint_angle_deg)
+    dphi = np.minimum(dphi, 0.9 * lam)
+    # r sin(dphi) / sin(lambda - dphi) + 3 sigma of a difference of two ranges
+    return r_prev * np.sin(dphi) / np.sin(lam - dphi) + 3.0 * np.sqrt(2.0) * p.range_sigma
+
+
+def segment_scan(scan: Scan, **params: Any) -> tuple[list[tuple[int, int]], FArray]:
+    """Split a scan into segments of consecutive returns at range jumps and no-return runs.
+
+    Parameters
+    ----------
+    scan : Scan
+    **params
+        Fields of :class:`LaserParams`.
+
+    Returns
+    -------
+    segments : list of (start, stop)
+        Beam index ranges ``start:stop`` into the scan; on a closed 360 deg
+        scan a segment may run past the end (``stop > n``; take indices
+        modulo ``n``).
+    points : ndarray, shape (n, 2)
+        End point of every beam in the robot frame, metres (``nan`` without a
+        return).
+    """
+    p = LaserParams.from_kwargs(params)
+    prep = _prepare(scan, p)
+    segs = [(s.start + prep.shift, s.stop + prep.shift) for s in prep.segments]
+    return segs, prep.points_orig
+
+
+@dataclass(frozen=True, slots=True)
+class _Prepared:
+    r: FArray  # ranges (rolled), inf = no return
+    phi: FArray  # sensor-frame bearings, unwrapped, increasing (rolled)
+    pts: FArray  # (n, 2) robot-frame points (rolled), nan without return
+    step: float
+    shift: int  # rolled index i is original index (i + shift) % n
+    circular: bool
+    segments: list[_Segment]
+    points_orig: FArray
+
+
+def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
+    r = np.asarray(scan.ranges, dtype=np.float64)
+    b = np.asarray(scan.bearings, dtype=np.float64)
+    n = r.size
+    ox, oy, oth = scan.sensor_offset
+    valid = np.isfinite(r)
+    with np.errstate(invalid="ignore"):
+        pts = np.column_stack([ox + r * np.cos(b + oth), oy + r * np.sin(b + oth)])
+    pts[~valid] = np.nan
+    points_orig = pts.copy()
+    circular = _is_circular(b)
+    step = float(np.median(np.diff(b)))
+
+    # consecutive-pair "connected" flags, pair k joins beam k and k+1
+    def connected(rr: FArray, pp: FArray, phi: FArray) -> NDArray[np.bool_]:
+        d = np.linalg.norm(np.diff(pp, axis=0), axis=1)
+        dphi = np.diff(phi)
+        thr = _break_threshold(np.minimum(rr[:-1], rr[1:]), dphi, p)
+        with np.errstate(invalid="ignore"):
+            return np.asarray(d <= thr)
+
+    shift = 0
+    if circular:
+        # roll so that index 0 starts right after a discontinuity (or at the farthest return)
+        rr = np.concatenate([r, r[:1]])
+        pp = np.concatenate([pts, pts[:1]])
+        phi = np.concatenate([b, b[:1] + TWO_PI])
+        con = connected(rr, pp, phi)
+        breaks = np.flatnonzero(~con)
+        if breaks.size:
+            # prefer a cut at a no-return beam, then the largest jump
+            inval = np.flatnonzero(~valid)
+            shift = int(inval[0]) if inval.size else int((breaks[np.argmax(np.abs(np.diff(rr)[breaks]))] + 1) % n)
+        else:
+            shift = int(np.argmax(np.where(valid, r, -np.inf)))
+        r = np.roll(r, -shift)
+        b = np.roll(b, -shift)
+        b = np.where(np.arange(n) >= n - shift, b + TWO_PI, b) if shift else b
+        pts = np.roll(pts, -shift, axis=0)
+        valid = np.isfinite(r)
+    con = connected(r, pts, b)
+
+    segments: list[_Segment] = []
+    i = 0
+    while i < n:
+        if not valid[i]:
+            i += 1
+            continue
+        start = i
+        j = i
+        while True:
+            if j + 1 < n and valid[j + 1] and con[j]:
+                j += 1
+                continue
+            # try to bridge a short run of no-return beams
+            if p.max_bridge_beams and j + 1 < n and not valid[j + 1]:
+                k = j + 1
+                while k < n and not valid[k] and k - j - 1 < p.max_bridge_beams:
+                    k += 1
+                if k < n and valid[k]:
+                    d = float(np.linalg.norm(pts[k] - pts[j]))
+                    thr = float(_break_threshold(np.array([min(r[j], r[k])]), np.array([b[k] - b[j]]), p)[0])
+                    if d <= thr:
+                        j = k
+                        continue
+            break
+        stop = j + 1
+        before = _EDGE if start == 0 else (_GAP if not valid[start - 1] else _JUMP)
+        after = _EDGE if stop == n else (_GAP if not valid[stop] else _JUMP)
+        segments.append(_Segment(start, stop, before, after))
+        i = stop
+
+    if circular and segments:
+        # the boundary across the roll point
+        first, last = segments[0], segments[-1]
+        if first.start == 0 and last.stop == n:
+            # index n-1 and 0 are neighbours
+            rr = np.array([min(r[-1], r[0])])
+            d = float(np.linalg.norm(pts[0] - pts[-1]))
+            thr = float(_break_threshold(rr, np.array([step]), p)[0])
+            kind = _SEAM if d <= thr else _JUMP
+        else:
+            kind = _GAP
+        segments[0] = _Segment(first.start, first.stop, kind, first.after)
+        last = segments[-1]
+        segments[-1] = _Segment(last.start, last.stop, last.before, kind)
+    return _Prepared(r, b, pts, step, shift, circular, segments, points_orig)
+
+
+# ---------------------------------------------------------------------------
+# line fitting
+
+
+@dataclass(frozen=True, slots=True)
+class _Line:
+    start: int  # first beam index (rolled arrays)
+    stop: int  # one past the last
+    centroid: FArray  # (2,)
+    direction: FArray  # (2,) unit, pointing from start to stop
+    p0: FArray  # projected first point
+    p1: FArray  # projected last point
+
+
+def _tol(r: FArray, p: LaserParams) -> FArray:
+    """Split tolerance (m) at ranges ``r``: a floor that covers the range noise, plus a part of the range."""
+    return max(p.split_tol, 4.0 * p.range_sigma) + p.split_tol_rel * r
+
+
+def _tls(pts: FArray) -> tuple[FArray, FArray, float]:
+    """Total-least-squares line: centroid, unit direction, RMS orthogonal residual (m)."""
+    c = pts.mean(axis=0)
+    q = pts - c
+    cov = q.T @ q
+    _, v = np.linalg.eigh(cov)
+    d = v[:, 1]
+    if np.dot(pts[-1] - pts[0], d) < 0:
+        d = -d
+    normal = np.array([-d[1], d[0]])
+    rms = float(np.sqrt(np.mean((q @ normal) ** 2))) if len(pts) else 0.0
+    return c, d, rms
+
+
+def _make_line(pts: FArray, start: int, stop: int, margin: int) -> _Line:
+    sub = pts[start:stop]
+    fit_pts = sub[margin : len(sub) - margin] if len(sub) - 2 * margin >= 3 else sub
+    c, d, _ = _tls(fit_pts)
+    t0 = float(np.dot(sub[0] - c, d))
+    t1 = float(np.dot(sub[-1] - c, d))
+    return _Line(start, stop, c, d, c + t0 * d, c + t1 * d)
+
+
+def _split(pts: FArray, rng: FArray, lo: int, hi: int, p: LaserParams, out: list[tuple[int, int]]) -> None:
+    """Recursive iterative-end-point split of ``pts[lo:hi]`` into pieces."""
+    if hi - lo < 3:
+        out.append((lo, hi))
+        return
+    a, bpt = pts[lo], pts[hi - 1]
+    chord = bpt - a
+    length = float(np.hypot(*chord))
+    seg = pts[lo:hi]
+    if length < 1e-9:
+        dist = np.linalg.norm(seg - a, axis=1)
+    else:
+        normal = np.array([-chord[1], chord[0]]) / length
+        dist = np.abs((seg - a) @ normal)
+    tol = _tol(rng[lo:hi], p)
+    excess = dist - tol
+    k = int(np.argmax(dist / tol))
+    if excess[k] > 0 and 0 < k < hi - lo - 1:
+        _split(pts, rng, lo, lo + k + 1, p, out)  # the split point ends the left piece...
+        _split(pts, rng, lo + k, hi, p, out)  # ...and starts the right one
+    else:
+        out.append((lo, hi))
+
+
+def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams) -> list[_Line]:
+    """Split-and-merge lines of one segment; line indices refer to the full (rolled) beam arrays."""
+    idx = np.arange(seg.start, seg.stop)
+    idx = idx[np.isfinite(all_rng[idx])]  # bridged drop-outs have no point
+    pts, rng = all_pts[idx], all_rng[idx]
+    pieces: list[tuple[int, int]] = []
+    _split(pts, rng, 0, idx.size, p, pieces)
+    # neighbouring pieces share their split point; each fit leaves out its two end points
+    lines: list[_Line] = []
+    for lo, hi in pieces:
+        if hi - lo < p.min_line_points:
+            lines.append(_Line(lo, hi, np.zeros(2), np.zeros(2), pts[lo], pts[hi - 1]))  # placeholder: clutter
+            continue
+        lines.append(_make_line(pts, lo, hi, 1))
+    # merge neighbouring collinear lines
+    merged = True
+    while merged and len(lines) > 1:
+        merged = False
+        for i in range(len(lines) - 1):
+            a, bl = lines[i], lines[i + 1]
+            if not (_is_line(a) and _is_line(bl)):
+                continue
+            cosang = abs(float(np.dot(a.direction, bl.direction)))
+            if cosang < np.cos(np.deg2rad(p.merge_angle_deg)):
+                continue
+            lo, hi = a.start, bl.stop
+            _, _, rms = _tls(pts[lo:hi])
+            if rms <= 0.5 * float(np.max(_tol(rng[lo:hi], p))):
+                lines[i : i + 2] = [_make_line(pts, lo, hi, 1)]
+                merged = True
+                break
+    out = []
+    for ln in lines:
+        if not _is_line(ln):
+            continue
+        if float(np.linalg.norm(ln.p1 - ln.p0)) < p.min_line_length:
+            continue
+        start, stop = int(idx[ln.start]), int(idx[ln.stop - 1]) + 1
+        out.append(_Line(start, stop, ln.centroid, ln.direction, ln.p0, ln.p1))
+    return out
+
+
+def _is_line(ln: _Line) -> bool:
+    return bool(np.any(ln.direction != 0))
+
+
+def fit_lines(scan: Scan, **params: Any) -> FArray:
+    """Fitted line segments of a scan (split-and-merge, total-least-squares refits).
+
+    Returns
+    -------
+    ndarray of float, shape (k, 2, 2)
+        End points of each line, metres, robot frame, in scan order.
+    """
+    return extract_laser_features(scan, **params).segments
+
+
+# ---------------------------------------------------------------------------
+# features
+
+
+def _intersect(a: _Line, b: _Line) -> FArray | None:
+    # solve a.c + s a.d = b.c + t b.d
+    m = np.column_stack([a.direction, -b.direction])
+    det = float(np.linalg.det(m))
+    if abs(det) < 1e-9:
+        return None
+    s, _ = np.linalg.solve(m, b.centroid - a.centroid)
+    return np.asarray(a.centroid + s * a.direction)
+
+
+def _corner(a: _Line, b: _Line, p: LaserParams) -> FArray | None:
+    """Intersection of ``a`` (ending) and ``b`` (starting) when they form a corner near their facing ends."""
+    cosang = abs(float(np.dot(a.direction, b.direction)))
+    if cosang > np.cos(np.deg2rad(p.corner_min_angle_deg)):
+        return None
+    x = _intersect(a, b)
+    if x is None:
+        return None
+    if np.linalg.norm(x - a.p1) > p.corner_max_dist or np.linalg.norm(x - b.p0) > p.corner_max_dist:
+        return None
+    return x
+
+
+def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
+    if scan.intensities is None:
+        return np.empty(0)
+    inten = np.roll(np.asarray(scan.intensities, dtype=np.float64), -prep.shift)
+    valid = np.isfinite(prep.r) & np.isfinite(inten)
+    if not np.any(valid):
+        return np.empty(0)
+    if p.beacon_threshold is not None:
+        bright = valid & (inten > p.beacon_threshold)
+    else:
+        pos = valid & (inten > 0)
+        if np.count_nonzero(pos) < 10:
+            return np.empty(0)
+        li = np.log(inten[pos])
+        med = float(np.median(li))
+        mad = 1.4826 * float(np.median(np.abs(li - med)))
+        thr = med + max(p.beacon_k * mad, float(np.log(p.beacon_ratio)))
+        bright = np.zeros_like(valid)
+        bright[pos] = li > thr
+        if np.count_nonzero(bright) > p.beacon_max_fraction * np.count_nonzero(valid):
+            return np.empty(0)
+    idx = np.flatnonzero(bright)
+    if idx.size == 0:
+        return np.empty(0)
+    # group consecutive bright beams (allowing one dim beam inside a run)
+    groups: list[list[int]] = [[int(idx[0])]]
+    for k in idx[1:]:
+        if k - groups[-1][-1] <= 2:
+            groups[-1].append(int(k))
+        else:
+            groups.append([int(k)])
+    if prep.circular and len(groups) > 1 and groups[0][0] + prep.r.size - groups[-1][-1] <= 2:
+        groups[0] = groups.pop() + groups[0]
+    out = []
+    for g in groups:
+        pts = prep.pts[g]
+        width = float(np.linalg.norm(pts[-1] - pts[0]))
+        if width > p.beacon_max_width:
+            continue
+        w = inten[g]
+        c = (pts * w[:, None]).sum(axis=0) / w.sum()
+        out.append(float(np.arctan2(c[1], c[0])))
+    return np.asarray(out, dtype=np.float64)
+
+
+def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
+    """Corners, extremities and beacons of one raw scan (see the module docstring).
+
+    Parameters
+    ----------
+    scan : Scan
+        Ranges in metres (``inf`` = no return), increasing bearings; any
+        field of view up to 360 deg; intensities optional.
+    **params
+        Fields of :class:`LaserParams` (e.g. ``range_sigma=0.01``,
+        ``beacon_threshold=5000``).
+
+    Returns
+    -------
+    LaserFeatures
+        Bearings in radians, robot frame, wrapped; fitted lines in metres.
+    """
+    p = LaserParams.from_kwargs(params)
+    prep = _prepare(scan, p)
+    pts, rng = prep.pts, prep.r
+    n = rng.size
+    half = 0.5 * prep.step
+
+    seg_lines: list[list[_Line]] = []
+    for seg in prep.segments:
+        if seg.stop - seg.start < max(p.min_segment_points, 2):
+            seg_lines.append([])
+            continue
+        seg_lines.append(_fit_segment(pts, rng, seg, p))
+
+    corners: list[FArray] = []
+    for lines in seg_lines:
+        for a, b in itertools.pairwise(lines):
+            x = _corner(a, b, p)
+            if x is not None:
+                corners.append(x)
+    # corners across a boundary between neighbouring segments (apex between beams)
+    nseg = len(prep.segments)
+    pairs = [(i, i + 1) for i in range(nseg - 1)]
+    if prep.circular and nseg >= 1 and prep.segments[0].before in (_SEAM, _JUMP):
+        pairs.append((nseg - 1, 0))
+    for i, j in pairs:
+        si, sj = prep.segments[i], prep.segments[j]
+        if si.after not in (_JUMP, _SEAM) or not seg_lines[i] or not seg_lines[j]:
+            continue
+        a, b = seg_lines[i][-1], seg_lines[j][0]
+        if a.stop != si.stop or b.start != sj.start:
+            continue  # clutter at the segment end
+        if i == j and len(seg_lines[i]) < 2:
+            continue
+        x = _corner(a, b, p)
+        if x is not None:
+            corners.append(x)
+
+    extremities: list[float] = []
+    look = p.max_bridge_beams + 1  # how far across a no-return run a neighbour may occlude
+    for k, seg in enumerate(prep.segments):
+        lines = seg_lines[k]
+        if seg.stop - seg.start < p.min_segment_points or not lines:
+            continue
+        first, last = seg.start, seg.stop - 1
+        if float(np.linalg.norm(pts[last] - pts[first])) < p.min_extremity_extent:
+            continue
+        ends = (
+            (first, seg.before, -1, lines[0].start - first <= p.extremity_slack_beams),
+            (last, seg.after, +1, last - (lines[-1].stop - 1) <= p.extremity_slack_beams),
+        )
+        for end, kind, sign, on_line, line in (
+            (*ends[0], lines[0]),
+            (*ends[1], lines[-1]),
+        ):
+            if kind in (_EDGE, _SEAM) or not on_line:
+                continue  # the scan's border, or a ragged (non-line) end
+            # the nearest return across the boundary must be farther (this end occludes it)
+            # and off this line (a grazing wall whose returns thin out does not end there)
+            hidden = False
+            for d in range(1, look + 1 if kind == _GAP else 2):
+                nb = end + sign * d
+                if not prep.circular and not 0 <= nb < n:
+                    break
+                nb %= n
+                if np.isfinite(rng[nb]):
+                    normal = np.array([-line.direction[1], line.direction[0]])
+                    off = abs(float(np.dot(pts[nb] - line.centroid, normal)))
+                    # expected spacing of returns along this line at its end: r dphi / sin(incidence)
+                    beam = pts[end] - np.asarray(scan.sensor_offset[:2])
+                    u = beam / np.linalg.norm(beam)
+                    sin_inc = abs(float(u[0] * line.direction[1] - u[1] * line.direction[0]))
+                    spacing = rng[end] * d * prep.step / max(sin_inc, np.sin(2 * prep.step))
+                    along = abs(float(np.dot(pts[nb] - pts[end], line.direction)))
+                    on_extension = off <= 2.0 * float(_tol(rng[nb], p)) and along <= 4.0 * spacing
+                    hidden = bool(rng[nb] <= rng[end] + 3.0 * p.range_sigma) or on_extension
+                    break
+            if hidden:
+                continue
+            # half a beam step towards the jump: the surface ends between two beams
+            phi = prep.phi[end] + sign * half + scan.sensor_offset[2]
+            q = np.array([scan.sensor_offset[0], scan.sensor_offset[1]]) + rng[end] * np.array(
+                [np.cos(phi), np.sin(phi)]
+            )
+            extremities.append(float(np.arctan2(q[1], q[0])))
+
+    segments = np.array([[ln.p0, ln.p1] for lines in seg_lines for ln in lines], dtype=np.float64)
+    cb = np.array([np.arctan2(x[1], x[0]) for x in corners], dtype=np.float64)
+    return LaserFeatures(
+        corners=cb,
+        extremities=np.asarray(extremities, dtype=np.float64),
+        beacons=_beacons(scan, prep, p),
+        segments=segments.reshape(-1, 2, 2),
+    )
+
+
+def observation_from_scan(scan: Scan, *, label: str | None = None, **params: Any) -> Observation:
+    """A laser-only :class:`Observation` of one scan: corners ``c``, extremities ``Ex``, beacons ``B``.
+
+    The field of view is the scan's own (``scan.fov``); pose and timestamp are
+    copied from the scan.
+    """
+    f = extract_laser_features(scan, **params)
+    return Observation(
+        c=f.corners,
+        ex=f.extremities,
+        b=f.beacons,
+        fov=scan.fov,
+        label=label,
+        pose=scan.pose,
+        timestamp=scan.timestamp,
+    )
