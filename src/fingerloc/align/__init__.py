@@ -1,0 +1,303 @@
+"""Fingerprint matching: global alignment, cyclic alignment with heading, batch kernels.
+
+The paper scores a fingerprint against a place by the minimal Needleman-Wunsch
+global alignment cost (SPEC.md §4, ``P(Fp | loc) = 1 / (cost + 1)``). This
+module computes that cost for one pair (:func:`global_alignment`, with the
+alignment itself on request), for many pairs at once
+(:func:`alignment_costs`), and its cyclic version, the minimum over every
+rotation of one string, which removes the unknown heading of the robot
+(:func:`cyclic_alignment`, SPEC.md §6). :func:`minimum_energy` is the earlier
+matcher of Lamon et al. (2001), the baseline of the paper's Table III.
+
+Strings are validated against :data:`fingerloc.fingerprint.ALPHABET`; a
+:class:`~fingerloc.fingerprint.Fingerprint` also brings the bearing of each
+letter, used for the heading estimate and by the minimum-energy matcher.
+Empty strings are valid: aligning against nothing costs the indels of the
+other string.
+
+Kernels: unit costs go to RapidFuzz's bit-parallel Levenshtein
+(``rapidfuzz.process.cdist``); weighted costs to a numba kernel that runs
+eight references side by side; cyclic costs to a numba kernel (see
+:func:`alignment_costs`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar, overload
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+from rapidfuzz import process as rf_process
+from rapidfuzz.distance import Levenshtein
+
+from ..angles import rad_to_deg360
+from ..errors import InvalidParameterError
+from ._costs import CostModel
+from ._cyclic import cyclic_all_rotations, cyclic_batch_brute
+from ._encode import FingerprintLike, as_letters, encode, encode_many, letters_many
+from ._kernels import nw_batch, nw_cost, nw_matrix, pack_lanes, traceback
+
+__all__ = [
+    "CostModel",
+    "CyclicAlignment",
+    "alignment_costs",
+    "cyclic_alignment",
+    "global_alignment",
+]
+
+_UNIT = CostModel()
+_T = TypeVar("_T")
+
+
+def _costs_or_unit(costs: CostModel | None) -> CostModel:
+    if costs is None:
+        return _UNIT
+    if not isinstance(costs, CostModel):
+        raise InvalidParameterError(f"costs: expected a CostModel or None, got {type(costs).__name__}")
+    return costs
+
+
+# -- plain global alignment ------------------------------------------------------
+
+
+@overload
+def global_alignment(
+    a: FingerprintLike, b: FingerprintLike, *, costs: CostModel | None = ..., return_alignment: Literal[False] = ...
+) -> float: ...
+@overload
+def global_alignment(
+    a: FingerprintLike, b: FingerprintLike, *, costs: CostModel | None = ..., return_alignment: Literal[True]
+) -> tuple[float, list[tuple[int | None, int | None]]]: ...
+def global_alignment(
+    a: FingerprintLike,
+    b: FingerprintLike,
+    *,
+    costs: CostModel | None = None,
+    return_alignment: bool = False,
+) -> float | tuple[float, list[tuple[int | None, int | None]]]:
+    """Minimal Needleman-Wunsch global alignment cost of two fingerprints (SPEC.md §4).
+
+    ``D[i, j] = min(D[i-1, j-1] + s(a_i, b_j), D[i-1, j] + g(a_i), D[i, j-1] + g(b_j))``
+    with ``D[0, 0] = 0``; the cost is ``D[len(a), len(b)]``. With the default
+    unit costs (match 0, substitution 1, insertion and deletion 1) it is the
+    Levenshtein distance.
+
+    Parameters
+    ----------
+    a, b : str or Fingerprint
+        The two fingerprints (read as linear strings; see
+        :func:`cyclic_alignment` for the rotation-free version).
+    costs : CostModel, optional
+        Edit costs; default ``CostModel()`` (unit costs).
+    return_alignment : bool, default False
+        Also return one optimal alignment.
+
+    Returns
+    -------
+    cost : float
+        Minimal alignment cost, ``>= 0``.
+    alignment : list of (int or None, int or None)
+        Only with ``return_alignment``: the aligned pairs in order, ``(i, j)``
+        pairs ``a[i]`` with ``b[j]``, ``(i, None)`` leaves ``a[i]`` unpaired
+        (a deletion), ``(None, j)`` leaves ``b[j]`` unpaired (an insertion).
+        Among optimal alignments, ties prefer a pair, then a deletion, from
+        the end of the strings backwards.
+
+    Raises
+    ------
+    UnknownLetterError
+        If a string holds a letter outside the alphabet.
+    """
+    cm = _costs_or_unit(costs)
+    sa, _ = as_letters(a, "a")
+    sb, _ = as_letters(b, "b")
+    if not return_alignment:
+        if cm.is_unit:
+            return float(Levenshtein.distance(sa, sb))
+        return float(nw_cost(encode(sa), encode(sb), cm.substitution, cm.indel))
+    ca, cb = encode(sa), encode(sb)
+    d = nw_matrix(ca, cb, cm.substitution, cm.indel)
+    return float(d[-1, -1]), traceback(d, ca, cb, cm.substitution, cm.indel)
+
+
+# -- cyclic alignment ----------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class CyclicAlignment:
+    """Result of :func:`cyclic_alignment`.
+
+    Attributes
+    ----------
+    cost : float
+        Minimal global alignment cost of ``a`` against every rotation of ``b``.
+    rotation : int
+        Number of letters ``b`` was rotated by: ``b[rotation:] + b[:rotation]``
+        is the best rotation (the smallest such index on ties).
+    heading_deg : float or None
+        Angle in degrees, ``[0, 360)``, to add to ``b``'s bearings to bring
+        them onto ``a``'s: the circular mean of ``bearing(a_i) - bearing(b_j)``
+        over the pairs of equal letters of the optimal alignment (``n`` letters
+        and substitutions only when there is nothing better). A robot that saw
+        ``b`` and then turned by ``-heading_deg`` (counter-clockwise positive)
+        would see ``a``. ``None`` when either input has no bearings (a plain
+        string) or nothing is paired.
+    alignment : list of (int or None, int or None)
+        The optimal alignment of ``a`` with the rotated ``b``; ``j`` indexes
+        the rotated string, ``(j + rotation) % len(b)`` the original.
+    """
+
+    cost: float
+    rotation: int
+    heading_deg: float | None
+    alignment: list[tuple[int | None, int | None]]
+
+
+def _heading(
+    sa: str,
+    ba: NDArray[np.float64],
+    sb: str,
+    bb: NDArray[np.float64],
+    pairs: list[tuple[int, int]],
+) -> float | None:
+    """Circular mean of ``ba[i] - bb[j]`` (degrees in [0, 360)) over the most trustworthy pairs."""
+    tiers = (
+        [(i, j) for i, j in pairs if sa[i] == sb[j] and sa[i] != "n"],
+        [(i, j) for i, j in pairs if sa[i] == sb[j]],
+        pairs,
+    )
+    for chosen in tiers:
+        if chosen:
+            ii = np.fromiter((p[0] for p in chosen), dtype=np.int64)
+            jj = np.fromiter((p[1] for p in chosen), dtype=np.int64)
+            diff = ba[ii] - bb[jj]
+            ang = math.atan2(float(np.sin(diff).sum()), float(np.cos(diff).sum()))
+            return float(rad_to_deg360(ang))
+    return None
+
+
+def cyclic_alignment(a: FingerprintLike, b: FingerprintLike, *, costs: CostModel | None = None) -> CyclicAlignment:
+    """Minimal alignment cost of ``a`` against every rotation of ``b``, with the best rotation.
+
+    A fingerprint is a circular string: turning the robot rotates it. The
+    cyclic cost is ``min over r of global_alignment(a, b[r:] + b[:r])``,
+    computed exactly (every rotation is tried, so it equals the brute-force
+    minimum). It is symmetric and invariant under rotating either string.
+
+    Parameters
+    ----------
+    a, b : str or Fingerprint
+        The two fingerprints. When both are :class:`Fingerprint` their
+        bearings give the heading estimate.
+    costs : CostModel, optional
+        Edit costs; default unit costs.
+
+    Returns
+    -------
+    CyclicAlignment
+        ``cost``, ``rotation`` (letters of ``b`` rotated), ``heading_deg``
+        (``None`` without bearings) and the optimal ``alignment``.
+    """
+    cm = _costs_or_unit(costs)
+    sa, bear_a = as_letters(a, "a")
+    sb, bear_b = as_letters(b, "b")
+    ca, cb = encode(sa), encode(sb)
+    per_rot = cyclic_all_rotations(ca, cb, cm.substitution, cm.indel)
+    rot = int(np.argmin(per_rot))
+    cost = float(per_rot[rot])
+    cbr = np.roll(cb, -rot)
+    d = nw_matrix(ca, cbr, cm.substitution, cm.indel)
+    alignment = traceback(d, ca, cbr, cm.substitution, cm.indel)
+    heading = None
+    if bear_a is not None and bear_b is not None and len(sb) > 0:
+        m = len(sb)
+        pairs = [(i, (j + rot) % m) for i, j in alignment if i is not None and j is not None]
+        heading = _heading(sa, bear_a, sb, bear_b, pairs)
+    return CyclicAlignment(cost=cost, rotation=rot, heading_deg=heading, alignment=alignment)
+
+
+# -- batch ---------------------------------------------------------------------
+
+
+def _n_workers(workers: int | None) -> int:
+    top = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    if workers is None or workers == -1:
+        return int(top)
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise InvalidParameterError(f"workers: expected a positive int, -1 or None (all cores), got {workers!r}")
+    return int(min(int(workers), top))
+
+
+@contextmanager
+def _threads(n: int) -> Iterator[None]:
+    old = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)
+
+
+def _run(n: int, fn: Callable[..., _T], *args: Any) -> _T:
+    with _threads(n):
+        return fn(*args)
+
+
+def alignment_costs(
+    queries: Any,
+    references: Any,
+    *,
+    cyclic: bool = False,
+    costs: CostModel | None = None,
+    workers: int | None = None,
+) -> NDArray[np.float64]:
+    """Alignment cost of every query against every reference.
+
+    Parameters
+    ----------
+    queries, references : sequence of (str or Fingerprint), or one of them
+        The fingerprints; a single string or Fingerprint counts as a
+        sequence of one.
+    cyclic : bool, default False
+        Cyclic cost (minimum over every rotation of the reference, see
+        :func:`cyclic_alignment`) instead of the plain global alignment.
+    costs : CostModel, optional
+        Edit costs; default unit costs.
+    workers : int, optional
+        Threads to use; ``None`` or ``-1`` for every core.
+
+    Returns
+    -------
+    ndarray of float64, shape (n_queries, n_references)
+        ``out[q, r]`` equals ``global_alignment(queries[q], references[r])``
+        (or ``cyclic_alignment(...).cost``).
+
+    Notes
+    -----
+    Unit costs, plain: ``rapidfuzz.process.cdist`` with the Levenshtein
+    distance (bit-parallel, multi-threaded). Weighted, plain: a numba kernel
+    running eight references side by side in each thread. Cyclic: a numba
+    kernel, exact (see :mod:`fingerloc.align._cyclic`).
+    """
+    cm = _costs_or_unit(costs)
+    nw = _n_workers(workers)
+    qs = letters_many(queries, "queries")
+    rs = letters_many(references, "references")
+    nq, nr = len(qs), len(rs)
+    if nq == 0 or nr == 0:
+        return np.zeros((nq, nr))
+    if not cyclic and cm.is_unit:
+        res = rf_process.cdist(qs, rs, scorer=Levenshtein.distance, workers=nw, dtype=np.int32)
+        return np.asarray(res, dtype=np.float64)
+    qcodes, qoff = encode_many(qs)
+    rcodes, roff = encode_many(rs)
+    if not cyclic:
+        blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
+        packed = _run(nw, nw_batch, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)
+        return np.ascontiguousarray(packed[:, slot])
+    return _run(nw, cyclic_batch_brute, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)

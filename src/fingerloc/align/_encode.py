@@ -1,0 +1,79 @@
+"""Turning strings and fingerprints into letter codes for the kernels."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidParameterError, UnknownLetterError
+from ..fingerprint import ALPHABET, Fingerprint
+
+__all__ = ["FingerprintLike", "as_letters", "encode", "encode_many", "letters_many"]
+
+FingerprintLike = str | Fingerprint
+
+_BAD = re.compile(f"[^{re.escape(ALPHABET)}]")
+_LUT = np.full(256, 255, dtype=np.uint8)
+for _i, _ch in enumerate(ALPHABET):
+    _LUT[ord(_ch)] = _i
+
+
+def _unknown(s: str, name: str) -> UnknownLetterError:
+    m = _BAD.search(s)
+    pos = -1 if m is None else m.start()
+    ch = "" if m is None else m.group()
+    return UnknownLetterError(
+        f"{name}: unknown fingerprint letter {ch!r} at position {pos} of {s!r} (alphabet: {ALPHABET})"
+    )
+
+
+def as_letters(x: object, name: str) -> tuple[str, NDArray[np.float64] | None]:
+    """Letters of ``x`` (validated) and its bearings (radians) when ``x`` is a :class:`Fingerprint`."""
+    if isinstance(x, Fingerprint):
+        return x.letters, x.bearings
+    if isinstance(x, str):
+        if _BAD.search(x) is not None:
+            raise _unknown(x, name)
+        return x, None
+    raise InvalidParameterError(f"{name}: expected a fingerprint string or Fingerprint, got {type(x).__name__}")
+
+
+def encode(s: str) -> NDArray[np.uint8]:
+    """Letter codes (positions in the alphabet) of an already validated string, shape ``(len(s),)``."""
+    return _LUT[np.frombuffer(s.encode("ascii"), dtype=np.uint8)]
+
+
+def letters_many(xs: object, name: str) -> list[str]:
+    """Validated letters of a batch: a sequence of strings/fingerprints, or one of them alone."""
+    if isinstance(xs, (str, Fingerprint)):
+        items: Sequence[object] = [xs]
+    elif isinstance(xs, Iterable):
+        items = list(xs)
+    else:
+        raise InvalidParameterError(f"{name}: expected a sequence of fingerprint strings, got {type(xs).__name__}")
+    out: list[str] = []
+    for x in items:
+        if isinstance(x, str):
+            out.append(x)
+        elif isinstance(x, Fingerprint):
+            out.append(x.letters)
+        else:
+            raise InvalidParameterError(f"{name}: expected fingerprint strings or Fingerprints, got {type(x).__name__}")
+    # One scan of everything; locate the culprit only on failure.
+    if _BAD.search("".join(out)) is not None:
+        for k, s in enumerate(out):
+            if _BAD.search(s) is not None:
+                raise _unknown(s, f"{name}[{k}]")
+    return out
+
+
+def encode_many(strs: Sequence[str]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
+    """Concatenated codes and offsets (``codes[off[k]:off[k+1]]`` is string ``k``) of validated strings."""
+    lens = np.fromiter((len(s) for s in strs), dtype=np.int64, count=len(strs))
+    off = np.zeros(len(strs) + 1, dtype=np.int64)
+    np.cumsum(lens, out=off[1:])
+    codes = encode("".join(strs)) if strs else np.zeros(0, dtype=np.uint8)
+    return codes, off
