@@ -1,0 +1,30 @@
+"""``fingerloc.sim``: simulated offices and the raw sensors that see them.
+
+- :func:`make_offices` draws offices that resemble each other by a chosen amount;
+  each is an immutable :class:`World` (wall segments with materials, decals,
+  furniture, pillars, doors, beacons, sun patches).
+- :func:`simulate_scan`: a 360 deg laser of two 180 deg heads, with intensities.
+- :func:`render_panorama` and :func:`render_omni`: the camera, as a cylindrical
+  panorama or as the raw donut image of an equiangular mirror (:class:`OmniImage`).
+- :func:`true_features`: ground truth bearings for evaluation only; feature
+  extractors never see it.
+
+The simulator does not depend on :mod:`fingerloc.features`.
+"""
+
+from __future__ import annotations
+
+from .laser import LASER_HEIGHT, simulate_scan
+from .offices import make_office, make_offices
+from .world import PARTS, Material, World, cast_rays
+
+__all__ = [
+    "LASER_HEIGHT",
+    "PARTS",
+    "Material",
+    "World",
+    "cast_rays",
+    "make_office",
+    "make_offices",
+    "simulate_scan",
+]

@@ -1,0 +1,457 @@
+"""The office generator: rooms that resemble each other by a chosen amount.
+
+One *template* office is drawn at random (room polygon, doors, furniture,
+pillars, coloured posters, reflective beacons, sun patches); each office is the
+template perturbed. ``similarity = 1`` gives identical rooms, ``similarity = 0``
+independent ones: every element of the template is redrawn with probability
+``1 - similarity`` and otherwise jittered by an amount proportional to
+``1 - similarity``; extra elements appear and template ones vanish with
+probability ``(1 - similarity) / 2`` each.
+
+Colours: walls, floor, ceiling, furniture and door frames have HSV saturation
+at most 0.25; only posters (``Material.patch``) are saturated (0.5-0.9).
+"""
+
+from __future__ import annotations
+
+import colorsys
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from .world import PARTS, Material, World
+
+__all__ = ["make_office", "make_offices"]
+
+_WALL_THICKNESS = 0.12  # metres: depth of a door frame
+_DOOR_TOP = 2.05  # metres: height of a door opening
+_FURN_GAP = 0.02  # metres between furniture and the wall it stands against
+
+#: Furniture kinds: (width range, depth range, height range), metres.
+_FURNITURE = {
+    "desk": ((1.2, 1.6), (0.7, 0.8), (0.72, 0.76)),
+    "cabinet": ((0.8, 1.2), (0.4, 0.5), (1.8, 2.0)),
+    "shelf": ((0.8, 1.0), (0.3, 0.4), (1.0, 2.0)),
+    "drawers": ((0.4, 0.6), (0.45, 0.55), (0.6, 0.7)),
+}
+#: Furniture albedos (low saturation), laser reflectivity, gloss.
+_FURN_MATS = [
+    ((0.55, 0.56, 0.58), 0.35, 0.4),  # grey metal
+    ((0.76, 0.68, 0.57), 0.45, 0.0),  # light wood
+    ((0.85, 0.85, 0.82), 0.5, 0.1),  # white laminate
+    ((0.30, 0.30, 0.32), 0.15, 0.2),  # dark grey
+]
+
+
+def _rng(random_state: int | np.random.Generator | None) -> np.random.Generator:
+    if isinstance(random_state, np.random.Generator):
+        return random_state
+    return np.random.default_rng(random_state)
+
+
+def _low_sat(rng: np.random.Generator, v: tuple[float, float], s_max: float) -> tuple[float, float, float]:
+    h, s, val = rng.uniform(0, 1), rng.uniform(0, s_max), rng.uniform(*v)
+    r, g, b = colorsys.hsv_to_rgb(h, s, val)
+    return (float(r), float(g), float(b))
+
+
+# ------------------------------------------------------------------ the spec
+@dataclass
+class _Spec:
+    """An office before it becomes geometry: everything wall-relative so it can be perturbed."""
+
+    width: float
+    depth: float
+    height: float
+    notch: tuple[float, float] | None  # (width, depth) cut from the far corner (an L-shaped room) or None
+    wall_rgb: tuple[float, float, float]
+    wall_refl: float
+    floor_rgb: tuple[float, float, float]
+    frame_rgb: tuple[float, float, float]
+    corridor_rgb: tuple[float, float, float]
+    light_angle: float
+    doors: list[dict[str, Any]]
+    furniture: list[dict[str, Any]]
+    pillars: list[dict[str, Any]]
+    patches: list[dict[str, Any]]
+    beacons: list[dict[str, Any]]
+    suns: list[dict[str, Any]]
+
+
+def _new_door(rng: np.random.Generator) -> dict[str, Any]:
+    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.15, 0.85)), "width": float(rng.uniform(0.85, 1.0)),
+            "corridor": float(rng.uniform(1.3, 2.5))}
+
+
+def _new_furniture(rng: np.random.Generator) -> dict[str, Any]:
+    kind = str(rng.choice(list(_FURNITURE)))
+    (w0, w1), (d0, d1), (h0, h1) = _FURNITURE[kind]
+    return {"kind": kind, "wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.1, 0.9)),
+            "width": float(rng.uniform(w0, w1)), "depth": float(rng.uniform(d0, d1)),
+            "height": float(rng.uniform(h0, h1)), "mat": int(rng.integers(0, len(_FURN_MATS)))}
+
+
+def _new_pillar(rng: np.random.Generator) -> dict[str, Any]:
+    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.2, 0.8)), "size": float(rng.uniform(0.3, 0.45)),
+            "free": bool(rng.uniform() < 0.3)}
+
+
+def _new_patch(rng: np.random.Generator) -> dict[str, Any]:
+    z0 = float(rng.uniform(0.9, 1.3))
+    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.1, 0.9)), "width": float(rng.uniform(0.35, 1.0)),
+            "z0": z0, "z1": z0 + float(rng.uniform(0.4, 0.9)), "hue": float(rng.uniform(0, 360)),
+            "sat": float(rng.uniform(0.5, 0.9)), "val": float(rng.uniform(0.45, 0.85))}
+
+
+def _new_beacon(rng: np.random.Generator) -> dict[str, Any]:
+    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.05, 0.95)), "width": float(rng.uniform(0.05, 0.08))}
+
+
+def _new_sun(rng: np.random.Generator) -> dict[str, Any]:
+    return {"u": float(rng.uniform(0.1, 0.9)), "v": float(rng.uniform(0.1, 0.9)), "hx": float(rng.uniform(0.3, 0.9)),
+            "hy": float(rng.uniform(0.3, 0.9)), "z": float(rng.uniform(0.0, 1.5)), "hz": float(rng.uniform(0.5, 1.5)),
+            "gain": float(rng.choice([1.0, -1.0]) * rng.uniform(0.15, 0.5))}
+
+
+_NEW = {"doors": _new_door, "furniture": _new_furniture, "pillars": _new_pillar, "patches": _new_patch,
+        "beacons": _new_beacon, "suns": _new_sun}
+_COUNTS = {"doors": (1, 2), "furniture": (3, 6), "pillars": (0, 1), "patches": (2, 4), "beacons": (3, 6), "suns": (0, 2)}
+
+
+def _new_spec(rng: np.random.Generator) -> _Spec:
+    width, depth = float(rng.uniform(3.8, 6.5)), float(rng.uniform(3.2, 5.5))
+    notch = (float(rng.uniform(0.8, 0.4 * width)), float(rng.uniform(0.8, 0.4 * depth))) if rng.uniform() < 0.35 else None
+    lists = {k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in _COUNTS.items()}
+    return _Spec(
+        width=width, depth=depth, height=float(rng.uniform(2.5, 3.0)), notch=notch,
+        wall_rgb=_low_sat(rng, (0.72, 0.92), 0.12), wall_refl=float(rng.uniform(0.35, 0.6)),
+        floor_rgb=_low_sat(rng, (0.3, 0.6), 0.2), frame_rgb=_low_sat(rng, (0.25, 0.6), 0.2),
+        corridor_rgb=_low_sat(rng, (0.55, 0.8), 0.1), light_angle=float(rng.uniform(-np.pi, np.pi)),
+        **lists,
+    )
+
+
+def _jitter(x: dict[str, Any], amount: float, rng: np.random.Generator) -> dict[str, Any]:
+    """Move an element's continuous parameters by ``amount`` (0 = none, 1 = large)."""
+    out = dict(x)
+    scale = {"u": 0.25, "width": 0.15, "depth": 0.1, "height": 0.1, "corridor": 0.4, "size": 0.05, "z0": 0.15,
+             "z1": 0.15, "hue": 45.0, "sat": 0.1, "val": 0.1, "v": 0.25, "hx": 0.2, "hy": 0.2, "z": 0.3, "hz": 0.3}
+    for k, s in scale.items():
+        if k in out:
+            out[k] = float(out[k] + amount * s * rng.normal())
+    if "u" in out:
+        out["u"] = float(np.clip(out["u"], 0.03, 0.97))
+    if "v" in out:
+        out["v"] = float(np.clip(out["v"], 0.05, 0.95))
+    if "hue" in out:
+        out["hue"] = float(out["hue"] % 360.0)
+    for k in ("sat", "val"):
+        if k in out:
+            out[k] = float(np.clip(out[k], 0.5 if k == "sat" else 0.4, 0.92))
+    for k in ("width", "depth", "size", "hx", "hy", "hz", "corridor"):
+        if k in out:
+            out[k] = float(max(out[k], 0.04 if k == "width" else 0.2))
+    if "z0" in out:
+        out["z1"] = float(max(out["z1"], out["z0"] + 0.3))
+    return out
+
+
+def _perturb(t: _Spec, similarity: float, rng: np.random.Generator) -> _Spec:
+    q = 1.0 - similarity
+    fresh = _new_spec(rng)
+    s = replace(t)
+    if rng.uniform() < q:
+        s.width, s.depth, s.notch = fresh.width, fresh.depth, fresh.notch
+    else:
+        s.width = float(np.clip(t.width * (1 + 0.1 * q * rng.normal()), 3.5, 7.0))
+        s.depth = float(np.clip(t.depth * (1 + 0.1 * q * rng.normal()), 3.0, 6.0))
+    for name in ("wall_rgb", "floor_rgb", "frame_rgb", "corridor_rgb", "wall_refl", "height", "light_angle"):
+        if rng.uniform() < q:
+            setattr(s, name, getattr(fresh, name))
+    for key in _NEW:
+        items = []
+        for item in getattr(t, key):
+            r = rng.uniform()
+            if r < q / 2:
+                continue  # vanished
+            items.append(_NEW[key](rng) if r < q else _jitter(item, q, rng))
+        n_extra = int(rng.uniform() < q / 2) + int(rng.uniform() < q / 4)
+        items += [_NEW[key](rng) for _ in range(n_extra)]
+        if key == "doors" and not items:
+            items = [_new_door(rng)]
+        setattr(s, key, items)
+    return s
+
+
+# --------------------------------------------------------------- geometry
+class _Builder:
+    def __init__(self) -> None:
+        self.seg: list[tuple[float, float, float, float]] = []
+        self.z: list[tuple[float, float]] = []
+        self.mat: list[int] = []
+        self.dz: list[tuple[float, float]] = []
+        self.dm: list[int] = []
+        self.part: list[int] = []
+        self.materials: list[Material] = []
+
+    def material(self, m: Material) -> int:
+        self.materials.append(m)
+        return len(self.materials) - 1
+
+    def add(self, p0: np.ndarray, p1: np.ndarray, z: tuple[float, float], mat: int, part: str,
+            decal: tuple[float, float, int] | None = None) -> None:
+        if np.hypot(*(p1 - p0)) < 1e-6:
+            return
+        self.seg.append((float(p0[0]), float(p0[1]), float(p1[0]), float(p1[1])))
+        self.z.append(z)
+        self.mat.append(mat)
+        self.part.append(PARTS.index(part))
+        if decal is None:
+            self.dz.append((np.nan, np.nan))
+            self.dm.append(-1)
+        else:
+            self.dz.append((decal[0], decal[1]))
+            self.dm.append(decal[2])
+
+
+def _overlaps(a: tuple[float, float], b: tuple[float, float], margin: float = 0.0) -> bool:
+    return a[0] < b[1] + margin and b[0] < a[1] + margin
+
+
+def _inside(poly: np.ndarray, p: np.ndarray) -> np.ndarray:
+    x, y = p[:, 0, None], p[:, 1, None]
+    x0, y0 = poly[:, 0], poly[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    cond = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.asarray((cond & (x < xi)).sum(axis=-1) % 2 == 1)
+
+
+def _polygon(spec: _Spec) -> np.ndarray:
+    w, d = spec.width, spec.depth
+    if spec.notch is None:
+        return np.array([(0, 0), (w, 0), (w, d), (0, d)], dtype=float)
+    nw, nd = spec.notch
+    return np.array([(0, 0), (w, 0), (w, d - nd), (w - nw, d - nd), (w - nw, d), (0, d)], dtype=float)
+
+
+def _build(spec: _Spec, name: str) -> World:
+    b = _Builder()
+    poly = _polygon(spec)
+    n = poly.shape[0]
+    H = spec.height
+    wall_m = b.material(Material(spec.wall_rgb, spec.wall_refl))
+    frame_m = b.material(Material(spec.frame_rgb, 0.3, gloss=0.2))
+    corr_m = b.material(Material(spec.corridor_rgb, 0.45))
+    beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
+    furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
+
+    # Per wall: occupied intervals (metres along the wall), cuts and decals.
+    length = [float(np.hypot(*(poly[(i + 1) % n] - poly[i]))) for i in range(n)]
+    doors: dict[int, list[tuple[float, float, float]]] = {i: [] for i in range(n)}
+    blocked: dict[int, list[tuple[float, float]]] = {i: [] for i in range(n)}  # where furniture/pillars stand
+    decals: dict[int, list[tuple[float, float, float, float, int]]] = {i: [] for i in range(n)}
+
+    def place(wall: int, u: float, width: float, margin: float) -> tuple[int, float, float] | None:
+        i = wall % n
+        lo = u * length[i] - width / 2
+        lo = float(np.clip(lo, margin, length[i] - margin - width))
+        hi = lo + width
+        if lo < margin - 1e-9 or hi > length[i] - margin + 1e-9:
+            return None
+        return i, lo, hi
+
+    for dd in spec.doors:
+        p = place(dd["wall"], dd["u"], dd["width"], 0.25)
+        if p is None or any(_overlaps((p[1], p[2]), (a, c), 0.3) for a, c, _ in doors[p[0]]):
+            continue
+        doors[p[0]].append((p[1], p[2], dd["corridor"]))
+
+    def world_inside(box: tuple[float, float, float, float]) -> bool:
+        c = np.array([(box[0], box[1]), (box[2], box[1]), (box[0], box[3]), (box[2], box[3])])
+        c = c + np.sign(np.array([(1, 1), (-1, 1), (1, -1), (-1, -1)])) * 0.01
+        return bool(_inside(poly, c).all())
+
+    def free_of_doors(i: int, lo: float, hi: float, margin: float = 0.05) -> bool:
+        return not any(_overlaps((lo, hi), (a, c), margin) for a, c, _ in doors[i])
+
+    def footprint(i: int, lo: float, hi: float, off0: float, off1: float) -> tuple[float, float, float, float]:
+        p0 = poly[i]
+        t = (poly[(i + 1) % n] - p0) / length[i]
+        nin = np.array([-t[1], t[0]])
+        q = np.array([p0 + s * t + o * nin for s in (lo, hi) for o in (off0, off1)])
+        return float(q[:, 0].min()), float(q[:, 1].min()), float(q[:, 0].max()), float(q[:, 1].max())
+
+    def clash(box: tuple[float, float, float, float], others: list[tuple[float, float, float, float]]) -> bool:
+        return any(box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3] for o in others)
+
+    # Keep-out boxes: one metre inside each door, and the footprints of what is already placed.
+    taken = [footprint(i, a - 0.1, c + 0.1, 0.0, 1.0) for i in range(n) for a, c, _ in doors[i]]
+    furniture_boxes: list[tuple[int, float, float, float, float, int]] = []
+    for f in spec.furniture:
+        found = None
+        for du in (0.0, 0.1, -0.1, 0.2, -0.2, 0.35, -0.35):
+            p = place(f["wall"], float(np.clip(f["u"] + du, 0.0, 1.0)), f["width"], 0.05)
+            if p is None or not free_of_doors(p[0], p[1], p[2], 0.15) or any(_overlaps((p[1], p[2]), x) for x in blocked[p[0]]):
+                continue
+            box = footprint(p[0], p[1], p[2], 0.0, _FURN_GAP + f["depth"])
+            if not clash(box, taken) and world_inside(box):
+                found = p, box
+                break
+        if found is None:
+            continue
+        p, box = found
+        taken.append(box)
+        blocked[p[0]].append((p[1] - 0.03, p[2] + 0.03))
+        furniture_boxes.append((p[0], p[1], p[2], f["depth"], f["height"], furn_m[f["mat"] % len(furn_m)]))
+    pillar_boxes: list[tuple[int, float, float, float]] = []
+    for pl in spec.pillars:
+        p = place(pl["wall"], pl["u"], pl["size"], 0.3)
+        if p is None or not free_of_doors(p[0], p[1], p[2], 0.2) or any(_overlaps((p[1], p[2]), x, 0.1) for x in blocked[p[0]]):
+            continue
+        inset = 0.9 if pl["free"] else 0.0
+        box = footprint(p[0], p[1], p[2], inset - 0.05, inset + pl["size"] + 0.05)
+        if clash(box, taken) or not world_inside(box):
+            continue
+        taken.append(box)
+        blocked[p[0]].append((p[1] - 0.05, p[2] + 0.05))
+        pillar_boxes.append((p[0], p[1], p[2], inset))
+    def first_fit(wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]) -> tuple[int, float, float] | None:
+        # The wanted spot, else the nearest of a few shifted ones along the same wall.
+        for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
+            p = place(wall, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
+            if p is not None and ok(*p):
+                return p
+        return None
+
+    def patch_ok(i: int, lo: float, hi: float) -> bool:
+        return free_of_doors(i, lo, hi) and not any(_overlaps((lo, hi), (a, c), 0.1) for a, c, *_ in decals[i])
+
+    def beacon_ok(i: int, lo: float, hi: float) -> bool:
+        return (free_of_doors(i, lo, hi, 0.1) and not any(_overlaps((lo, hi), x, 0.1) for x in blocked[i])
+                and not any(_overlaps((lo, hi), (a, c), 0.15) for a, c, *_ in decals[i]))
+
+    for pt in spec.patches:
+        p = first_fit(pt["wall"], pt["u"], pt["width"], patch_ok)
+        if p is None:
+            continue
+        r, g, bb = colorsys.hsv_to_rgb(pt["hue"] / 360.0, pt["sat"], pt["val"])
+        m = b.material(Material((float(r), float(g), float(bb)), 0.4, patch=True))
+        decals[p[0]].append((p[1], p[2], pt["z0"], min(pt["z1"], H - 0.1), m))
+    for bc in spec.beacons:
+        p = first_fit(bc["wall"], bc["u"], bc["width"], beacon_ok)
+        if p is None:
+            continue
+        decals[p[0]].append((p[1], p[2], 0.1, 0.9, beacon_m))
+
+    for i in range(n):
+        p0, p1 = poly[i], poly[(i + 1) % n]
+        L = length[i]
+        t = (p1 - p0) / L
+        nin = np.array([-t[1], t[0]])  # inward normal (polygon is counter-clockwise)
+
+        def at(s: float, off: float = 0.0, p0: np.ndarray = p0, t: np.ndarray = t, nin: np.ndarray = nin) -> np.ndarray:
+            return p0 + s * t + off * nin
+
+        cuts = {0.0, L}
+        for a, c, _ in doors[i]:
+            cuts |= {a, c}
+        for a, c, *_ in decals[i]:
+            cuts |= {a, c}
+        cs = sorted(cuts)
+        for a, c in itertools.pairwise(cs):
+            mid = (a + c) / 2
+            if any(da <= mid <= dc for da, dc, _ in doors[i]):
+                b.add(at(a), at(c), (_DOOR_TOP, H), wall_m, "lintel")
+                continue
+            dec = next(((z0, z1, m) for da, dc, z0, z1, m in decals[i] if da <= mid <= dc), None)
+            b.add(at(a), at(c), (0.0, H), wall_m, "wall", dec)
+        for a, c, cd in doors[i]:
+            for s in (a, c):
+                b.add(at(s), at(s, -_WALL_THICKNESS), (0.0, _DOOR_TOP), frame_m, "door_frame")
+            # Frame head and the corridor wall seen through the door.
+            b.add(at(a - 1.5, -cd), at(c + 1.5, -cd), (0.0, H), corr_m, "corridor")
+        for wi, lo, hi, depth, height, m in furniture_boxes:
+            if wi != i:
+                continue
+            q = [at(lo, _FURN_GAP), at(lo, _FURN_GAP + depth), at(hi, _FURN_GAP + depth), at(hi, _FURN_GAP)]
+            for k in range(3):
+                b.add(q[k], q[k + 1], (0.0, height), m, "furniture")
+        for wi, lo, hi, inset in pillar_boxes:
+            if wi != i:
+                continue
+            size = hi - lo
+            q = [at(lo, inset), at(lo, inset + size), at(hi, inset + size), at(hi, inset)]
+            for k in range(3 if inset == 0.0 else 4):
+                b.add(q[k], q[(k + 1) % 4], (0.0, H), wall_m, "pillar")
+
+    sun = []
+    lo_xy, hi_xy = poly.min(axis=0), poly.max(axis=0)
+    for sn in spec.suns:
+        cx = lo_xy[0] + sn["u"] * (hi_xy[0] - lo_xy[0])
+        cy = lo_xy[1] + sn["v"] * (hi_xy[1] - lo_xy[1])
+        sun.append((cx, cy, sn["z"], sn["hx"], sn["hy"], sn["hz"], float(np.clip(sn["gain"], -0.6, 0.8))))
+
+    world = World(
+        segments=np.array(b.seg), z_range=np.array(b.z), material=np.array(b.mat), materials=tuple(b.materials),
+        decal_z=np.array(b.dz), decal_material=np.array(b.dm), part=np.array(b.part), height=H,
+        floor_rgb=spec.floor_rgb, ceiling_rgb=(0.9, 0.9, 0.88), light_angle=spec.light_angle,
+        sun=np.array(sun).reshape(-1, 7), room=poly, name=name,
+    )
+    return replace(world, anchor=_anchor(world))
+
+
+def _anchor(world: World) -> tuple[float, float]:
+    """A free point near the room's centre: clearance from obstacles as large as possible up to 1.2 m."""
+    lo, hi = world.room.min(axis=0), world.room.max(axis=0)
+    xs, ys = np.meshgrid(np.arange(lo[0], hi[0], 0.1), np.arange(lo[1], hi[1], 0.1))
+    pts = np.column_stack([xs.ravel(), ys.ravel()])
+    pts = pts[world.contains(pts)]
+    clear = world.clearance(pts)
+    centre = world.room.mean(axis=0)
+    score = np.minimum(clear, 1.2) - 0.1 * np.linalg.norm(pts - centre, axis=1)
+    best = pts[int(np.argmax(score))]
+    return float(best[0]), float(best[1])
+
+
+def make_office(*, random_state: int | np.random.Generator | None = None, name: str = "office") -> World:
+    """One random office (a template drawn afresh)."""
+    return _build(_new_spec(_rng(random_state)), name)
+
+
+def make_offices(
+    n: int, *, similarity: float = 0.5, random_state: int | np.random.Generator | None = None
+) -> list[World]:
+    """Generate ``n`` offices that resemble each other.
+
+    Parameters
+    ----------
+    n : int
+        Number of offices, at least 1.
+    similarity : float in [0, 1], default 0.5
+        How alike the offices are: 1 gives identical rooms (the shared
+        template), 0 independent random rooms. Each template element (door,
+        piece of furniture, pillar, poster, beacon, sun patch, room size,
+        colours) is redrawn with probability ``1 - similarity``, dropped with
+        probability ``(1 - similarity) / 2``, otherwise jittered by an amount
+        proportional to ``1 - similarity``.
+    random_state : int or numpy.random.Generator, optional
+        Seed or generator; the same seed gives the same offices.
+
+    Returns
+    -------
+    list of World
+        Named ``office-0`` ... ``office-{n-1}``.
+    """
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise InvalidParameterError(f"n must be a positive integer, got {n!r}")
+    if not (isinstance(similarity, int | float) and 0.0 <= float(similarity) <= 1.0):
+        raise InvalidParameterError(f"similarity must be in [0, 1], got {similarity!r}")
+    rng = _rng(random_state)
+    template = _new_spec(rng)
+    return [_build(_perturb(template, float(similarity), rng), f"office-{i}") for i in range(int(n))]
