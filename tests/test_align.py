@@ -253,3 +253,16 @@ def test_heading_none_without_bearings():
     assert cyclic_alignment("cvb", "vbc").heading_deg is None
     res = cyclic_alignment("cvb", "")
     assert res.cost == 3.0 and res.rotation == 0 and res.heading_deg is None
+
+
+def test_cyclic_batch_long_strings_and_role_swap():
+    rng = np.random.default_rng(5)
+    letters = np.array(list("vcfnAB"))
+    qs = ["".join(rng.choice(letters, n)) for n in (0, 1, 5, 64, 65, 70)]
+    rs = ["".join(rng.choice(letters, n)) for n in (0, 1, 7, 63, 64, 66)]
+    out = alignment_costs(qs, rs, cyclic=True)
+    expect = np.array([[brute_cyclic(q, r) for r in rs] for q in qs])
+    np.testing.assert_array_equal(out, expect)
+    out_w = alignment_costs(qs, rs, cyclic=True, costs=FEATURE)
+    expect_w = np.array([[brute_cyclic(q, r, FEATURE) for r in rs] for q in qs])
+    np.testing.assert_allclose(out_w, expect_w, atol=1e-9)

@@ -38,7 +38,7 @@ from rapidfuzz.distance import Levenshtein
 from ..angles import rad_to_deg360
 from ..errors import InvalidParameterError
 from ._costs import CostModel
-from ._cyclic import cyclic_all_rotations, cyclic_batch_brute
+from ._cyclic import cyclic_all_rotations, cyclic_batch_unit, cyclic_batch_weighted
 from ._encode import FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._kernels import nw_batch, nw_cost, nw_matrix, pack_lanes, traceback
 
@@ -281,8 +281,12 @@ def alignment_costs(
     -----
     Unit costs, plain: ``rapidfuzz.process.cdist`` with the Levenshtein
     distance (bit-parallel, multi-threaded). Weighted, plain: a numba kernel
-    running eight references side by side in each thread. Cyclic: a numba
-    kernel, exact (see :mod:`fingerloc.align._cyclic`).
+    running eight references side by side in each thread. Cyclic, unit
+    costs: a bit-parallel kernel (Myers/Hyyrö) that runs every rotation at
+    once in AVX2 lanes; cyclic, weighted: exact DP per rotation, skipping the
+    rotations whose lower bound cannot beat the best found (see
+    :mod:`fingerloc.align._cyclic`). Both equal the brute-force minimum over
+    rotations (the weighted one up to 1e-9 of floating-point slack).
     """
     cm = _costs_or_unit(costs)
     nw = _n_workers(workers)
@@ -300,4 +304,5 @@ def alignment_costs(
         blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
         packed = _run(nw, nw_batch, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)
         return np.ascontiguousarray(packed[:, slot])
-    return _run(nw, cyclic_batch_brute, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
+    kernel = cyclic_batch_unit if cm.is_unit else cyclic_batch_weighted
+    return _run(nw, kernel, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
