@@ -1,12 +1,37 @@
-"""Feature extraction from raw sensor data (SPEC.md §1): laser scans and panoramic images."""
+"""Feature extraction from raw sensor data (SPEC.md §1): laser scans and panoramic images.
+
+- :mod:`fingerloc.features.laser`: corners ``c``, extremities ``Ex`` and
+  beacons ``B`` of a :class:`~fingerloc.sensors.Scan`.
+- :mod:`fingerloc.features.vision`: vertical edges ``VE`` and colour patches
+  ``CP`` of a :class:`~fingerloc.sensors.Panorama`, and the unwarping of an
+  omnidirectional image.
+"""
 
 from __future__ import annotations
 
 from .laser import LaserFeatures, LaserParams, extract_laser_features, observation_from_scan
+from .vision import (
+    EdgeParams,
+    PatchParams,
+    VisionFeatures,
+    colour_patches,
+    extract_vision_features,
+    observation_from_views,
+    unwarp_omni,
+    vertical_edges,
+)
 
 __all__ = [
+    "EdgeParams",
     "LaserFeatures",
     "LaserParams",
+    "PatchParams",
+    "VisionFeatures",
+    "colour_patches",
     "extract_laser_features",
+    "extract_vision_features",
     "observation_from_scan",
+    "observation_from_views",
+    "unwarp_omni",
+    "vertical_edges",
 ]

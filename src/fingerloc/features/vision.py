@@ -1,0 +1,631 @@
+"""Vision features from a raw panoramic image: vertical edges and colour patches (SPEC.md §1).
+
+- :func:`unwarp_omni` turns the donut image of an omnidirectional camera with
+  an equiangular mirror (image radius linear in elevation) into a
+  :class:`~fingerloc.sensors.Panorama` (columns = bearing, rows = elevation).
+- :func:`vertical_edges` finds bearings where the image changes across the
+  columns consistently over a large part of the elevation range: wall
+  corners, door frames, furniture sides. It works on log luminance plus
+  chromaticity, so that smooth lens shading and soft lighting give no
+  gradient and an edge between two equally bright colours still counts; the
+  gradient threshold adapts to the image's own noise (JPEG blocks, sensor
+  noise); a column must carry row-wise gradient maxima over at least
+  ``min_support`` of the rows, which short or slanted edges (sun patches,
+  shadows, text) do not; non-maximum suppression keeps one bearing per edge.
+- :func:`colour_patches` segments saturated regions by hue (after a robust
+  grey-world white balance) and reports each region's bearing and hue.
+  Low-saturation walls, dark pixels (unreliable hue) and blown-out pixels are
+  ignored.
+
+Every bearing is in radians, robot frame, wrapped to ``[-pi, pi)``; hues are
+in degrees, ``[0, 360)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
+
+from ..angles import TWO_PI, wrap
+from ..errors import InvalidParameterError
+from ..observation import FULL_FOV, Observation
+from ..sensors import Panorama, Scan
+
+__all__ = [
+    "EdgeParams",
+    "PatchParams",
+    "VisionFeatures",
+    "colour_patches",
+    "extract_vision_features",
+    "observation_from_views",
+    "rgb_to_hsv",
+    "unwarp_omni",
+    "vertical_edges",
+]
+
+FArray = NDArray[np.float64]
+
+
+def _check_positive(obj: object, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+        ok = ok and (v >= 0 if allow_zero else v > 0)
+        if not ok:
+            what = "a number >= 0" if allow_zero else "a positive number"
+            raise InvalidParameterError(f"{name} must be {what}, got {v!r}")
+
+
+def _from_kwargs(cls: Any, params: dict[str, Any], what: str) -> Any:
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise InvalidParameterError(f"unknown {what} parameter {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    return cls(**params)
+
+
+# ---------------------------------------------------------------------------
+# omnidirectional image -> panorama
+
+
+def unwarp_omni(
+    image: ArrayLike,
+    center: tuple[float, float],
+    r_in: float,
+    r_out: float,
+    *,
+    width: int = 720,
+    height: int | None = None,
+    bearing_offset: float = 0.0,
+    mirror: bool = False,
+    outer_is_up: bool = True,
+) -> Panorama:
+    """Unwarp the donut image of an equiangular omnidirectional camera into a panorama.
+
+    With an equiangular mirror every pixel covers the same view angle, so the
+    image radius grows linearly with elevation: the ring ``r_in..r_out`` maps
+    linearly onto the rows of the panorama.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+        The raw image, ``uint8`` or float in ``[0, 1]``; grey images are
+        repeated over three channels.
+    center : (x, y)
+        Mirror centre in pixel coordinates (``x`` = column, ``y`` = row; pixel
+        ``(i, j)`` has its centre at ``x = j + 0.5``, ``y = i + 0.5``).
+    r_in, r_out : float
+        Inner and outer radius of the useful ring, pixels, ``0 <= r_in < r_out``.
+    width : int, default 720
+        Panorama columns (720: half a degree per column).
+    height : int, optional
+        Panorama rows; default ``round(r_out - r_in)`` (one row per pixel of
+        radius).
+    bearing_offset : float, default 0
+        Bearing (radians) seen along the image's ``+x`` axis (to the right of
+        the centre).
+    mirror : bool, default False
+        False: bearings grow counter-clockwise on the image as displayed (row
+        axis pointing down), i.e. the image shows the scene as seen from
+        above. True: they grow clockwise (the scene as seen from below, the
+        usual view of a camera looking up into the mirror).
+    outer_is_up : bool, default True
+        True when the outer ring sees the highest elevations (the top row of
+        the panorama).
+
+    Returns
+    -------
+    Panorama
+        ``clockwise=True``: column 0's left edge at ``bearing_offset`` ... see
+        :class:`~fingerloc.sensors.Panorama`; ``meta`` records the geometry.
+    """
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise InvalidParameterError(f"image must be (H, W, 3) RGB or (H, W) grey, got shape {img.shape}")
+    img = img[:, :, :3]
+    if img.dtype == np.uint8:
+        f = img.astype(np.float32) / 255.0
+    else:
+        f = np.clip(img.astype(np.float32), 0.0, 1.0)
+    cx, cy = (float(v) for v in center)
+    if not (np.isfinite(cx) and np.isfinite(cy)):
+        raise InvalidParameterError(f"center must be two finite pixel coordinates, got {center!r}")
+    if not (np.isfinite(r_in) and np.isfinite(r_out) and 0 <= r_in < r_out):
+        raise InvalidParameterError(f"radii must satisfy 0 <= r_in < r_out, got r_in={r_in!r}, r_out={r_out!r}")
+    hh, ww = f.shape[:2]
+    if cx - r_out < -0.5 * ww or cx + r_out > 1.5 * ww or cy - r_out < -0.5 * hh or cy + r_out > 1.5 * hh:
+        raise InvalidParameterError(
+            f"the mirror ring (center {cx:g}, {cy:g}, r_out {r_out:g}) lies mostly outside the {ww}x{hh} image"
+        )
+    if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 8:
+        raise InvalidParameterError(f"width must be an integer >= 8, got {width!r}")
+    h = round(r_out - r_in) if height is None else height
+    if isinstance(h, bool) or not isinstance(h, (int, np.integer)) or h < 2:
+        raise InvalidParameterError(f"height must be an integer >= 2, got {height!r}")
+    # column centres: bearing decreases with the column (clockwise panorama)
+    beta = bearing_offset - TWO_PI * (np.arange(width) + 0.5) / width
+    # image angle psi, counter-clockwise on the displayed image (y down -> minus sign)
+    psi = (beta - bearing_offset) * (-1.0 if mirror else 1.0)
+    frac = (np.arange(h) + 0.5) / h  # 0 at the top row
+    rad = r_out - frac * (r_out - r_in) if outer_is_up else r_in + frac * (r_out - r_in)
+    xs = cx + rad[:, None] * np.cos(psi)[None, :] - 0.5
+    ys = cy - rad[:, None] * np.sin(psi)[None, :] - 0.5
+    out = np.empty((h, width, 3), dtype=np.float32)
+    for c in range(3):
+        out[:, :, c] = ndimage.map_coordinates(f[:, :, c], [ys, xs], order=1, mode="nearest")
+    np.clip(out, 0.0, 1.0, out=out)
+    meta: dict[str, object] = {
+        "source": "omni",
+        "center": (cx, cy),
+        "r_in": float(r_in),
+        "r_out": float(r_out),
+        "mirror": bool(mirror),
+    }
+    return Panorama(out, bearing_offset=float(bearing_offset), clockwise=True, meta=meta)
+
+
+# ---------------------------------------------------------------------------
+# colour helpers
+
+
+def rgb_to_hsv(img: ArrayLike) -> tuple[FArray, FArray, FArray]:
+    """HSV of an RGB image in ``[0, 1]``: hue in degrees ``[0, 360)``, saturation and value in ``[0, 1]``.
+
+    Parameters
+    ----------
+    img : array_like, shape (..., 3)
+
+    Returns
+    -------
+    hue, sat, val : ndarray, shape (...)
+    """
+    a = np.asarray(img, dtype=np.float64)
+    r, g, b = a[..., 0], a[..., 1], a[..., 2]
+    mx = a.max(axis=-1)
+    mn = a.min(axis=-1)
+    c = mx - mn
+    safe = np.where(c > 0, c, 1.0)
+    h = np.where(
+        mx == r,
+        np.mod((g - b) / safe, 6.0),
+        np.where(mx == g, (b - r) / safe + 2.0, (r - g) / safe + 4.0),
+    )
+    h = np.where(c > 0, h * 60.0, 0.0)
+    h = np.where(h >= 360.0, h - 360.0, h)
+    s = np.where(mx > 0, c / np.where(mx > 0, mx, 1.0), 0.0)
+    return h, s, mx
+
+
+def _white_balance(img: FArray) -> FArray:
+    """Robust grey-world white balance: scale channels so the median of the duller half is grey."""
+    _, s, v = rgb_to_hsv(img)
+    dull = (s <= np.median(s)) & (v > 0.1) & (v < 0.98)
+    if np.count_nonzero(dull) < 100:
+        return img
+    med = np.median(img[dull], axis=0)
+    if np.any(med <= 1e-3):
+        return img
+    gain = med.mean() / med
+    return np.clip(img * gain, 0.0, 1.0)
+
+
+# ---------------------------------------------------------------------------
+# vertical edges
+
+
+@dataclass(frozen=True, slots=True)
+class EdgeParams:
+    """Tuning of :func:`vertical_edges`.
+
+    Parameters
+    ----------
+    min_support : float, default 0.3
+        Part of the rows (``0..1``) that must carry the edge.
+    min_contrast : float, default 0.06
+        Smallest gradient counted, in log-luminance units (0.06: about 6 %
+        brightness change between neighbouring columns).
+    noise_k : float, default 4
+        The gradient threshold is at least this many robust standard
+        deviations of the image's column gradients.
+    chroma_weight : float, default 3
+        Weight of the chromaticity gradient beside the log-luminance one.
+    smooth_px : float, default 1
+        Gaussian smoothing along the rows before differentiating, pixels
+        (scaled with the panorama width relative to 720 columns).
+    slant_px : int, default 1
+        An edge pixel counts for columns up to this far (slightly slanted or
+        aliased edges).
+    nms_deg : float, default 2
+        Two edges closer than this keep only the stronger one.
+    """
+
+    min_support: float = 0.3
+    min_contrast: float = 0.06
+    noise_k: float = 4.0
+    chroma_weight: float = 3.0
+    smooth_px: float = 1.0
+    slant_px: int = 1
+    nms_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        _check_positive(self, ("min_support", "min_contrast", "nms_deg"))
+        _check_positive(self, ("noise_k", "chroma_weight", "smooth_px"), allow_zero=True)
+        if self.min_support > 1:
+            raise InvalidParameterError(f"min_support must be in (0, 1], got {self.min_support!r}")
+        if isinstance(self.slant_px, bool) or not isinstance(self.slant_px, (int, np.integer)) or self.slant_px < 0:
+            raise InvalidParameterError(f"slant_px must be an integer >= 0, got {self.slant_px!r}")
+
+
+def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
+    """Column support (part of the rows with an edge at each column boundary) and mean strength."""
+    img = pano.image.astype(np.float64)
+    h, w, _ = img.shape
+    scale = w / 720.0
+    if p.smooth_px > 0:
+        img = ndimage.gaussian_filter1d(img, p.smooth_px * max(scale, 0.5), axis=1, mode="wrap")
+    lum = img @ np.array([0.299, 0.587, 0.114])
+    loglum = np.log(lum + 0.02)
+    tot = img.sum(axis=2) + 0.06
+    chrom = img[:, :, :2] / tot[:, :, None]
+    # forward differences, circular: d[:, j] is the change across the boundary between j and j+1
+    dl = np.roll(loglum, -1, axis=1) - loglum
+    dc = np.roll(chrom, -1, axis=1) - chrom
+    g = np.sqrt(dl**2 + (p.chroma_weight**2) * (dc**2).sum(axis=2))
+    med = float(np.median(g))
+    mad = 1.4826 * float(np.median(np.abs(g - med)))
+    thr = max(p.min_contrast, med + p.noise_k * mad)
+    peak = (g >= np.roll(g, 1, axis=1)) & (g >= np.roll(g, -1, axis=1)) & (g > thr)
+    if p.slant_px > 0:
+        peak = ndimage.maximum_filter1d(peak, 2 * p.slant_px + 1, axis=1, mode="wrap")
+    # rows that are flat (e.g. outside an omni ring, saturated sky) do not vote
+    support = peak.mean(axis=0)
+    strength = np.where(peak, g, 0.0).sum(axis=0) / max(h, 1)
+    return support, strength
+
+
+def vertical_edges(pano: Panorama, **params: Any) -> FArray:
+    """Bearings of vertical edges in a panorama.
+
+    Parameters
+    ----------
+    pano : Panorama
+    **params
+        Fields of :class:`EdgeParams`.
+
+    Returns
+    -------
+    ndarray of float, shape (n,)
+        Bearings in radians, wrapped to ``[-pi, pi)``, sorted.
+    """
+    p = _from_kwargs(EdgeParams, params, "vertical-edge")
+    support, strength = _edge_support(pano, p)
+    w = support.size
+    score = support + 1e-3 * strength / max(float(strength.max()), 1e-12)  # break plateaus by strength
+    half = max(1, round(np.deg2rad(p.nms_deg) / TWO_PI * w))
+    local_max = score >= ndimage.maximum_filter1d(score, 2 * half + 1, mode="wrap")
+    cand = np.flatnonzero(local_max & (support >= p.min_support))
+    # plateaus of equal score: keep one per run
+    keep: list[int] = []
+    for jj in cand:
+        j = int(jj)
+        if keep and (j - keep[-1]) <= half and score[keep[-1]] >= score[j]:
+            continue
+        keep.append(j)
+    if len(keep) > 1 and (keep[0] + w - keep[-1]) <= half:
+        keep.pop() if score[keep[-1]] <= score[keep[0]] else keep.pop(0)
+    cols = []
+    for j in keep:
+        # sub-column position: strength-weighted centre over the slant window
+        idx = np.arange(j - p.slant_px - 1, j + p.slant_px + 2)
+        wts = strength[idx % w]
+        pos = float((idx * wts).sum() / wts.sum()) if wts.sum() > 0 else float(j)
+        cols.append(pos + 1.0)  # boundary between column pos and pos + 1
+    out = pano.column_bearing(np.asarray(cols, dtype=np.float64))
+    return np.sort(wrap(out))
+
+
+# ---------------------------------------------------------------------------
+# colour patches
+
+
+@dataclass(frozen=True, slots=True)
+class PatchParams:
+    """Tuning of :func:`colour_patches`.
+
+    Parameters
+    ----------
+    min_saturation : float, default 0.4
+        Pixels below this HSV saturation are not colour (walls, floor).
+    min_value, max_value : float, default 0.12, 0.99
+        Dark pixels (unreliable hue) and blown-out pixels are ignored.
+    hue_tol_deg : float, default 20
+        Largest hue distance of a pixel from its region's hue mode, degrees.
+    min_height : float, default 0.08
+        Smallest height of a patch, as a part of the panorama's rows.
+    min_width_deg : float, default 1.5
+        Narrowest patch, degrees of bearing.
+    min_fill : float, default 0.3
+        Smallest part of its bounding box a patch must fill.
+    white_balance : bool, default True
+        Apply a robust grey-world white balance first.
+    """
+
+    min_saturation: float = 0.4
+    min_value: float = 0.12
+    max_value: float = 0.99
+    hue_tol_deg: float = 20.0
+    min_height: float = 0.08
+    min_width_deg: float = 1.5
+    min_fill: float = 0.3
+    white_balance: bool = True
+
+    def __post_init__(self) -> None:
+        _check_positive(self, ("min_saturation", "hue_tol_deg", "min_height", "min_width_deg", "min_fill"))
+        _check_positive(self, ("min_value",), allow_zero=True)
+        if not self.min_value < self.max_value <= 1.0:
+            raise InvalidParameterError(
+                f"max_value must be in (min_value, 1], got min_value={self.min_value!r}, max_value={self.max_value!r}"
+            )
+        if self.min_saturation >= 1 or self.min_height > 1 or self.min_fill > 1:
+            raise InvalidParameterError("min_saturation must be < 1 and min_height, min_fill <= 1")
+
+
+def _hue_modes(hue: FArray, tol_deg: float) -> FArray:
+    """Peaks of the circular hue histogram, at least ``tol_deg`` apart, degrees."""
+    bins = 72
+    hist, _ = np.histogram(hue, bins=bins, range=(0.0, 360.0))
+    sm = ndimage.gaussian_filter1d(hist.astype(np.float64), 1.0, mode="wrap")
+    half = max(1, round(tol_deg / (360.0 / bins)))
+    is_max = (sm >= ndimage.maximum_filter1d(sm, 2 * half + 1, mode="wrap")) & (sm > 0)
+    centres = (np.arange(bins) + 0.5) * 360.0 / bins
+    out: list[float] = []
+    for k in np.flatnonzero(is_max):
+        if out and abs(centres[k] - out[-1]) <= tol_deg:
+            continue
+        out.append(float(centres[k]))
+    return np.asarray(out)
+
+
+def _circ_mean_deg(a: FArray, w: FArray | None = None) -> float:
+    r = np.deg2rad(a)
+    wts = np.ones_like(r) if w is None else w
+    return float(np.rad2deg(np.arctan2((wts * np.sin(r)).sum(), (wts * np.cos(r)).sum())) % 360.0)
+
+
+def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
+    """Saturated colour regions of a panorama: their bearings and hues.
+
+    Parameters
+    ----------
+    pano : Panorama
+    **params
+        Fields of :class:`PatchParams`.
+
+    Returns
+    -------
+    bearings : ndarray of float, shape (m,)
+        Bearing of each patch's centre, radians, wrapped, sorted.
+    hues : ndarray of float, shape (m,)
+        Hue of each patch, degrees in ``[0, 360)``.
+    """
+    p = _from_kwargs(PatchParams, params, "colour-patch")
+    img = pano.image.astype(np.float64)
+    h, w, _ = img.shape
+    if p.white_balance:
+        img = _white_balance(img)
+    img = ndimage.uniform_filter(img, size=(3, 3, 1), mode=("nearest", "wrap", "nearest"))  # JPEG / pixel noise
+    hue, sat, val = rgb_to_hsv(img)
+    mask = (sat >= p.min_saturation) & (val >= p.min_value) & (val <= p.max_value)
+    if not np.any(mask):
+        return np.empty(0), np.empty(0)
+    modes = _hue_modes(hue[mask], p.hue_tol_deg)
+    # nearest mode of every coloured pixel, within tolerance
+    d = np.abs(((hue[..., None] - modes[None, None, :]) + 180.0) % 360.0 - 180.0)
+    which = np.argmin(d, axis=2)
+    ok = mask & (np.min(d, axis=2) <= p.hue_tol_deg)
+    min_rows = p.min_height * h
+    min_cols = np.deg2rad(p.min_width_deg) / TWO_PI * w
+    found_b: list[float] = []
+    found_h: list[float] = []
+    for k in range(modes.size):
+        m = ok & (which == k)
+        if np.count_nonzero(m) < min_rows * min_cols:
+            continue
+        # close pin holes (JPEG, text), circularly in columns; rows keep their border
+        padded = np.pad(m, ((1, 1), (2, 2)), mode="wrap")
+        padded[0], padded[-1] = padded[1], padded[-2]
+        m = ndimage.binary_closing(padded, structure=np.ones((3, 3)))[1:-1, 2:-2] | m
+        lab, nlab = ndimage.label(m)
+        if nlab == 0:
+            continue
+        # join labels across the 0 / w-1 column seam
+        parent = np.arange(nlab + 1)
+
+        def find(a: int, parent: NDArray[np.int64] = parent) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = int(parent[a])
+            return a
+
+        for la, lb in zip(lab[:, 0], lab[:, -1], strict=True):
+            if la and lb:
+                ra, rb = find(int(la)), find(int(lb))
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+        roots = np.array([find(i) for i in range(nlab + 1)])
+        lab = roots[lab]
+        # regions with their circular bearing extent (centre, half width)
+        regions: list[list[Any]] = []
+        for r in np.unique(lab[lab > 0]):
+            rows, cols = np.nonzero(lab == r)
+            cb = pano.column_bearing(cols.astype(np.float64) + 0.5)
+            centre = float(np.arctan2(np.sin(cb).sum(), np.cos(cb).sum()))
+            half = float(np.abs(wrap(cb - centre)).max()) + np.pi / w
+            regions.append([rows, cols, centre, half])
+        # merge regions of this hue that overlap in bearing (a poster split by a bar or a frame)
+        merged = True
+        while merged and len(regions) > 1:
+            merged = False
+            for i in range(len(regions)):
+                for j in range(i + 1, len(regions)):
+                    a, b = regions[i], regions[j]
+                    if abs(float(wrap(a[2] - b[2]))) < a[3] + b[3]:
+                        rows = np.concatenate([a[0], b[0]])
+                        cols = np.concatenate([a[1], b[1]])
+                        cb = pano.column_bearing(cols.astype(np.float64) + 0.5)
+                        centre = float(np.arctan2(np.sin(cb).sum(), np.cos(cb).sum()))
+                        half = float(np.abs(wrap(cb - centre)).max()) + np.pi / w
+                        regions[i] = [rows, cols, centre, half]
+                        regions.pop(j)
+                        merged = True
+                        break
+                if merged:
+                    break
+        for rows, cols, centre, half in regions:
+            width_cols = 2.0 * half / TWO_PI * w
+            height_rows = float(rows.max() - rows.min() + 1)
+            if height_rows < min_rows or width_cols < min_cols:
+                continue
+            if rows.size < p.min_fill * height_rows * width_cols:
+                continue
+            sel = ok[rows, cols] & (which[rows, cols] == k)
+            if not np.any(sel):
+                continue
+            found_b.append(centre)
+            found_h.append(_circ_mean_deg(hue[rows[sel], cols[sel]], sat[rows[sel], cols[sel]]))
+    if not found_b:
+        return np.empty(0), np.empty(0)
+    bearings = wrap(np.asarray(found_b))
+    hues_deg = np.asarray(found_h) % 360.0
+    order = np.argsort(bearings)
+    return bearings[order], hues_deg[order]
+
+
+# ---------------------------------------------------------------------------
+# both, and observations
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class VisionFeatures:
+    """Features of one panorama.
+
+    Attributes
+    ----------
+    edges : ndarray of float, shape (n,)
+        Vertical-edge bearings, radians, wrapped, sorted.
+    patches : ndarray of float, shape (m,)
+        Colour-patch bearings, radians, wrapped.
+    patch_hues : ndarray of float, shape (m,)
+        Hue of each patch, degrees in ``[0, 360)``.
+    """
+
+    edges: FArray
+    patches: FArray
+    patch_hues: FArray
+
+    def __post_init__(self) -> None:
+        for name in ("edges", "patches", "patch_hues"):
+            a = np.array(getattr(self, name), dtype=np.float64, copy=True).reshape(-1)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        if self.patches.shape != self.patch_hues.shape:
+            raise InvalidParameterError("one hue per colour patch is needed")
+
+
+def _split_params(params: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    from .laser import LaserParams
+
+    edge_names = {f.name for f in fields(EdgeParams)}
+    patch_names = {f.name for f in fields(PatchParams)}
+    laser_names = {f.name for f in fields(LaserParams)}
+    e, c, la = {}, {}, {}
+    for k, v in params.items():
+        if k in edge_names:
+            e[k] = v
+        elif k in patch_names:
+            c[k] = v
+        elif k in laser_names:
+            la[k] = v
+        else:
+            known = ", ".join(sorted(edge_names | patch_names | laser_names))
+            raise InvalidParameterError(f"unknown feature parameter {k!r} (known: {known})")
+    return e, c, la
+
+
+def extract_vision_features(pano: Panorama, **params: Any) -> VisionFeatures:
+    """Vertical edges and colour patches of a panorama.
+
+    Parameters
+    ----------
+    pano : Panorama
+    **params
+        Fields of :class:`EdgeParams` and :class:`PatchParams`.
+    """
+    e, c, la = _split_params(params)
+    if la:
+        raise InvalidParameterError(f"laser parameter {sorted(la)[0]!r} given to a vision extractor")
+    edges = vertical_edges(pano, **e)
+    pb, ph = colour_patches(pano, **c)
+    return VisionFeatures(edges=edges, patches=pb, patch_hues=ph)
+
+
+def observation_from_views(
+    *,
+    scan: Scan | None = None,
+    panorama: Panorama | None = None,
+    label: str | None = None,
+    **params: Any,
+) -> Observation:
+    """One :class:`Observation` from the laser scan and/or the panorama taken at one pose.
+
+    Parameters
+    ----------
+    scan : Scan, optional
+        Gives corners ``c``, extremities ``Ex`` and beacons ``B``.
+    panorama : Panorama, optional
+        Gives vertical edges ``VE`` and colour patches ``CP``.
+    label : str, optional
+        Place label.
+    **params
+        Fields of :class:`~fingerloc.features.laser.LaserParams`,
+        :class:`EdgeParams` and :class:`PatchParams`, routed by name.
+
+    Returns
+    -------
+    Observation
+        Field of view: the full circle when a panorama is given, else the
+        scan's. Pose and timestamp from the scan, else from the panorama's
+        ``meta`` (keys ``"pose"``, ``"timestamp"``) when present.
+    """
+    from .laser import extract_laser_features
+
+    if scan is None and panorama is None:
+        raise InvalidParameterError("observation_from_views needs a scan, a panorama or both")
+    e, c, la = _split_params(params)
+    ve = cp = cp_hue = corners = ex = beacons = np.empty(0)
+    pose: tuple[float, float, float] | None = None
+    timestamp: float | None = None
+    if panorama is not None:
+        vf = extract_vision_features(panorama, **e, **c)
+        ve, cp, cp_hue = vf.edges, vf.patches, vf.patch_hues
+        mp = panorama.meta.get("pose")
+        if mp is not None:
+            pose = tuple(float(v) for v in mp)  # type: ignore[attr-defined, assignment]
+        mt = panorama.meta.get("timestamp")
+        if mt is not None:
+            timestamp = float(mt)  # type: ignore[arg-type]
+    if scan is not None:
+        lf = extract_laser_features(scan, **la)
+        corners, ex, beacons = lf.corners, lf.extremities, lf.beacons
+        pose = scan.pose if scan.pose is not None else pose
+        timestamp = scan.timestamp if scan.timestamp is not None else timestamp
+    fov = FULL_FOV if panorama is not None else scan.fov  # type: ignore[union-attr]
+    return Observation(
+        ve=ve, cp=cp, cp_hue=cp_hue, ex=ex, c=corners, b=beacons, fov=fov, label=label, pose=pose, timestamp=timestamp
+    )
