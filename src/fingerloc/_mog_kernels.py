@@ -1,0 +1,375 @@
+# mypy: disable-error-code="no-untyped-def"
+"""numba kernels behind :mod:`fingerloc.mog` (private).
+
+Everything here works on bearings already wrapped to ``[-pi, pi)`` and on
+parameters already validated by :mod:`fingerloc.mog`; nothing here checks
+its input. The formulas are those of SPEC.md §3:
+
+    log p(x | mu, s) = -distAS(mu, x)^2 / (2 s^2) - log( sqrt(2 pi) s erf(pi / (sqrt(2) s)) )
+
+Array layout: responsibilities and distances are ``(K, n)`` (component
+major) so the M-step reads them contiguously.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+_SQRT2 = math.sqrt(2.0)
+
+#: A component whose responsibilities sum to less than this many points dies
+#: (weight 0 for good): its mean and sigma would be 0/0.
+DEAD_MASS = 1e-10
+#: A responsibility term below exp(-_SKIP) ~ 4e-18 of the largest is 0: adding
+#: it to a sum >= 1 cannot change that sum in double precision.
+_SKIP = 40.0
+
+
+@njit(cache=True)
+def _dist(a: float, b: float) -> float:  # pragma: no cover - compiled
+    """distAS(a, b) for a, b in [-pi, pi): the signed shortest way, in (-pi, pi]."""
+    d = b - a
+    if d > _PI:
+        d -= _TWO_PI
+    elif d <= -_PI:
+        d += _TWO_PI
+    return d
+
+
+@njit(cache=True)
+def _wrap1(a: float) -> float:  # pragma: no cover - compiled
+    """Wrap one angle to [-pi, pi), folding the float edge that lands on pi."""
+    y = a
+    while y >= _PI:
+        y -= _TWO_PI
+    while y < -_PI:
+        y += _TWO_PI
+    if y >= _PI:
+        y = -_PI
+    return y
+
+
+@njit(cache=True)
+def _log_norm(s: float) -> float:  # pragma: no cover - compiled
+    """log eta = -log( sqrt(2 pi) s erf(pi / (sqrt(2) s)) )."""
+    return -(_LOG_SQRT_2PI + math.log(s) + math.log(math.erf(_PI / (_SQRT2 * s))))
+
+
+@njit(cache=True)
+def _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum):  # pragma: no cover
+    """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
+
+    ``mx`` and ``ssum`` are (n,) scratch. Loops run component-major so the
+    compiler can vectorise all but the exponentials; a term below
+    ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
+    the sum in double precision).
+    """
+    n = x.shape[0]
+    for i in range(n):
+        mx[i] = -np.inf
+        ssum[i] = 0.0
+    for j in range(k):
+        if w[j] > 0.0:
+            cj = math.log(w[j]) + _log_norm(sg[j])
+            invj = 0.5 / (sg[j] * sg[j])
+            muj = mu[j]
+            for i in range(n):
+                dj = x[i] - muj
+                dj = dj - _TWO_PI if dj > _PI else dj
+                dj = dj + _TWO_PI if dj <= -_PI else dj
+                d[j, i] = dj
+                a = cj - dj * dj * invj
+                r[j, i] = a
+                mx[i] = a if a > mx[i] else mx[i]
+    for j in range(k):
+        if w[j] > 0.0:
+            for i in range(n):
+                t = r[j, i] - mx[i]
+                e = math.exp(t) if t > -_SKIP else 0.0
+                r[j, i] = e
+                ssum[i] += e
+        else:
+            for i in range(n):
+                r[j, i] = 0.0
+                d[j, i] = 0.0
+    for i in range(n):
+        ssum[i] = 1.0 / ssum[i]
+    for j in range(k):
+        if w[j] > 0.0:
+            for i in range(n):
+                r[j, i] *= ssum[i]
+    # log-likelihood: sum_i (mx_i + log s_i) with s_i = 1 / ssum_i in [1, K]; one log per many points
+    total = 0.0
+    prod = 1.0
+    for i in range(n):
+        total += mx[i]
+        prod /= ssum[i]
+        if prod > 1e200:
+            total += math.log(prod)
+            prod = 1.0
+    return (total + math.log(prod)) / n
+
+
+@njit(cache=True)
+def _m_step(x, k, w, mu, sg, d, r, min_sigma):  # pragma: no cover
+    """SPEC.md §3 (paper eqs. 9-11) in place, from r and d = distAS(mu_old, x)."""
+    n = x.shape[0]
+    wsum = 0.0
+    for j in range(k):
+        if w[j] <= 0.0:
+            continue
+        nk = 0.0
+        sd = 0.0
+        for i in range(n):
+            nk += r[j, i]
+            sd += r[j, i] * d[j, i]
+        if nk < DEAD_MASS:
+            w[j] = 0.0
+            continue
+        # mu_k = wrap(mu_k + sum_i r_ik distAS(mu_k, x_i) / sum_i r_ik)
+        m = _wrap1(mu[j] + sd / nk)
+        # sigma_k = sqrt(sum_i r_ik distAS(mu_k_new, x_i)^2 / sum_i r_ik), floored
+        ss = 0.0
+        for i in range(n):
+            e = _dist(m, x[i])
+            ss += r[j, i] * e * e
+        s = math.sqrt(ss / nk)
+        if s < min_sigma:
+            s = min_sigma
+        w[j] = nk / n  # w_k = (1/N) sum_i r_ik
+        mu[j] = m
+        sg[j] = s
+        wsum += w[j]
+    for j in range(k):
+        w[j] /= wsum
+
+
+@njit(cache=True)
+def _kmeanspp(x, kmax, u, centers, dmin):  # pragma: no cover
+    """k-means++ seeding with the circular distance; returns how many centres it found.
+
+    The first centre is the point at ``floor(u[0] n)``; each next one is drawn
+    with probability proportional to the squared circular distance to the
+    nearest centre so far, using the uniform ``u[k]``. When every point lies
+    on a centre (fewer distinct bearings than ``kmax``) it stops early.
+    """
+    n = x.shape[0]
+    i0 = int(u[0] * n)
+    if i0 >= n:
+        i0 = n - 1
+    centers[0] = x[i0]
+    for i in range(n):
+        e = _dist(centers[0], x[i])
+        dmin[i] = e * e
+    k = 1
+    while k < kmax:
+        tot = 0.0
+        last = -1
+        for i in range(n):
+            tot += dmin[i]
+            if dmin[i] > 0.0:
+                last = i
+        if last < 0:
+            break
+        target = u[k] * tot
+        acc = 0.0
+        pick = last
+        for i in range(n):
+            acc += dmin[i]
+            if acc > target and dmin[i] > 0.0:
+                pick = i
+                break
+        centers[k] = x[pick]
+        for i in range(n):
+            e = _dist(centers[k], x[i])
+            e2 = e * e
+            if e2 < dmin[i]:
+                dmin[i] = e2
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def _init_params(x, kmax, u, min_sigma, w, mu, sg, d, r, dmin):  # pragma: no cover
+    """k-means++ centres, hard assignment to the nearest one, then one M-step."""
+    n = x.shape[0]
+    centers = np.empty(kmax)
+    k = _kmeanspp(x, kmax, u, centers, dmin)
+    for j in range(kmax):
+        if j < k:
+            w[j] = 1.0
+            mu[j] = centers[j]
+            sg[j] = 1.0
+        else:  # padding: never used
+            w[j] = 0.0
+            mu[j] = 0.0
+            sg[j] = 1.0
+    for i in range(n):
+        best = 0
+        bestd = np.inf
+        for j in range(k):
+            e = _dist(centers[j], x[i])
+            d[j, i] = e
+            if abs(e) < bestd:
+                bestd = abs(e)
+                best = j
+        for j in range(k):
+            r[j, i] = 1.0 if j == best else 0.0
+    _m_step(x, k, w, mu, sg, d, r, min_sigma)
+    return k
+
+
+@njit(cache=True)
+def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, mx, ssum, trace):  # pragma: no cover
+    """EM from the given parameters, in place. Returns (mean log-lik, converged, n_iter).
+
+    Stops when the gain in mean log-likelihood is below ``tol``. A step that
+    lowers it (possible only through round-off or for components so wide that
+    the truncation at +-pi matters, which the paper's sigma update ignores) is
+    undone: the parameters returned are never worse than any earlier iterate.
+    ``trace`` (length max_iter + 1, or empty) receives the raw log-likelihoods.
+    """
+    wb = np.empty(k)
+    mub = np.empty(k)
+    sgb = np.empty(k)
+    ll = _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum)
+    rec = trace.shape[0] > 0
+    if rec:
+        trace[0] = ll
+    converged = False
+    it = 0
+    while it < max_iter:
+        for j in range(k):
+            wb[j] = w[j]
+            mub[j] = mu[j]
+            sgb[j] = sg[j]
+        _m_step(x, k, w, mu, sg, d, r, min_sigma)
+        it += 1
+        ll_new = _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum)
+        if rec:
+            trace[it] = ll_new
+        gain = ll_new - ll
+        if gain < 0.0:
+            for j in range(k):
+                w[j] = wb[j]
+                mu[j] = mub[j]
+                sg[j] = sgb[j]
+            converged = True
+            break
+        ll = ll_new
+        if gain < tol:
+            converged = True
+            break
+    return ll, converged, it
+
+
+@njit(cache=True)
+def _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, w_out, mu_out, sg_out, trace_m):  # pragma: no cover
+    """Best of ``u_m.shape[0]`` starts on one sample; writes w/mu/sg_out (kmax,), returns (conv, n_iter, ll)."""
+    n = xs.shape[0]
+    w = np.empty(kmax)
+    mu = np.empty(kmax)
+    sg = np.empty(kmax)
+    c = np.empty(kmax)
+    inv = np.empty(kmax)
+    d = np.empty((kmax, n))
+    r = np.empty((kmax, n))
+    scratch = np.empty(n)
+    ssum = np.empty(n)
+    empty = np.empty(0)
+    rec = trace_m.shape[0] > 0
+    best = -np.inf
+    best_conv = False
+    best_it = 0
+    for t in range(u_m.shape[0]):
+        k = _init_params(xs, kmax, u_m[t], min_sigma, w, mu, sg, d, r, scratch)
+        tr = trace_m[t] if rec else empty
+        ll, conv, it = _em(xs, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, scratch, ssum, tr)
+        if ll > best or t == 0:
+            best = ll
+            best_conv = conv
+            best_it = it
+            for j in range(kmax):
+                w_out[j] = w[j]
+                mu_out[j] = mu[j]
+                sg_out[j] = sg[j]
+    return best_conv, best_it, best
+
+
+@njit(cache=True)
+def fit_batch(
+    x, offsets, kmax, u, tol, max_iter, min_sigma, w_out, mu_out, sg_out, conv_out, iter_out, ll_out, trace
+):  # pragma: no cover
+    """Fit one mixture per slice ``x[offsets[m]:offsets[m+1]]``, keeping the best of ``u.shape[1]`` starts.
+
+    Parameters
+    ----------
+    x : (total,) float64, radians in [-pi, pi)
+    offsets : (M + 1,) int64, increasing, every slice non-empty
+    kmax : int, components per mixture
+    u : (M, n_init, kmax) float64 uniforms in [0, 1) driving the k-means++ seeding
+    tol, max_iter, min_sigma : EM stopping rule and sigma floor (radians)
+    w_out, mu_out, sg_out : (M, kmax) float64, written
+    conv_out : (M,) bool; iter_out : (M,) int64; ll_out : (M,) float64, written
+    trace : (M, n_init, max_iter + 1) float64 or shape (0, 0, 0): raw log-likelihood traces
+    """
+    rec = trace.shape[0] > 0
+    empty = np.empty((0, 0))
+    for m in range(offsets.shape[0] - 1):
+        tr = trace[m] if rec else empty
+        conv, it, ll = _fit_one(
+            x[offsets[m] : offsets[m + 1]], kmax, u[m], tol, max_iter, min_sigma, w_out[m], mu_out[m], sg_out[m], tr
+        )
+        conv_out[m] = conv
+        iter_out[m] = it
+        ll_out[m] = ll
+
+
+@njit(cache=True, parallel=True)
+def fit_batch_parallel(
+    x, offsets, kmax, u, tol, max_iter, min_sigma, w_out, mu_out, sg_out, conv_out, iter_out, ll_out
+):  # pragma: no cover
+    """:func:`fit_batch` (without traces) with the mixtures spread over numba's threads; same results."""
+    empty = np.empty((0, 0))
+    for m in prange(offsets.shape[0] - 1):
+        conv, it, ll = _fit_one(
+            x[offsets[m] : offsets[m + 1]], kmax, u[m], tol, max_iter, min_sigma, w_out[m], mu_out[m], sg_out[m], empty
+        )
+        conv_out[m] = conv
+        iter_out[m] = it
+        ll_out[m] = ll
+
+
+@njit(cache=True)
+def log_density_batch(x, w, mu, sg, out):  # pragma: no cover
+    """out[m, i] = log sum_k w[m, k] p(x_i | mu[m, k], sg[m, k]); zero-weight components skipped."""
+    m_count, kmax = w.shape
+    n = x.shape[0]
+    c = np.empty(kmax)
+    inv = np.empty(kmax)
+    a = np.empty(kmax)
+    for m in range(m_count):
+        for j in range(kmax):
+            if w[m, j] > 0.0:
+                c[j] = math.log(w[m, j]) + _log_norm(sg[m, j])
+                inv[j] = 0.5 / (sg[m, j] * sg[m, j])
+        for i in range(n):
+            xi = x[i]
+            mx = -np.inf
+            for j in range(kmax):
+                if w[m, j] > 0.0:
+                    dj = _dist(mu[m, j], xi)
+                    a[j] = c[j] - dj * dj * inv[j]
+                    if a[j] > mx:
+                        mx = a[j]
+            ssum = 0.0
+            for j in range(kmax):
+                if w[m, j] > 0.0:
+                    ssum += math.exp(a[j] - mx)
+            out[m, i] = mx + math.log(ssum)
