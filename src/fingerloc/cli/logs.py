@@ -1,0 +1,90 @@
+"""``fingerloc bench carmen``: the real-log place-recognition benchmark (issue 7)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from ..errors import InvalidParameterError
+from .app import bench_app, console, err_console
+from .bench import write_json
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.3f}" if abs(v) < 1000 else f"{v:.4g}"
+    return str(v)
+
+
+def print_benchmark(js: dict[str, Any]) -> None:
+    """Print a benchmark's JSON (from :meth:`BenchmarkRun.to_json`) as one aligned table (plain text)."""
+    rows = [*js["logs"].items(), ("pooled", js["pooled"])]
+    width = max([len("method"), *(len(m) for _, lg in rows for m in lg["methods"])])
+    lw = max([len("log"), *(len(n) for n, _ in rows)])
+    head = (
+        f"{'log':<{lw}}  {'places':>6} {'train':>6} {'queries':>7}  {'method':<{width}}  "
+        f"{'top1':>6} {'mean_rank':>9} {'recall5':>7} {'ms/query':>8} {'learn_s':>8}"
+    )
+    console.print(head, soft_wrap=True)
+    console.print("-" * len(head), soft_wrap=True)
+    for name, lg in rows:
+        methods = lg["methods"] or {"-": {}}
+        for k, (m, f) in enumerate(methods.items()):
+            lead = (
+                f"{name:<{lw}}  {lg['places']:>6} {lg['train']:>6} {lg['queries']:>7}"
+                if k == 0
+                else " " * (lw + 2 + 6 + 1 + 6 + 1 + 7)
+            )
+            figs = " ".join(
+                f"{_fmt(f.get(key, '')):>{w}}"
+                for key, w in (("top1", 6), ("mean_rank", 9), ("recall5", 7), ("ms_per_query", 8), ("learn_s", 8))
+            )
+            console.print(f"{lead}  {m:<{width}}  {figs}", soft_wrap=True)
+
+
+@bench_app.command("carmen")
+def carmen_cmd(
+    logs: list[Path] | None = typer.Argument(None, help="CARMEN logs (.log, .log.gz, .clf), plain or gzip."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
+    plot: Path | None = typer.Option(
+        None, "--plot", help="Write a PNG: map, place centres, queries right (green) / wrong (red)."
+    ),
+    method: list[str] = typer.Option(
+        [], "--method", "-m", help="Run only this method (repeatable; default: every default method)."
+    ),
+    plot_method: str | None = typer.Option(
+        None, "--plot-method", help="Method whose answers colour the plot (default: the first fingerprint method)."
+    ),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines and report how many."),
+    list_methods: bool = typer.Option(False, "--list-methods", help="List the registered methods and exit."),
+) -> None:
+    """Place recognition on CARMEN logs with the fixed protocol of issue 7.
+
+    First half of each log (scan index < n // 2) maps, the rest queries; a place
+    every 2 m (strictly) of the mapping pass, training and query scans within
+    1 m (inclusive) of a place centre.
+    """
+    from ..experiments.carmen import DEFAULT_METHODS, METHODS, plot_benchmark, run_benchmark
+
+    if list_methods:
+        for name in METHODS:
+            console.print(f"{name}{'' if name in DEFAULT_METHODS else '  (run only when named)'}")
+        raise typer.Exit()
+    if not logs:
+        raise InvalidParameterError("bench carmen needs at least one LOG (e.g. ../shared/data/carmen/*.log.gz)")
+    with err_console.status("benchmarking...") as status:
+        run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
+    js = run.to_json()
+    for lg in run.logs:
+        if lg.skipped:
+            err_console.print(f"{lg.path}: skipped {lg.skipped} malformed line(s)")
+    print_benchmark(js)
+    write_json(json_out, js)
+    if plot is not None:
+        chosen = plot_method
+        if chosen is None:
+            chosen = next((m for m in run.method_names if m.startswith("fingerprint")), None)
+        plot_benchmark(run, plot, method=chosen)
+        err_console.print(f"wrote {plot}")

@@ -1,0 +1,804 @@
+"""The real-log benchmark: place recognition on CARMEN logs (``fingerloc bench carmen``).
+
+Protocol (issue 7; other tools compare against its counts, so it is fixed):
+
+1. The front-laser scans of a log, in file order (timestamps in these logs are
+   unreliable). Scans ``0 .. n//2 - 1`` are the *mapping pass*, the rest the
+   *query pass*.
+2. Places: walk the mapping pass in order; a scan whose position is strictly
+   farther than ``D = 2.0 m`` from every existing place centre creates a place
+   centred at its position. Then every mapping scan within ``R = 1.0 m``
+   (inclusive) of some centre is a training scan of the nearest centre.
+3. Queries: every query-pass scan within ``R`` of some centre; its true place
+   is the nearest centre. (Ties in distance go to the lower place index.)
+4. Every method learns from the training scans of a log and scores every query
+   against every place of that log; the true place's rank counts ties against
+   the method (``rank = #{places scoring >= the true one}``). Per log and pooled
+   over the logs' queries: top-1 (rank 1), mean rank, recall@5, milliseconds
+   per query (scoring, including descriptor / feature extraction), seconds to
+   learn.
+
+A *method* (:class:`Method`) is anything with ``name``, ``fit(scans, labels)``
+and ``score(scans) -> (n_queries, n_places)`` (higher = better; column ``j``
+is place ``j``). Methods are created by name from :data:`METHODS`; register a
+new one with :func:`register_method`. Names starting with ``fingerprint`` are
+the Bayesian program, ``baseline-`` the scan-descriptor baselines.
+
+Positions are the robot's (corrected) pose ``(x, y)`` in each ``FLASER`` line.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
+from ..sensors import Scan
+
+__all__ = [
+    "DEFAULT_METHODS",
+    "METHODS",
+    "PLACE_RADIUS_M",
+    "PLACE_SPACING_M",
+    "BenchmarkRun",
+    "HistogramBaseline",
+    "LogRun",
+    "Method",
+    "MethodRun",
+    "ScanContextBaseline",
+    "Split",
+    "load_log_scans",
+    "log_name",
+    "make_method",
+    "make_split",
+    "plot_benchmark",
+    "rank_metrics",
+    "register_method",
+    "run_benchmark",
+    "run_log",
+    "true_place_ranks",
+]
+
+#: D: a mapping scan strictly farther than this from every centre makes a new place, metres.
+PLACE_SPACING_M = 2.0
+#: R: scans within this distance (inclusive) of a centre train / query it, metres.
+PLACE_RADIUS_M = 1.0
+
+FArray = NDArray[np.float64]
+IArray = NDArray[np.int64]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Protocol
+# ---------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Split:
+    """Places, training scans and queries of one log (indices into the log's scan list).
+
+    Attributes
+    ----------
+    centres : ndarray, shape (n_places, 2)
+        Place centres, metres, in creation order (place ``j`` is row ``j``).
+    centre_scans : ndarray of int, shape (n_places,)
+        Index of the scan that created each place.
+    train_idx, train_labels : ndarray of int, shape (n_train,)
+        Training scans (mapping pass, in order) and their place.
+    query_idx, query_labels : ndarray of int, shape (n_queries,)
+        Query scans (query pass, in order) and their true place.
+    n_scans, n_mapping : int
+        Scans in the log, and in its mapping pass (``n_scans // 2``).
+    """
+
+    centres: FArray
+    centre_scans: IArray
+    train_idx: IArray
+    train_labels: IArray
+    query_idx: IArray
+    query_labels: IArray
+    n_scans: int
+    n_mapping: int
+
+    @property
+    def n_places(self) -> int:
+        """Number of places."""
+        return int(self.centres.shape[0])
+
+    @property
+    def n_train(self) -> int:
+        """Number of training scans."""
+        return int(self.train_idx.size)
+
+    @property
+    def n_queries(self) -> int:
+        """Number of queries."""
+        return int(self.query_idx.size)
+
+
+def make_split(
+    positions: Any,
+    *,
+    place_spacing: float = PLACE_SPACING_M,
+    radius: float = PLACE_RADIUS_M,
+) -> Split:
+    """Apply the benchmark's protocol to a trajectory (module docstring, steps 1-3).
+
+    Parameters
+    ----------
+    positions : array_like, shape (n, 2)
+        Robot positions of the scans in file order, metres.
+    place_spacing : float, default 2.0
+        ``D``, metres (a new place needs a distance strictly greater).
+    radius : float, default 1.0
+        ``R``, metres (inclusive).
+
+    Returns
+    -------
+    Split
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    if pos.ndim != 2 or pos.shape[1] != 2:
+        raise InvalidParameterError(f"positions must have shape (n, 2), got {pos.shape}")
+    if not np.all(np.isfinite(pos)):
+        raise InvalidParameterError("positions must be finite")
+    if not (place_spacing > 0 and math.isfinite(place_spacing)):
+        raise InvalidParameterError(f"place_spacing must be a positive number of metres, got {place_spacing!r}")
+    if not (radius > 0 and math.isfinite(radius)):
+        raise InvalidParameterError(f"radius must be a positive number of metres, got {radius!r}")
+    n = pos.shape[0]
+    n_map = n // 2
+    centres: list[FArray] = []
+    creators: list[int] = []
+    for i in range(n_map):
+        p = pos[i]
+        if not centres or float(np.min(np.hypot(*(np.asarray(centres) - p).T))) > place_spacing:
+            centres.append(p)
+            creators.append(i)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+
+    def assign(idx: IArray) -> tuple[IArray, IArray]:
+        if c.shape[0] == 0 or idx.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        d = np.hypot(pos[idx, None, 0] - c[None, :, 0], pos[idx, None, 1] - c[None, :, 1])
+        near = np.argmin(d, axis=1)  # first (lowest index) of equal distances
+        ok = d[np.arange(idx.size), near] <= radius
+        return idx[ok].astype(np.int64), near[ok].astype(np.int64)
+
+    tr_idx, tr_lab = assign(np.arange(n_map, dtype=np.int64))
+    q_idx, q_lab = assign(np.arange(n_map, n, dtype=np.int64))
+    return Split(
+        centres=c,
+        centre_scans=np.asarray(creators, dtype=np.int64),
+        train_idx=tr_idx,
+        train_labels=tr_lab,
+        query_idx=q_idx,
+        query_labels=q_lab,
+        n_scans=n,
+        n_mapping=n_map,
+    )
+
+
+# ---------------------------------------------------------------------------------------------------
+# Metrics
+# ---------------------------------------------------------------------------------------------------
+
+
+def true_place_ranks(scores: Any, labels: Any) -> IArray:
+    """Rank (1 = best) of each query's true place; ties count against.
+
+    ``rank_i = #{j : scores[i, j] >= scores[i, labels[i]]}``: a place scoring
+    the same as the true one ranks before it. NaN scores count as ``-inf``.
+
+    Parameters
+    ----------
+    scores : array_like, shape (n_queries, n_places)
+        Higher is better.
+    labels : array_like of int, shape (n_queries,)
+
+    Returns
+    -------
+    ndarray of int, shape (n_queries,)
+    """
+    s = np.asarray(scores, dtype=np.float64)
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if s.ndim != 2 or s.shape[0] != y.size:
+        raise InvalidParameterError(f"scores must have shape (n_queries, n_places) = ({y.size}, ...), got {s.shape}")
+    if y.size and (y.min() < 0 or y.max() >= s.shape[1]):
+        raise InvalidParameterError(f"labels must be place indices in [0, {s.shape[1]}), got {y.min()}..{y.max()}")
+    s = np.where(np.isnan(s), -np.inf, s)
+    true = s[np.arange(y.size), y]
+    return (s >= true[:, None]).sum(axis=1).astype(np.int64)
+
+
+def rank_metrics(ranks: Any) -> dict[str, float]:
+    """``top1`` (fraction at rank 1), ``mean_rank`` and ``recall5`` (fraction at rank <= 5) of true-place ranks."""
+    r = np.asarray(ranks, dtype=np.float64).reshape(-1)
+    if r.size == 0:
+        return {"top1": float("nan"), "mean_rank": float("nan"), "recall5": float("nan")}
+    return {"top1": float(np.mean(r == 1)), "mean_rank": float(np.mean(r)), "recall5": float(np.mean(r <= 5))}
+
+
+# ---------------------------------------------------------------------------------------------------
+# Methods
+# ---------------------------------------------------------------------------------------------------
+
+
+@runtime_checkable
+class Method(Protocol):
+    """A place-recognition method under test.
+
+    ``fit`` learns places ``0 .. n_places - 1`` from training scans (every
+    place has at least one); ``score`` returns an ``(n_queries, n_places)``
+    array, higher = more likely that place (any monotone scale: log-posterior,
+    similarity, negative distance).
+    """
+
+    name: str
+
+    def fit(self, scans: Sequence[Scan], labels: IArray) -> object: ...
+
+    def score(self, scans: Sequence[Scan]) -> FArray: ...
+
+
+#: name -> factory making a fresh, unfitted method.
+METHODS: dict[str, Callable[[], Method]] = {}
+
+
+#: Names run when no method is asked for (registration order).
+DEFAULT_METHODS: list[str] = []
+
+
+def register_method(name: str, *, default: bool = True) -> Callable[[Callable[[], Method]], Callable[[], Method]]:
+    """Register a method factory under ``name`` (a decorator).
+
+    Names starting with ``fingerprint`` are fingerprint programs, names
+    starting with ``baseline-`` scan-descriptor baselines. ``default=False``
+    keeps a method out of the default run (it runs when named).
+    """
+    if not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
+        raise InvalidParameterError(f"method name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
+
+    def deco(factory: Callable[[], Method]) -> Callable[[], Method]:
+        METHODS[name] = factory
+        if default and name not in DEFAULT_METHODS:
+            DEFAULT_METHODS.append(name)
+        elif not default and name in DEFAULT_METHODS:
+            DEFAULT_METHODS.remove(name)
+        return factory
+
+    return deco
+
+
+def make_method(name: str) -> Method:
+    """A fresh method by registered name."""
+    if name not in METHODS:
+        raise InvalidParameterError(f"unknown method {name!r} (known: {', '.join(METHODS)})")
+    m = METHODS[name]()
+    m.name = name
+    return m
+
+
+def _max_per_place(sim: FArray, labels: IArray, n_places: int) -> FArray:
+    """Best similarity per place: ``sim`` (n_q, n_train) -> (n_q, n_places)."""
+    out = np.full((sim.shape[0], n_places), -np.inf)
+    for j in range(n_places):
+        cols = labels == j
+        if np.any(cols):
+            out[:, j] = sim[:, cols].max(axis=1)
+    return out
+
+
+def _check_fit_input(scans: Sequence[Scan], labels: Any) -> IArray:
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if len(scans) != y.size:
+        raise InvalidParameterError(f"one label per scan is needed, got {y.size} for {len(scans)} scans")
+    if y.size == 0:
+        raise EmptyInputError("no training scans")
+    if y.min() < 0 or set(np.unique(y).tolist()) != set(range(int(y.max()) + 1)):
+        raise InvalidParameterError("labels must be place indices 0 .. n_places - 1, each used at least once")
+    return y
+
+
+class ScanContextBaseline:
+    """A Scan-Context-like polar grid for 2D scans, with a union-normalised score.
+
+    After Kim and Kim, "Scan Context" (IROS 2018), adapted to a planar laser
+    that sees only part of the circle: the robot-frame plane around the
+    sensor is cut into ``n_rings`` rings (``max_radius`` metres) by
+    ``n_sectors`` sectors covering 360 deg; a cell holds the fraction of the
+    scan's end points that fall in it (square-rooted, so near walls do not
+    swamp far ones). Two grids are compared column by column (one column = one
+    sector) with the cosine similarity, at every sector shift (unknown
+    heading). The original score averages over all ``n_sectors`` columns; a
+    180 deg scan leaves half of them empty, so that average is dominated by
+    columns neither scan could fill; the original code instead divides by the
+    columns non-empty in *both*, so two scans that overlap in one column can
+    score 1. Here (``normalise="union"``) the sum of cosines is divided by the
+    number of columns non-empty in *either* grid: columns seen by one scan but
+    not the other count as mismatches; columns seen by neither do not count.
+    A place scores its best training scan.
+
+    Parameters
+    ----------
+    n_rings : int, default 20
+    n_sectors : int, default 60
+    max_radius : float, default 12.0
+        Metres; end points beyond are ignored.
+    normalise : {"union", "intersection"}, default "union"
+        Columns the sum of cosines is divided by; ``"intersection"`` is the
+        original Scan Context score.
+    """
+
+    name = "baseline-scancontext"
+
+    def __init__(
+        self, n_rings: int = 20, n_sectors: int = 60, max_radius: float = 12.0, normalise: str = "union"
+    ) -> None:
+        self.n_rings = n_rings
+        self.n_sectors = n_sectors
+        self.max_radius = max_radius
+        self.normalise = normalise
+
+    def descriptor(self, scan: Scan) -> FArray:
+        """The polar grid of one scan, shape (n_sectors, n_rings), columns L2-normalised (zero when empty)."""
+        pts = scan.points()
+        r = np.hypot(pts[:, 0], pts[:, 1])
+        a = np.mod(np.arctan2(pts[:, 1], pts[:, 0]), 2 * math.pi)
+        ok = r < self.max_radius
+        ring = np.minimum((r[ok] / self.max_radius * self.n_rings).astype(np.int64), self.n_rings - 1)
+        sec = np.minimum((a[ok] / (2 * math.pi) * self.n_sectors).astype(np.int64), self.n_sectors - 1)
+        g = np.zeros((self.n_sectors, self.n_rings))
+        np.add.at(g, (sec, ring), 1.0)
+        g = np.sqrt(g / max(1, pts.shape[0]))
+        norm = np.linalg.norm(g, axis=1, keepdims=True)
+        return np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> ScanContextBaseline:
+        """Store the training grids."""
+        if self.n_rings < 1 or self.n_sectors < 2 or not (self.max_radius > 0):
+            raise InvalidParameterError(
+                f"scan context needs n_rings >= 1, n_sectors >= 2, max_radius > 0, got "
+                f"{self.n_rings}, {self.n_sectors}, {self.max_radius!r}"
+            )
+        if self.normalise not in ("union", "intersection"):
+            raise InvalidParameterError(f"normalise must be 'union' or 'intersection', got {self.normalise!r}")
+        y = _check_fit_input(scans, labels)
+        grids = np.stack([self.descriptor(s) for s in scans])  # (T, S, R)
+        self.grids_ = grids.reshape(len(scans), -1)
+        self.occupied_ = (np.linalg.norm(grids, axis=2) > 0).astype(np.float64)  # (T, S)
+        self.labels_ = y
+        self.n_places_ = int(y.max()) + 1
+        return self
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """Best union-normalised similarity to each place, shape (n_queries, n_places), in [0, 1]."""
+        sn = self.n_sectors
+        shifts = (np.arange(sn)[:, None] + np.arange(sn)[None, :]) % sn  # row k: grid rolled by -k
+        n_occ_c = self.occupied_.sum(axis=1)  # (T,)
+        sims = np.empty((len(scans), self.grids_.shape[0]))
+        for i, s in enumerate(scans):
+            q = self.descriptor(s)  # (S, R)
+            qs = q[shifts]  # (S_shift, S, R)
+            occ = (np.linalg.norm(q, axis=1) > 0).astype(np.float64)[shifts]  # (S_shift, S)
+            num = qs.reshape(sn, -1) @ self.grids_.T  # sum of column cosines, (S_shift, T)
+            both = occ @ self.occupied_.T
+            if self.normalise == "union":
+                den = occ.sum(axis=1)[:, None] + n_occ_c[None, :] - both
+            else:
+                den = both
+            sim = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+            sims[i] = sim.max(axis=0)
+        return _max_per_place(sims, self.labels_, self.n_places_)
+
+
+class HistogramBaseline:
+    """A range histogram: the distribution of a scan's ranges, heading-free.
+
+    Ranges up to ``max_range`` metres fall into ``n_bins`` equal bins; beams
+    with no return or beyond go to one more bin; the histogram is divided by
+    the number of beams. Two histograms are compared by the L1 distance of
+    their cumulative sums (the 1D earth mover's distance in bins, so a range
+    shifted by one bin costs little); a place scores minus its nearest
+    training scan's distance.
+
+    Parameters
+    ----------
+    n_bins : int, default 40
+    max_range : float, default 10.0
+        Metres.
+    """
+
+    name = "baseline-histogram"
+
+    def __init__(self, n_bins: int = 40, max_range: float = 10.0) -> None:
+        self.n_bins = n_bins
+        self.max_range = max_range
+
+    def descriptor(self, scan: Scan) -> FArray:
+        """Cumulative range histogram, shape (n_bins + 1,), last value 1."""
+        r = scan.ranges
+        far = ~np.isfinite(r) | (r >= self.max_range)
+        h, _ = np.histogram(r[~far], bins=self.n_bins, range=(0.0, self.max_range))
+        full = np.append(h, np.count_nonzero(far)).astype(np.float64) / r.size
+        return np.cumsum(full)
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> HistogramBaseline:
+        """Store the training histograms."""
+        if self.n_bins < 1 or not (self.max_range > 0):
+            raise InvalidParameterError(
+                f"histogram needs n_bins >= 1 and max_range > 0, got {self.n_bins}, {self.max_range!r}"
+            )
+        y = _check_fit_input(scans, labels)
+        self.hists_ = np.stack([self.descriptor(s) for s in scans])
+        self.labels_ = y
+        self.n_places_ = int(y.max()) + 1
+        return self
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """Minus the least cumulative-histogram L1 distance to each place's scans, shape (n_queries, n_places)."""
+        q = np.stack([self.descriptor(s) for s in scans]) if len(scans) else np.zeros((0, self.n_bins + 1))
+        d = np.abs(q[:, None, :] - self.hists_[None, :, :]).sum(axis=2)
+        return _max_per_place(-d, self.labels_, self.n_places_)
+
+
+class FingerprintMethod:
+    """The fingerprint Bayesian program (:class:`fingerloc.model.PlaceModel`) on laser-only observations.
+
+    Each scan becomes an :class:`~fingerloc.observation.Observation` with
+    :func:`fingerloc.features.laser.observation_from_scan` (corners,
+    extremities, beacons; the scan's own field of view); ``score`` is the
+    model's log-posterior over places.
+
+    Parameters
+    ----------
+    feature_params : dict, optional
+        Keyword arguments of the laser feature extractor.
+    **model_params
+        Arguments of :class:`~fingerloc.model.PlaceModel`.
+    """
+
+    name = "fingerprint"
+
+    def __init__(self, feature_params: dict[str, Any] | None = None, **model_params: Any) -> None:
+        self.feature_params = dict(feature_params or {})
+        self.model_params = model_params
+
+    def _observations(self, scans: Sequence[Scan]) -> list[Any]:
+        from ..features.laser import observation_from_scan
+
+        return [observation_from_scan(s, **self.feature_params) for s in scans]
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
+        """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
+        from ..model import PlaceModel
+
+        y = _check_fit_input(scans, labels)
+        self.n_places_ = int(y.max()) + 1
+        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [str(v) for v in y.tolist()])
+        return self
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """Log-posterior of each place, shape (n_queries, n_places)."""
+        out = np.full((len(scans), self.n_places_), -np.inf)
+        if not scans:
+            return out
+        lp = np.asarray(self.model_.predict_log_proba(self._observations(scans)), dtype=np.float64)
+        cols = np.array([int(c) for c in self.model_.classes_], dtype=np.int64)
+        out[:, cols] = lp
+        return out
+
+
+@register_method("baseline-scancontext")
+def _scancontext() -> Method:
+    return ScanContextBaseline()
+
+
+@register_method("baseline-scancontext-original", default=False)
+def _scancontext_original() -> Method:
+    return ScanContextBaseline(normalise="intersection")
+
+
+@register_method("baseline-histogram")
+def _histogram() -> Method:
+    return HistogramBaseline()
+
+
+@register_method("fingerprint")
+def _fingerprint() -> Method:
+    # Provisional configuration (laser-only terms: extremities and the fingerprint string).
+    return FingerprintMethod(terms=("Ex", "Fp"))
+
+
+@register_method("fingerprint-cyclic")
+def _fingerprint_cyclic() -> Method:
+    # Heading unknown: align over every rotation of the stored fingerprints.
+    return FingerprintMethod(terms=("Ex", "Fp"), cyclic=True)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Runner
+# ---------------------------------------------------------------------------------------------------
+
+
+def log_name(path: str | Path) -> str:
+    """The benchmark's name of a log: the file name without ``-corrected.log.gz`` (or ``.log.gz``, ``.log``...)."""
+    name = Path(path).name
+    for suffix in ("-corrected.log.gz", "-corrected.log", ".log.gz", ".clf.gz", ".log", ".clf", ".gz"):
+        if name.endswith(suffix) and len(name) > len(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Scan], int]:
+    """The front-laser scans of a CARMEN log in file order, and the number of skipped bad lines.
+
+    ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
+    must carry a pose.
+    """
+    from ..io.carmen import ReadStats, inspect_log, iter_scans
+
+    info = inspect_log(path)
+    msg = "FLASER" if info.counts.get("FLASER", 0) else "ROBOTLASER1"
+    if not info.counts.get(msg, 0):
+        raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
+    st = ReadStats()
+    scans = list(iter_scans(path, skip_bad=skip_bad, messages=(msg,), stats=st))
+    if not scans:
+        raise EmptyInputError("no front-laser scan could be read", path=path)
+    if any(s.pose is None for s in scans):
+        raise DataFormatError("a scan has no pose", path=path)
+    return scans, st.skipped
+
+
+@dataclass(slots=True)
+class MethodRun:
+    """One method's results on one log.
+
+    Attributes
+    ----------
+    ranks : ndarray of int, shape (n_queries,)
+        True-place rank of each query (ties against).
+    predicted : ndarray of int, shape (n_queries,)
+        Best-scoring place of each query (lowest index among ties).
+    learn_s, score_s : float
+        Wall seconds of ``fit`` and of ``score`` over all queries.
+    """
+
+    ranks: IArray
+    predicted: IArray
+    learn_s: float
+    score_s: float
+
+    def figures(self) -> dict[str, float]:
+        """``top1``, ``mean_rank``, ``recall5``, ``ms_per_query``, ``learn_s``."""
+        n = self.ranks.size
+        return {
+            **rank_metrics(self.ranks),
+            "ms_per_query": 1000.0 * self.score_s / n if n else float("nan"),
+            "learn_s": self.learn_s,
+        }
+
+
+@dataclass(slots=True)
+class LogRun:
+    """One log: its scans, split, and every method's results."""
+
+    name: str
+    path: str
+    scans: list[Scan]
+    split: Split
+    skipped: int
+    methods: dict[str, MethodRun] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"places", "train", "queries", "scans", "skipped_lines", "methods": {name: figures}}``."""
+        return {
+            "places": self.split.n_places,
+            "train": self.split.n_train,
+            "queries": self.split.n_queries,
+            "scans": self.split.n_scans,
+            "skipped_lines": self.skipped,
+            "methods": {k: v.figures() for k, v in self.methods.items()},
+        }
+
+
+@dataclass(slots=True)
+class BenchmarkRun:
+    """All logs of one run; :meth:`to_json` gives the issue's JSON layout."""
+
+    logs: list[LogRun]
+    method_names: list[str]
+
+    def pooled(self) -> dict[str, Any]:
+        """Figures over every query of every log (each query weighs the same)."""
+        out: dict[str, Any] = {
+            "places": sum(lg.split.n_places for lg in self.logs),
+            "train": sum(lg.split.n_train for lg in self.logs),
+            "queries": sum(lg.split.n_queries for lg in self.logs),
+            "methods": {},
+        }
+        for m in self.method_names:
+            runs = [lg.methods[m] for lg in self.logs if m in lg.methods]
+            ranks = np.concatenate([r.ranks for r in runs]) if runs else np.zeros(0, np.int64)
+            score_s = sum(r.score_s for r in runs)
+            out["methods"][m] = {
+                **rank_metrics(ranks),
+                "ms_per_query": 1000.0 * score_s / ranks.size if ranks.size else float("nan"),
+                "learn_s": sum(r.learn_s for r in runs),
+            }
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"logs": {name: {...}}, "pooled": {...}, "protocol": {...}}``."""
+        return {
+            "logs": {lg.name: lg.to_json() for lg in self.logs},
+            "pooled": self.pooled(),
+            "protocol": {
+                "place_spacing_m": PLACE_SPACING_M,
+                "radius_m": PLACE_RADIUS_M,
+                "mapping": "index < n // 2",
+                "ties": "count against",
+            },
+        }
+
+
+def run_log(
+    scans: Sequence[Scan],
+    split: Split,
+    methods: Sequence[Method],
+    *,
+    on_method: Callable[[str], None] | None = None,
+) -> dict[str, MethodRun]:
+    """Fit and score every method on one log's split."""
+    train = [scans[i] for i in split.train_idx.tolist()]
+    queries = [scans[i] for i in split.query_idx.tolist()]
+    out: dict[str, MethodRun] = {}
+    for m in methods:
+        if on_method is not None:
+            on_method(m.name)
+        t0 = time.perf_counter()
+        m.fit(train, split.train_labels.copy())
+        t1 = time.perf_counter()
+        s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
+        t2 = time.perf_counter()
+        if s.shape != (split.n_queries, split.n_places):
+            raise RuntimeError(f"method {m.name} returned scores of shape {s.shape}, expected "
+                               f"({split.n_queries}, {split.n_places})")  # fmt: skip
+        ranks = true_place_ranks(s, split.query_labels)
+        pred = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=1) if s.size else np.zeros(0, np.int64)
+        out[m.name] = MethodRun(ranks=ranks, predicted=pred.astype(np.int64), learn_s=t1 - t0, score_s=t2 - t1)
+    return out
+
+
+def run_benchmark(
+    paths: Sequence[str | Path],
+    methods: Sequence[str] | None = None,
+    *,
+    skip_bad: bool = False,
+    on_progress: Callable[[str], None] | None = None,
+) -> BenchmarkRun:
+    """Run the benchmark's protocol on CARMEN logs.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        CARMEN logs (plain or gzip).
+    methods : sequence of str, optional
+        Registered method names (default: :data:`DEFAULT_METHODS`).
+    skip_bad : bool, default False
+        Skip malformed log lines (counted per log in ``skipped_lines``).
+    on_progress : callable, optional
+        Called with a short text before each log and method.
+
+    Returns
+    -------
+    BenchmarkRun
+    """
+    if not paths:
+        raise InvalidParameterError("at least one log is needed")
+    names = list(DEFAULT_METHODS) if not methods else list(dict.fromkeys(methods))
+    for n in names:
+        if n not in METHODS:
+            raise InvalidParameterError(f"unknown method {n!r} (known: {', '.join(METHODS)})")
+    logs: list[LogRun] = []
+    seen: dict[str, int] = {}
+    for path in paths:
+        name = log_name(path)
+        seen[name] = seen.get(name, 0) + 1
+        if seen[name] > 1:
+            name = f"{name}#{seen[name]}"
+        if on_progress is not None:
+            on_progress(f"{name}: reading")
+        scans, skipped = load_log_scans(path, skip_bad=skip_bad)
+        pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
+        split = make_split(pos)
+        lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
+        if split.n_queries == 0:
+            logs.append(lg)
+            continue
+        lg.methods = run_log(
+            scans,
+            split,
+            [make_method(n) for n in names],
+            on_method=None if on_progress is None else (lambda m, nm=name: on_progress(f"{nm}: {m}")),  # type: ignore[misc]
+        )
+        logs.append(lg)
+    return BenchmarkRun(logs=logs, method_names=names)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Plot
+# ---------------------------------------------------------------------------------------------------
+
+
+def plot_benchmark(run: BenchmarkRun, path: str | Path, *, method: str | None = None, max_points: int = 60000) -> None:
+    """Draw each log's map with place centres and queries coloured right / wrong; write a PNG.
+
+    Parameters
+    ----------
+    run : BenchmarkRun
+    path : path
+        Output image (``.png``).
+    method : str, optional
+        Whose answers colour the queries (default: the run's first method).
+    max_points : int, default 60000
+        Scan end points drawn per log at most (evenly thinned).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    meth = method if method is not None else (run.method_names[0] if run.method_names else None)
+    if meth is not None and meth not in run.method_names:
+        raise InvalidParameterError(f"method {meth!r} was not run (ran: {', '.join(run.method_names)})")
+    n = len(run.logs)
+    cols = min(n, 2)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(7.5 * cols, 7.0 * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    for ax, lg in zip(axes.flat, run.logs, strict=False):
+        world = []
+        for s in lg.scans:
+            if s.pose is None:
+                continue
+            x, y, th = s.pose
+            p = s.points()
+            c, si = math.cos(th), math.sin(th)
+            world.append(np.column_stack([x + c * p[:, 0] - si * p[:, 1], y + si * p[:, 0] + c * p[:, 1]]))
+        pts = np.concatenate(world) if world else np.zeros((0, 2))
+        if pts.shape[0] > max_points:
+            pts = pts[:: math.ceil(pts.shape[0] / max_points)]
+        ax.scatter(pts[:, 0], pts[:, 1], s=0.2, c="0.65", linewidths=0, rasterized=True, label="scan points")
+        traj = np.array([s.pose[:2] for s in lg.scans if s.pose is not None])
+        ax.plot(traj[:, 0], traj[:, 1], lw=0.4, c="0.4", alpha=0.6)
+        sp = lg.split
+        if meth is not None and meth in lg.methods and sp.n_queries:
+            right = lg.methods[meth].ranks == 1
+            qpos = traj[sp.query_idx]
+            ax.scatter(*qpos[right].T, s=10, c="tab:green", label=f"query right ({int(right.sum())})", zorder=3)
+            ax.scatter(*qpos[~right].T, s=10, c="tab:red", label=f"query wrong ({int((~right).sum())})", zorder=3)
+            top1 = float(np.mean(right))
+            title = f"{lg.name}: {meth} top-1 {top1:.2f}"
+        else:
+            title = lg.name
+        ax.scatter(sp.centres[:, 0], sp.centres[:, 1], s=28, marker="+", c="k", label=f"places ({sp.n_places})",
+                   zorder=4)  # fmt: skip
+        ax.set_title(title + f" ({sp.n_places} places, {sp.n_queries} queries)")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend(loc="best", fontsize=7, markerscale=1.5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
