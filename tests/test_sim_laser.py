@@ -88,8 +88,12 @@ def test_beacon_intensity() -> None:
 
 def test_beacon_decal_on_wall_is_bright_only_at_its_height() -> None:
     w = World(
-        segments=[(2.0, -1.0, 2.0, 1.0)], z_range=[(0.0, 2.5)], material=[0], materials=(WALL, BEACON),
-        decal_z=[(0.1, 0.9)], decal_material=[1],
+        segments=[(2.0, -1.0, 2.0, 1.0)],
+        z_range=[(0.0, 2.5)],
+        material=[0],
+        materials=(WALL, BEACON),
+        decal_z=[(0.1, 0.9)],
+        decal_material=[1],
     )
     low = simulate_scan(w, (0, 0, 0), range_noise=0.0, intensity_noise=0.0, height=0.3)
     high = simulate_scan(w, (0, 0, 0), range_noise=0.0, intensity_noise=0.0, height=1.5)
@@ -98,8 +102,12 @@ def test_beacon_decal_on_wall_is_bright_only_at_its_height() -> None:
 
 
 def test_scan_height_sees_only_spanning_segments() -> None:
-    w = World(segments=[(1.0, -1, 1.0, 1), (3.0, -1, 3.0, 1)], z_range=[(0.0, 0.7), (0.0, 2.5)], material=[0, 0],
-              materials=(WALL,))
+    w = World(
+        segments=[(1.0, -1, 1.0, 1), (3.0, -1, 3.0, 1)],
+        z_range=[(0.0, 0.7), (0.0, 2.5)],
+        material=[0, 0],
+        materials=(WALL,),
+    )
     d_low, s_low, _ = cast_rays(w, (0.0, 0.0), [0.0], z=0.3)
     d_high, s_high, _ = cast_rays(w, (0.0, 0.0), [0.0], z=1.0)
     assert d_low[0] == pytest.approx(1.0) and s_low[0] == 0

@@ -14,17 +14,26 @@ The simulator does not depend on :mod:`fingerloc.features`.
 
 from __future__ import annotations
 
+from .camera import CAMERA_HEIGHT, ELEVATION_DEG, OmniImage, render_omni, render_panorama
 from .laser import LASER_HEIGHT, simulate_scan
 from .offices import make_office, make_offices
+from .truth import true_features, true_observation
 from .world import PARTS, Material, World, cast_rays
 
 __all__ = [
+    "CAMERA_HEIGHT",
+    "ELEVATION_DEG",
     "LASER_HEIGHT",
     "PARTS",
     "Material",
+    "OmniImage",
     "World",
     "cast_rays",
     "make_office",
     "make_offices",
+    "render_omni",
+    "render_panorama",
     "simulate_scan",
+    "true_features",
+    "true_observation",
 ]

@@ -42,8 +42,15 @@ def scan_bearings(n_beams: int) -> np.ndarray:
     return -np.pi + (np.arange(n_beams) + 0.5) * (2 * np.pi / n_beams)
 
 
-def beam_intensity(world: World, origin: tuple[float, float], angles: np.ndarray, dist: np.ndarray,
-                   seg: np.ndarray, *, height: float = LASER_HEIGHT) -> np.ndarray:
+def beam_intensity(
+    world: World,
+    origin: tuple[float, float],
+    angles: np.ndarray,
+    dist: np.ndarray,
+    seg: np.ndarray,
+    *,
+    height: float = LASER_HEIGHT,
+) -> np.ndarray:
     """Noise-free intensity of beams (world-frame ``angles``) that hit ``seg`` at ``dist``; 0 for misses."""
     hit = seg >= 0
     out = np.zeros(dist.shape)
@@ -116,6 +123,8 @@ def simulate_scan(
     hit = np.isfinite(dist)
     ranges = dist + range_noise * rng.standard_normal(dist.shape)
     ranges = np.where(hit, np.maximum(ranges, 0.0), np.inf)
-    inten = inten * (1.0 + intensity_noise * rng.standard_normal(dist.shape)) + 0.005 * np.abs(rng.standard_normal(dist.shape))
+    inten = inten * (1.0 + intensity_noise * rng.standard_normal(dist.shape)) + 0.005 * np.abs(
+        rng.standard_normal(dist.shape)
+    )
     inten = np.where(hit & (ranges < max_range), np.maximum(inten, 0.0), 0.0)
     return Scan(ranges=ranges, bearings=bearings, max_range=max_range, intensities=inten, pose=(x, y, th))

@@ -83,54 +83,106 @@ class _Spec:
 
 
 def _new_door(rng: np.random.Generator) -> dict[str, Any]:
-    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.15, 0.85)), "width": float(rng.uniform(0.85, 1.0)),
-            "corridor": float(rng.uniform(1.3, 2.5))}
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.15, 0.85)),
+        "width": float(rng.uniform(0.85, 1.0)),
+        "corridor": float(rng.uniform(1.3, 2.5)),
+    }
 
 
 def _new_furniture(rng: np.random.Generator) -> dict[str, Any]:
     kind = str(rng.choice(list(_FURNITURE)))
     (w0, w1), (d0, d1), (h0, h1) = _FURNITURE[kind]
-    return {"kind": kind, "wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.1, 0.9)),
-            "width": float(rng.uniform(w0, w1)), "depth": float(rng.uniform(d0, d1)),
-            "height": float(rng.uniform(h0, h1)), "mat": int(rng.integers(0, len(_FURN_MATS)))}
+    return {
+        "kind": kind,
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.1, 0.9)),
+        "width": float(rng.uniform(w0, w1)),
+        "depth": float(rng.uniform(d0, d1)),
+        "height": float(rng.uniform(h0, h1)),
+        "mat": int(rng.integers(0, len(_FURN_MATS))),
+    }
 
 
 def _new_pillar(rng: np.random.Generator) -> dict[str, Any]:
-    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.2, 0.8)), "size": float(rng.uniform(0.3, 0.45)),
-            "free": bool(rng.uniform() < 0.3)}
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.2, 0.8)),
+        "size": float(rng.uniform(0.3, 0.45)),
+        "free": bool(rng.uniform() < 0.3),
+    }
 
 
 def _new_patch(rng: np.random.Generator) -> dict[str, Any]:
     z0 = float(rng.uniform(0.9, 1.3))
-    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.1, 0.9)), "width": float(rng.uniform(0.35, 1.0)),
-            "z0": z0, "z1": z0 + float(rng.uniform(0.4, 0.9)), "hue": float(rng.uniform(0, 360)),
-            "sat": float(rng.uniform(0.5, 0.9)), "val": float(rng.uniform(0.45, 0.85))}
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.1, 0.9)),
+        "width": float(rng.uniform(0.35, 1.0)),
+        "z0": z0,
+        "z1": z0 + float(rng.uniform(0.4, 0.9)),
+        "hue": float(rng.uniform(0, 360)),
+        "sat": float(rng.uniform(0.5, 0.9)),
+        "val": float(rng.uniform(0.45, 0.85)),
+    }
 
 
 def _new_beacon(rng: np.random.Generator) -> dict[str, Any]:
-    return {"wall": int(rng.integers(0, 6)), "u": float(rng.uniform(0.05, 0.95)), "width": float(rng.uniform(0.05, 0.08))}
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.05, 0.95)),
+        "width": float(rng.uniform(0.05, 0.08)),
+    }
 
 
 def _new_sun(rng: np.random.Generator) -> dict[str, Any]:
-    return {"u": float(rng.uniform(0.1, 0.9)), "v": float(rng.uniform(0.1, 0.9)), "hx": float(rng.uniform(0.3, 0.9)),
-            "hy": float(rng.uniform(0.3, 0.9)), "z": float(rng.uniform(0.0, 1.5)), "hz": float(rng.uniform(0.5, 1.5)),
-            "gain": float(rng.choice([1.0, -1.0]) * rng.uniform(0.15, 0.5))}
+    return {
+        "u": float(rng.uniform(0.1, 0.9)),
+        "v": float(rng.uniform(0.1, 0.9)),
+        "hx": float(rng.uniform(0.3, 0.9)),
+        "hy": float(rng.uniform(0.3, 0.9)),
+        "z": float(rng.uniform(0.0, 1.5)),
+        "hz": float(rng.uniform(0.5, 1.5)),
+        "gain": float(rng.choice([1.0, -1.0]) * rng.uniform(0.15, 0.5)),
+    }
 
 
-_NEW = {"doors": _new_door, "furniture": _new_furniture, "pillars": _new_pillar, "patches": _new_patch,
-        "beacons": _new_beacon, "suns": _new_sun}
-_COUNTS = {"doors": (1, 2), "furniture": (3, 6), "pillars": (0, 1), "patches": (2, 4), "beacons": (3, 6), "suns": (0, 2)}
+_NEW = {
+    "doors": _new_door,
+    "furniture": _new_furniture,
+    "pillars": _new_pillar,
+    "patches": _new_patch,
+    "beacons": _new_beacon,
+    "suns": _new_sun,
+}
+_COUNTS = {
+    "doors": (1, 2),
+    "furniture": (3, 6),
+    "pillars": (0, 1),
+    "patches": (2, 4),
+    "beacons": (3, 6),
+    "suns": (0, 2),
+}
 
 
 def _new_spec(rng: np.random.Generator) -> _Spec:
     width, depth = float(rng.uniform(3.8, 6.5)), float(rng.uniform(3.2, 5.5))
-    notch = (float(rng.uniform(0.8, 0.4 * width)), float(rng.uniform(0.8, 0.4 * depth))) if rng.uniform() < 0.35 else None
+    notch = (
+        (float(rng.uniform(0.8, 0.4 * width)), float(rng.uniform(0.8, 0.4 * depth))) if rng.uniform() < 0.35 else None
+    )
     lists = {k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in _COUNTS.items()}
     return _Spec(
-        width=width, depth=depth, height=float(rng.uniform(2.5, 3.0)), notch=notch,
-        wall_rgb=_low_sat(rng, (0.72, 0.92), 0.12), wall_refl=float(rng.uniform(0.35, 0.6)),
-        floor_rgb=_low_sat(rng, (0.3, 0.6), 0.2), frame_rgb=_low_sat(rng, (0.25, 0.6), 0.2),
-        corridor_rgb=_low_sat(rng, (0.55, 0.8), 0.1), light_angle=float(rng.uniform(-np.pi, np.pi)),
+        width=width,
+        depth=depth,
+        height=float(rng.uniform(2.5, 3.0)),
+        notch=notch,
+        wall_rgb=_low_sat(rng, (0.72, 0.92), 0.12),
+        wall_refl=float(rng.uniform(0.35, 0.6)),
+        floor_rgb=_low_sat(rng, (0.3, 0.6), 0.2),
+        frame_rgb=_low_sat(rng, (0.25, 0.6), 0.2),
+        corridor_rgb=_low_sat(rng, (0.55, 0.8), 0.1),
+        light_angle=float(rng.uniform(-np.pi, np.pi)),
         **lists,
     )
 
@@ -138,8 +190,24 @@ def _new_spec(rng: np.random.Generator) -> _Spec:
 def _jitter(x: dict[str, Any], amount: float, rng: np.random.Generator) -> dict[str, Any]:
     """Move an element's continuous parameters by ``amount`` (0 = none, 1 = large)."""
     out = dict(x)
-    scale = {"u": 0.25, "width": 0.15, "depth": 0.1, "height": 0.1, "corridor": 0.4, "size": 0.05, "z0": 0.15,
-             "z1": 0.15, "hue": 45.0, "sat": 0.1, "val": 0.1, "v": 0.25, "hx": 0.2, "hy": 0.2, "z": 0.3, "hz": 0.3}
+    scale = {
+        "u": 0.25,
+        "width": 0.15,
+        "depth": 0.1,
+        "height": 0.1,
+        "corridor": 0.4,
+        "size": 0.05,
+        "z0": 0.15,
+        "z1": 0.15,
+        "hue": 45.0,
+        "sat": 0.1,
+        "val": 0.1,
+        "v": 0.25,
+        "hx": 0.2,
+        "hy": 0.2,
+        "z": 0.3,
+        "hz": 0.3,
+    }
     for k, s in scale.items():
         if k in out:
             out[k] = float(out[k] + amount * s * rng.normal())
@@ -202,8 +270,15 @@ class _Builder:
         self.materials.append(m)
         return len(self.materials) - 1
 
-    def add(self, p0: np.ndarray, p1: np.ndarray, z: tuple[float, float], mat: int, part: str,
-            decal: tuple[float, float, int] | None = None) -> None:
+    def add(
+        self,
+        p0: np.ndarray,
+        p1: np.ndarray,
+        z: tuple[float, float],
+        mat: int,
+        part: str,
+        decal: tuple[float, float, int] | None = None,
+    ) -> None:
         if np.hypot(*(p1 - p0)) < 1e-6:
             return
         self.seg.append((float(p0[0]), float(p0[1]), float(p1[0]), float(p1[1])))
@@ -297,7 +372,11 @@ def _build(spec: _Spec, name: str) -> World:
         found = None
         for du in (0.0, 0.1, -0.1, 0.2, -0.2, 0.35, -0.35):
             p = place(f["wall"], float(np.clip(f["u"] + du, 0.0, 1.0)), f["width"], 0.05)
-            if p is None or not free_of_doors(p[0], p[1], p[2], 0.15) or any(_overlaps((p[1], p[2]), x) for x in blocked[p[0]]):
+            if (
+                p is None
+                or not free_of_doors(p[0], p[1], p[2], 0.15)
+                or any(_overlaps((p[1], p[2]), x) for x in blocked[p[0]])
+            ):
                 continue
             box = footprint(p[0], p[1], p[2], 0.0, _FURN_GAP + f["depth"])
             if not clash(box, taken) and world_inside(box):
@@ -312,7 +391,11 @@ def _build(spec: _Spec, name: str) -> World:
     pillar_boxes: list[tuple[int, float, float, float]] = []
     for pl in spec.pillars:
         p = place(pl["wall"], pl["u"], pl["size"], 0.3)
-        if p is None or not free_of_doors(p[0], p[1], p[2], 0.2) or any(_overlaps((p[1], p[2]), x, 0.1) for x in blocked[p[0]]):
+        if (
+            p is None
+            or not free_of_doors(p[0], p[1], p[2], 0.2)
+            or any(_overlaps((p[1], p[2]), x, 0.1) for x in blocked[p[0]])
+        ):
             continue
         inset = 0.9 if pl["free"] else 0.0
         box = footprint(p[0], p[1], p[2], inset - 0.05, inset + pl["size"] + 0.05)
@@ -321,7 +404,10 @@ def _build(spec: _Spec, name: str) -> World:
         taken.append(box)
         blocked[p[0]].append((p[1] - 0.05, p[2] + 0.05))
         pillar_boxes.append((p[0], p[1], p[2], inset))
-    def first_fit(wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]) -> tuple[int, float, float] | None:
+
+    def first_fit(
+        wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]
+    ) -> tuple[int, float, float] | None:
         # The wanted spot, else the nearest of a few shifted ones along the same wall.
         for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
             p = place(wall, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
@@ -333,8 +419,11 @@ def _build(spec: _Spec, name: str) -> World:
         return free_of_doors(i, lo, hi) and not any(_overlaps((lo, hi), (a, c), 0.1) for a, c, *_ in decals[i])
 
     def beacon_ok(i: int, lo: float, hi: float) -> bool:
-        return (free_of_doors(i, lo, hi, 0.1) and not any(_overlaps((lo, hi), x, 0.1) for x in blocked[i])
-                and not any(_overlaps((lo, hi), (a, c), 0.15) for a, c, *_ in decals[i]))
+        return (
+            free_of_doors(i, lo, hi, 0.1)
+            and not any(_overlaps((lo, hi), x, 0.1) for x in blocked[i])
+            and not any(_overlaps((lo, hi), (a, c), 0.15) for a, c, *_ in decals[i])
+        )
 
     for pt in spec.patches:
         p = first_fit(pt["wall"], pt["u"], pt["width"], patch_ok)
@@ -398,10 +487,20 @@ def _build(spec: _Spec, name: str) -> World:
         sun.append((cx, cy, sn["z"], sn["hx"], sn["hy"], sn["hz"], float(np.clip(sn["gain"], -0.6, 0.8))))
 
     world = World(
-        segments=np.array(b.seg), z_range=np.array(b.z), material=np.array(b.mat), materials=tuple(b.materials),
-        decal_z=np.array(b.dz), decal_material=np.array(b.dm), part=np.array(b.part), height=H,
-        floor_rgb=spec.floor_rgb, ceiling_rgb=(0.9, 0.9, 0.88), light_angle=spec.light_angle,
-        sun=np.array(sun).reshape(-1, 7), room=poly, name=name,
+        segments=np.array(b.seg),
+        z_range=np.array(b.z),
+        material=np.array(b.mat),
+        materials=tuple(b.materials),
+        decal_z=np.array(b.dz),
+        decal_material=np.array(b.dm),
+        part=np.array(b.part),
+        height=H,
+        floor_rgb=spec.floor_rgb,
+        ceiling_rgb=(0.9, 0.9, 0.88),
+        light_angle=spec.light_angle,
+        sun=np.array(sun).reshape(-1, 7),
+        room=poly,
+        name=name,
     )
     return replace(world, anchor=_anchor(world))
 

@@ -257,7 +257,9 @@ class World:
 
 
 # ---------------------------------------------------------------- ray casting
-def _intersections(world: World, origin: tuple[float, float], angles: FArray, mask: NDArray[np.bool_] | None) -> tuple[FArray, FArray, IArray]:
+def _intersections(
+    world: World, origin: tuple[float, float], angles: FArray, mask: NDArray[np.bool_] | None
+) -> tuple[FArray, FArray, IArray]:
     """Distance and segment parameter of every ray x segment crossing.
 
     Returns ``dist`` (n, m') with ``inf`` where the ray misses, ``t`` (n, m')
@@ -316,9 +318,7 @@ def cast_rays(
     return d, np.where(hit, idx[j], -1), np.where(hit, t[rows, j], np.nan)
 
 
-def cast_rays_k(
-    world: World, origin: tuple[float, float], angles: ArrayLike, k: int
-) -> tuple[FArray, IArray, FArray]:
+def cast_rays_k(world: World, origin: tuple[float, float], angles: ArrayLike, k: int) -> tuple[FArray, IArray, FArray]:
     """The ``k`` nearest hits of each ray, sorted by distance (for the camera, which sees over low segments).
 
     Returns ``dist`` (n, k) (``inf`` pads), ``seg`` (n, k) (-1 pads), ``t`` (n, k).
