@@ -130,7 +130,7 @@ def _energy_linear(
                 v = w
             diag = up
             row[j] = v
-    return row[m]
+    return float(row[m])
 
 
 @njit(cache=True)

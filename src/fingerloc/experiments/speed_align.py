@@ -1,0 +1,103 @@
+"""Speed section ``align`` of ``fingerloc bench speed`` (issue 4, "Must show").
+
+One run on the same random fingerprints (letters drawn uniformly from the
+alphabet with a fixed seed; 20 queries and 10,000 references of 40 letters;
+``--quick``: 5 queries, 1,000 references):
+
+(a) unit-cost plain alignment, ms per query, and its ratio to
+    ``rapidfuzz.process.cdist`` with all workers (target <= 2);
+(b) weighted plain alignment (``CostModel.feature_aware()``) in DP cells per
+    second (target >= 1e9 on 2 cores);
+(c) exact cyclic alignment (unit costs), ms per query against all references
+    (target <= 10 ms), and its ratio to the brute force that runs the plain
+    compiled DP for every rotation (timed on the first 1,000 references and
+    scaled, as it is slow), after checking that both agree exactly.
+
+Also timed: weighted cyclic alignment and the minimum-energy matcher (on
+the first 1,000 references, scaled to 10,000).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numba
+import numpy as np
+from rapidfuzz import process as rf_process
+from rapidfuzz.distance import Levenshtein
+
+from ..align import CostModel, alignment_costs, minimum_energy_costs
+from ..align._cyclic import cyclic_batch_brute
+from ..align._encode import encode_many
+from ..fingerprint import ALPHABET
+from .speed import best_time, section
+
+__all__ = ["random_fingerprints", "speed_align"]
+
+
+def random_fingerprints(n: int, length: int, rng: np.random.Generator) -> list[str]:
+    """``n`` strings of ``length`` letters drawn uniformly from the alphabet."""
+    letters = np.array(list(ALPHABET))
+    return ["".join(row) for row in letters[rng.integers(0, len(ALPHABET), size=(n, length))]]
+
+
+@section("align")
+def speed_align(quick: bool) -> dict[str, Any]:
+    """Time the alignment kernels; return JSON-ready figures."""
+    rng = np.random.default_rng(20040426)
+    n_q, n_r, length = (5, 1_000, 40) if quick else (20, 10_000, 40)
+    n_sub = min(n_r, 1_000)  # references for the slow baselines
+    queries = random_fingerprints(n_q, length, rng)
+    refs = random_fingerprints(n_r, length, rng)
+    feature = CostModel.feature_aware()
+    repeat = 2 if quick else 3
+    out: dict[str, Any] = {
+        "queries": n_q,
+        "references": n_r,
+        "length": length,
+        "threads": int(numba.get_num_threads()),
+        "cpus": os.cpu_count() or 1,
+    }
+
+    # (a) unit costs, plain
+    alignment_costs(queries[:1], refs[:8])
+    t_ours = best_time(lambda: alignment_costs(queries, refs), repeat=repeat)
+    t_rf = best_time(
+        lambda: rf_process.cdist(queries, refs, scorer=Levenshtein.distance, workers=-1, dtype=np.int32),
+        repeat=repeat,
+    )
+    out["unit_plain_ms_per_query"] = 1e3 * t_ours / n_q
+    out["rapidfuzz_cdist_ms_per_query"] = 1e3 * t_rf / n_q
+    out["unit_plain_ratio_to_rapidfuzz"] = t_ours / t_rf
+
+    # (b) weighted costs, plain
+    alignment_costs(queries[:1], refs[:8], costs=feature)
+    t_w = best_time(lambda: alignment_costs(queries, refs, costs=feature), repeat=repeat)
+    out["weighted_plain_ms_per_query"] = 1e3 * t_w / n_q
+    out["weighted_plain_cells_per_s"] = n_q * n_r * length * length / t_w
+
+    # (c) exact cyclic, unit costs, against the brute force over rotations
+    alignment_costs(queries[:1], refs[:8], cyclic=True)
+    t_c = best_time(lambda: alignment_costs(queries, refs, cyclic=True), repeat=repeat)
+    qc, qo = encode_many(queries)
+    rc, ro = encode_many(refs[:n_sub])
+    unit = CostModel()
+    cyclic_batch_brute(qc[:length], qo[:2], rc[: 8 * length], ro[:9], unit.substitution, unit.indel)  # compile
+    t_b = best_time(lambda: cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel), repeat=1)
+    brute = cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel)
+    fast = alignment_costs(queries, refs[:n_sub], cyclic=True)
+    out["cyclic_unit_ms_per_query"] = 1e3 * t_c / n_q
+    out["cyclic_brute_ms_per_query"] = 1e3 * t_b / n_q * (n_r / n_sub)
+    out["cyclic_speedup_over_brute"] = (t_b * n_r / n_sub) / t_c
+    out["cyclic_equals_brute"] = bool(np.array_equal(fast, brute))
+
+    # extras: weighted cyclic and minimum energy (on n_sub references, scaled)
+    sub_refs = refs[:n_sub]
+    alignment_costs(queries[:1], refs[:8], cyclic=True, costs=feature)
+    t_wc = best_time(lambda: alignment_costs(queries, sub_refs, cyclic=True, costs=feature), repeat=1)
+    out["cyclic_weighted_ms_per_query"] = 1e3 * t_wc / n_q * (n_r / n_sub)
+    minimum_energy_costs(queries[:1], refs[:8])
+    t_me = best_time(lambda: minimum_energy_costs(queries, sub_refs), repeat=1)
+    out["minimum_energy_ms_per_query"] = 1e3 * t_me / n_q * (n_r / n_sub)
+    return out
