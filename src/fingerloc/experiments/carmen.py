@@ -462,20 +462,31 @@ class FingerprintMethod:
     ----------
     feature_params : dict, optional
         Keyword arguments of the laser feature extractor.
+    world_frame : bool, default False
+        Turn every observation by the robot's heading (``pose[2]``) so that
+        bearings are in the map frame: the heading is then *given* to the
+        method (the baselines do not get it). False keeps robot-frame
+        bearings (heading unknown).
     **model_params
         Arguments of :class:`~fingerloc.model.PlaceModel`.
     """
 
     name = "fingerprint"
 
-    def __init__(self, feature_params: dict[str, Any] | None = None, **model_params: Any) -> None:
+    def __init__(
+        self, feature_params: dict[str, Any] | None = None, *, world_frame: bool = False, **model_params: Any
+    ) -> None:
         self.feature_params = dict(feature_params or {})
+        self.world_frame = world_frame
         self.model_params = model_params
 
     def _observations(self, scans: Sequence[Scan]) -> list[Any]:
         from ..features.laser import observation_from_scan
 
-        return [observation_from_scan(s, **self.feature_params) for s in scans]
+        obs = [observation_from_scan(s, **self.feature_params) for s in scans]
+        if self.world_frame:
+            obs = [o.rotated(s.pose[2]) if s.pose is not None else o for o, s in zip(obs, scans, strict=True)]
+        return obs
 
     def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
         """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
