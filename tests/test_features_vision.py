@@ -141,7 +141,7 @@ def test_unwarp_validates_geometry():
     with pytest.raises(InvalidParameterError, match="width"):
         unwarp_omni(img, (50, 50), 10, 30, width=3)
     pano = unwarp_omni(img[:, :, 0], (50, 50), 10, 30)  # grey images are fine
-    assert pano.image.shape == (20, 720, 3)
+    assert pano.image.shape == (20, 360, 3)
 
 
 def test_extract_and_observation_from_views():

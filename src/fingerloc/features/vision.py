@@ -23,6 +23,7 @@ in degrees, ``[0, 360)``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -78,7 +79,7 @@ def unwarp_omni(
     r_in: float,
     r_out: float,
     *,
-    width: int = 720,
+    width: int | None = None,
     height: int | None = None,
     bearing_offset: float = 0.0,
     mirror: bool = False,
@@ -100,8 +101,9 @@ def unwarp_omni(
         ``(i, j)`` has its centre at ``x = j + 0.5``, ``y = i + 0.5``).
     r_in, r_out : float
         Inner and outer radius of the useful ring, pixels, ``0 <= r_in < r_out``.
-    width : int, default 720
-        Panorama columns (720: half a degree per column).
+    width : int, optional
+        Panorama columns; default: the circumference of the middle of the
+        ring rounded to a multiple of 360, between 360 and 1440.
     height : int, optional
         Panorama rows; default ``round(r_out - r_in)`` (one row per pixel of
         radius).
@@ -143,6 +145,8 @@ def unwarp_omni(
         raise InvalidParameterError(
             f"the mirror ring (center {cx:g}, {cy:g}, r_out {r_out:g}) lies mostly outside the {ww}x{hh} image"
         )
+    if width is None:
+        width = int(np.clip(round(np.pi * (r_in + r_out) / 360.0) * 360, 360, 1440))
     if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 8:
         raise InvalidParameterError(f"width must be an integer >= 8, got {width!r}")
     h = round(r_out - r_in) if height is None else height
@@ -227,39 +231,58 @@ class EdgeParams:
     ----------
     min_support : float, default 0.3
         Part of the rows (``0..1``) that must carry the edge.
-    min_contrast : float, default 0.06
-        Smallest gradient counted, in log-luminance units (0.06: about 6 %
-        brightness change between neighbouring columns).
+    min_contrast : float, default 0.08
+        Smallest step counted across an edge, in log-luminance units (0.08:
+        about 8 % brightness change), after undoing the smoothing.
     noise_k : float, default 4
         The gradient threshold is at least this many robust standard
         deviations of the image's column gradients.
-    chroma_weight : float, default 3
-        Weight of the chromaticity gradient beside the log-luminance one.
+    chroma_weight : float, default 2
+        Weight of the chromaticity (r, g) gradient beside the log-luminance one.
     smooth_px : float, default 1
         Gaussian smoothing along the rows before differentiating, pixels
         (scaled with the panorama width relative to 720 columns).
-    slant_px : int, default 1
-        An edge pixel counts for columns up to this far (slightly slanted or
-        aliased edges).
+    slant_deg : float, default 0.5
+        An edge pixel counts for columns up to this far in bearing (slightly
+        slanted or aliased edges); at least one column.
     nms_deg : float, default 2
         Two edges closer than this keep only the stronger one.
+    relative_min : float, default 0.25
+        In each row, a gradient maximum weaker than this part of the strongest
+        gradient within twice ``nms_deg`` is ignored (ringing, JPEG blocks).
     """
 
     min_support: float = 0.3
-    min_contrast: float = 0.06
+    min_contrast: float = 0.08
     noise_k: float = 4.0
-    chroma_weight: float = 3.0
+    chroma_weight: float = 2.0
     smooth_px: float = 1.0
-    slant_px: int = 1
+    slant_deg: float = 0.5
     nms_deg: float = 2.0
+    relative_min: float = 0.25
 
     def __post_init__(self) -> None:
         _check_positive(self, ("min_support", "min_contrast", "nms_deg"))
-        _check_positive(self, ("noise_k", "chroma_weight", "smooth_px"), allow_zero=True)
+        if not 0 <= self.relative_min < 1:
+            raise InvalidParameterError(f"relative_min must be in [0, 1), got {self.relative_min!r}")
+        _check_positive(self, ("noise_k", "chroma_weight", "smooth_px", "slant_deg"), allow_zero=True)
         if self.min_support > 1:
             raise InvalidParameterError(f"min_support must be in (0, 1], got {self.min_support!r}")
-        if isinstance(self.slant_px, bool) or not isinstance(self.slant_px, (int, np.integer)) or self.slant_px < 0:
-            raise InvalidParameterError(f"slant_px must be an integer >= 0, got {self.slant_px!r}")
+
+
+def _smooth_cols(a: FArray, sigma: float) -> tuple[FArray, float]:
+    """Gaussian smoothing along the columns (circular) and the gain that restores a step's height.
+
+    A step of height ``A`` gives a forward difference of ``A erf(1 / (2 sqrt(2) sigma))`` after
+    smoothing; multiplying by the returned gain makes it ``A`` again.
+    """
+    if sigma <= 0:
+        return a, 1.0
+    return ndimage.gaussian_filter1d(a, sigma, axis=1, mode="wrap"), 1.0 / math.erf(0.5 / (np.sqrt(2.0) * sigma))
+
+
+def _slant_cols(p: EdgeParams, w: int) -> int:
+    return max(1, round(p.slant_deg / 360.0 * w))
 
 
 def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
@@ -267,22 +290,27 @@ def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
     img = pano.image.astype(np.float64)
     h, w, _ = img.shape
     scale = w / 720.0
-    if p.smooth_px > 0:
-        img = ndimage.gaussian_filter1d(img, p.smooth_px * max(scale, 0.5), axis=1, mode="wrap")
     lum = img @ np.array([0.299, 0.587, 0.114])
     loglum = np.log(lum + 0.02)
     tot = img.sum(axis=2) + 0.06
     chrom = img[:, :, :2] / tot[:, :, None]
+    # chroma is smoothed twice as much: cameras and JPEG sample it at half resolution
+    sigma = p.smooth_px * max(scale, 0.5)
+    loglum, gl = _smooth_cols(loglum, sigma)
+    chrom, gc = _smooth_cols(chrom, 2.0 * sigma)
     # forward differences, circular: d[:, j] is the change across the boundary between j and j+1
-    dl = np.roll(loglum, -1, axis=1) - loglum
-    dc = np.roll(chrom, -1, axis=1) - chrom
+    dl = gl * (np.roll(loglum, -1, axis=1) - loglum)
+    dc = gc * (np.roll(chrom, -1, axis=1) - chrom)
     g = np.sqrt(dl**2 + (p.chroma_weight**2) * (dc**2).sum(axis=2))
     med = float(np.median(g))
     mad = 1.4826 * float(np.median(np.abs(g - med)))
     thr = max(p.min_contrast, med + p.noise_k * mad)
     peak = (g >= np.roll(g, 1, axis=1)) & (g >= np.roll(g, -1, axis=1)) & (g > thr)
-    if p.slant_px > 0:
-        peak = ndimage.maximum_filter1d(peak, 2 * p.slant_px + 1, axis=1, mode="wrap")
+    # ringing and block artefacts beside a strong edge (JPEG) are much weaker than that edge
+    near = max(2, round(2.0 * p.nms_deg / 360.0 * w))
+    peak &= g >= p.relative_min * ndimage.maximum_filter1d(g, 2 * near + 1, axis=1, mode="wrap")
+    slant = _slant_cols(p, w)
+    peak = ndimage.maximum_filter1d(peak, 2 * slant + 1, axis=1, mode="wrap")
     # rows that are flat (e.g. outside an omni ring, saturated sky) do not vote
     support = peak.mean(axis=0)
     strength = np.where(peak, g, 0.0).sum(axis=0) / max(h, 1)
@@ -322,7 +350,8 @@ def vertical_edges(pano: Panorama, **params: Any) -> FArray:
     cols = []
     for j in keep:
         # sub-column position: strength-weighted centre over the slant window
-        idx = np.arange(j - p.slant_px - 1, j + p.slant_px + 2)
+        slant = _slant_cols(p, w)
+        idx = np.arange(j - slant - 1, j + slant + 2)
         wts = strength[idx % w]
         pos = float((idx * wts).sum() / wts.sum()) if wts.sum() > 0 else float(j)
         cols.append(pos + 1.0)  # boundary between column pos and pos + 1

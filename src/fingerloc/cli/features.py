@@ -1,0 +1,226 @@
+"""``fingerloc features``: extract features from sensor files and print or save them.
+
+Each input *kind* has one reader function in :data:`KINDS` that turns a file
+into ``(name, Observation)`` pairs (one per image, or one per scan of a log).
+To add a kind (CARMEN logs, ROS bags), write such a function and register it
+in :data:`KINDS`; options it needs go into :class:`FeatureOptions`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from ..angles import deg_to_rad, rad_to_deg360
+from ..errors import DataFormatError, InvalidParameterError
+from ..fingerprint import hue_letter
+from ..observation import Observation
+from ..sensors import Panorama
+from .app import app, console, err_console
+
+__all__ = ["KINDS", "FeatureOptions", "format_observation", "load_image", "panorama_from_file"]
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureOptions:
+    """Options of ``fingerloc features`` shared by every reader.
+
+    Attributes
+    ----------
+    place : str or None
+        Label of every observation.
+    bearing_offset : float
+        Radians: bearing of the left edge of panorama column 0, or of the
+        omnidirectional image's ``+x`` axis.
+    counter_clockwise : bool
+        Panorama bearings grow with the column index (default: they decrease,
+        as in a photograph taken turning right).
+    center, radii : pairs of float or None
+        Omnidirectional image: mirror centre (x, y) and ring radii, pixels.
+    mirror : bool
+        Omnidirectional image seen from below (bearings clockwise on screen).
+    band : pair of float or None
+        Rows (parts of the height, top = 0) of a panorama to use; ``None``:
+        the middle half of a full 2:1 equirectangular image, else every row.
+    max_width : int
+        Panoramas wider than this are resampled down (area averaging).
+    topic : str or None
+        Topic of a ROS bag (for the ``bag`` kind).
+    """
+
+    place: str | None = None
+    bearing_offset: float = 0.0
+    counter_clockwise: bool = False
+    center: tuple[float, float] | None = None
+    radii: tuple[float, float] | None = None
+    mirror: bool = False
+    band: tuple[float, float] | None = None
+    max_width: int = 1440
+    topic: str | None = None
+
+
+Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
+
+
+def load_image(path: Path) -> np.ndarray:
+    """Read an image file (JPEG, PNG, ... via Pillow) as an (h, w, 3) ``uint8`` RGB array.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the path, when the file is missing or not an image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            rgb = im.convert("RGB")
+    except FileNotFoundError as err:
+        raise DataFormatError("no such file", path=path) from err
+    except UnidentifiedImageError as err:
+        raise DataFormatError("not an image file Pillow can read (JPEG, PNG, ...)", path=path) from err
+    except (OSError, ValueError, SyntaxError) as err:
+        raise DataFormatError(f"cannot read image: {err}", path=path) from err
+    return np.asarray(rgb, dtype=np.uint8)
+
+
+def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
+    h, w = img.shape[:2]
+    if w <= max_width:
+        return img
+    from PIL import Image
+
+    new_h = max(2, round(h * max_width / w))
+    return np.asarray(Image.fromarray(img).resize((max_width, new_h), Image.Resampling.BOX), dtype=np.uint8)
+
+
+def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
+    """A :class:`Panorama` from an equirectangular image file (see :class:`FeatureOptions`)."""
+    img = load_image(path)
+    h, w = img.shape[:2]
+    if w < 64 or h < 8:
+        raise DataFormatError(f"image too small for a 360 deg panorama: {w}x{h} pixels", path=path)
+    band = opts.band
+    if band is None and abs(w / h - 2.0) < 0.05:
+        band = (0.25, 0.75)  # full equirectangular: elevations -45..+45 deg
+    if band is not None:
+        lo, hi = round(band[0] * h), round(band[1] * h)
+        img = img[lo:hi]
+    img = _shrink(img, opts.max_width)
+    meta: dict[str, object] = {"source": str(path)}
+    return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
+
+
+def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from ..features.vision import observation_from_views
+
+    pano = panorama_from_file(path, opts)
+    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+
+
+def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from ..features.vision import observation_from_views, unwarp_omni
+
+    if opts.center is None or opts.radii is None:
+        raise InvalidParameterError("--kind omni needs --center X Y and --radii R_IN R_OUT (pixels)")
+    img = load_image(path)
+    width = int(np.clip(round(np.pi * sum(opts.radii) / 360.0) * 360, 360, max(360, opts.max_width)))
+    pano = unwarp_omni(
+        img,
+        opts.center,
+        opts.radii[0],
+        opts.radii[1],
+        width=int(width),
+        bearing_offset=opts.bearing_offset,
+        mirror=opts.mirror,
+    )
+    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+
+
+#: Input kinds: name -> reader. Laser log readers register here (``carmen``, ``bag``):
+#: each yields one ``(name, observation_from_scan(scan, label=opts.place))`` per scan.
+KINDS: dict[str, Reader] = {
+    "panorama": _read_panorama,
+    "omni": _read_omni,
+}
+
+
+def format_observation(name: str, obs: Observation) -> str:
+    """Readable lines: bearings in degrees of each feature type present, patches with hue letters."""
+
+    def degs(a: np.ndarray) -> str:
+        return " ".join(f"{x:.1f}" for x in rad_to_deg360(a)) if a.size else "-"
+
+    lines = [f"{name}" + (f"  [{obs.label}]" if obs.label else "")]
+    if obs.full_fov or obs.ve.size or obs.cp.size:
+        lines.append(f"  vertical edges ({obs.ve.size}): {degs(obs.ve)}")
+        pats = " ".join(
+            f"{b:.1f}:{hue_letter(h)}({h:.0f})" for b, h in zip(rad_to_deg360(obs.cp), obs.cp_hue, strict=True)
+        )
+        lines.append(f"  colour patches ({obs.cp.size}): {pats or '-'}")
+    if obs.c.size or obs.ex.size or obs.b.size or not obs.full_fov:
+        lines.append(f"  corners ({obs.c.size}): {degs(obs.c)}")
+        lines.append(f"  extremities ({obs.ex.size}): {degs(obs.ex)}")
+        lines.append(f"  beacons ({obs.b.size}): {degs(obs.b)}")
+    return "\n".join(lines)
+
+
+@app.command("features")
+def features_cmd(
+    files: list[Path] = typer.Argument(..., help="Sensor files: panorama or omnidirectional images."),
+    kind: str = typer.Option("panorama", "--kind", help=f"Input kind: {' | '.join(KINDS)}."),
+    bearing_offset_deg: float = typer.Option(
+        0.0, "--bearing-offset-deg", help="Bearing (deg) of the left edge of column 0 (omni: of the image's +x axis)."
+    ),
+    counter_clockwise: bool = typer.Option(
+        False, "--counter-clockwise", help="Panorama bearings grow with the column (default: they decrease)."
+    ),
+    center: tuple[float, float] | None = typer.Option(
+        None, "--center", help="Omni: mirror centre X Y, pixels.", show_default=False
+    ),
+    radii: tuple[float, float] | None = typer.Option(
+        None, "--radii", help="Omni: inner and outer ring radius R_IN R_OUT, pixels.", show_default=False
+    ),
+    mirror: bool = typer.Option(False, "--mirror", help="Omni: image seen from below (bearings clockwise)."),
+    band: tuple[float, float] | None = typer.Option(
+        None,
+        "--band",
+        help="Panorama rows to use, as parts of the height (top = 0), e.g. 0.2 0.8. "
+        "Default: the middle half of a 2:1 equirectangular image, else all rows.",
+        show_default=False,
+    ),
+    place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the observations as JSON Lines to this file."),
+) -> None:
+    """Extract vertical edges and colour patches (and laser features) from sensor files; print their bearings."""
+    from ..io.jsonl import write_observations
+
+    if kind not in KINDS:
+        raise InvalidParameterError(f"--kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
+        raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
+    if radii is not None and not (0.0 <= radii[0] < radii[1]):
+        raise InvalidParameterError(f"--radii must satisfy 0 <= R_IN < R_OUT, got {radii[0]} {radii[1]}")
+    opts = FeatureOptions(
+        place=place,
+        bearing_offset=float(deg_to_rad(bearing_offset_deg)),
+        counter_clockwise=counter_clockwise,
+        center=center,
+        radii=radii,
+        mirror=mirror,
+        band=band,
+    )
+    reader = KINDS[kind]
+    observations: list[Observation] = []
+    for path in files:
+        for name, obs in reader(path, opts):
+            console.print(format_observation(name, obs), markup=False)
+            observations.append(obs)
+    if json_out is not None:
+        n = write_observations(json_out, observations)
+        err_console.print(f"wrote {n} observations to {json_out}")
