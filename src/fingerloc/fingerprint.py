@@ -225,6 +225,11 @@ def _place_empty(intervals: list[tuple[float, float]], count: int) -> list[float
     return out
 
 
+def _degrees(rad: NDArray[np.float64]) -> list[float]:
+    """Bearings in radians to degrees in ``[0, 360)`` as Python floats (see :func:`wrap_deg360`)."""
+    return [float(x) for x in wrap_deg360(np.rad2deg(rad))] if rad.size else []
+
+
 def make_fingerprint(
     obs: Observation,
     *,
@@ -263,8 +268,8 @@ def make_fingerprint(
         raise InvalidParameterError(f"merge_tol_deg must be >= 0 degrees, got {merge_tol_deg!r}")
 
     feats: list[tuple[float, str]] = []
-    ve = list(rad_to_deg360(obs.ve))
-    cs = list(rad_to_deg360(obs.c))
+    ve = _degrees(obs.ve)
+    cs = _degrees(obs.c)
     # Step 2: merge corner/edge pairs, closest first.
     pairs = []
     for i, cb in enumerate(cs):
@@ -284,15 +289,17 @@ def make_fingerprint(
         feats.append((float(wrap_deg360(mid)), "f"))
     feats += [(v, "v") for j, v in enumerate(ve) if j not in used_v]
     feats += [(c, "c") for i, c in enumerate(cs) if i not in used_c]
-    feats += [(float(x), hue_letter(h)) for x, h in zip(rad_to_deg360(obs.cp), obs.cp_hue, strict=True)]
-    feats += [(float(x), "b") for x in rad_to_deg360(obs.b)]
+    feats += [(x, hue_letter(h)) for x, h in zip(_degrees(obs.cp), obs.cp_hue.tolist(), strict=True)]
+    feats += [(x, "b") for x in _degrees(obs.b)]
     feats.sort(key=lambda t: (t[0], _TIE_ORDER[t[1]]))
 
     pieces = _seen_pieces_deg(obs.fov)
 
+    full = pieces == [(0.0, 360.0)]
+
     def empty_space(a: float, b: float) -> list[float]:
         # bearings (deg) of the n letters of the gap [a, b]
-        intervals = _seen_intervals(a, b, pieces)
+        intervals = [(a, b)] if full else _seen_intervals(a, b, pieces)
         seen = sum(hi - lo for lo, hi in intervals)
         return _place_empty(intervals, math.floor((seen + GAP_TOL_DEG) / empty_step_deg))
 
