@@ -321,3 +321,14 @@ def test_is_carmen_path():
         assert is_carmen_path(name)
     for name in ["a.bag", "b.db3", "c.mcap", "d.jsonl"]:
         assert not is_carmen_path(name)
+
+
+def test_iter_laser_gives_line_numbers_and_default_messages(tmp_path):
+    from fingerloc.io.carmen import default_messages, iter_laser
+
+    p = write_log(tmp_path, [*HEADER, flaser([1.0, 2.0, 3.0]), robotlaser([1.0, 2.0, 3.0])])
+    got = [(rec.message, rec.line) for rec, _ in iter_laser(p)]
+    assert got == [("FLASER", 5), ("ROBOTLASER1", 6)]
+    assert default_messages(inspect_log(p)) == ("FLASER",)
+    p2 = write_log(tmp_path, [robotlaser([1.0, 2.0, 3.0])], name="r.log")
+    assert default_messages(inspect_log(p2)) == ("ROBOTLASER1",)

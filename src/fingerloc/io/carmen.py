@@ -61,10 +61,12 @@ __all__ = [
     "LogInfo",
     "OdomRecord",
     "ReadStats",
+    "default_messages",
     "detect_max_range",
     "flaser_bearings",
     "inspect_log",
     "is_carmen_path",
+    "iter_laser",
     "iter_records",
     "iter_scans",
     "parse_line",
@@ -561,45 +563,15 @@ def _to_scan(rec: LaserRecord, max_range: float | None, path: Path) -> Scan:
         raise DataFormatError(f"{rec.message}: {err}", path=path, line=rec.line) from None
 
 
-def iter_scans(
+def iter_laser(
     path: str | Path,
     *,
     skip_bad: bool = False,
     messages: Collection[str] | None = None,
     max_range: float | None = None,
     stats: ReadStats | None = None,
-) -> Iterator[Scan]:
-    """Stream the laser scans of a CARMEN log as :class:`~fingerloc.sensors.Scan`, in file order.
-
-    Parameters
-    ----------
-    path : str or Path
-        Plain or gzip CARMEN log.
-    skip_bad : bool, default False
-        Skip malformed lines instead of raising; their number is in
-        ``stats.skipped`` when the generator is exhausted.
-    messages : collection of str, optional
-        Laser message types to read (default all of :data:`LASER_MESSAGES`).
-        A log holding both ``FLASER`` and ``ROBOTLASER1`` usually records the
-        same laser twice: pick one.
-    max_range : float, optional
-        No-return threshold in metres for every laser; by default detected
-        per message type by a first streaming pass (:func:`inspect_log`).
-    stats : ReadStats, optional
-        Filled while streaming (lines, scans, skipped lines).
-
-    Yields
-    ------
-    Scan
-        Ranges in metres with ``inf`` for no return; bearings in the robot
-        frame; ``pose`` the robot's (corrected) pose; ``timestamp`` the IPC
-        timestamp; ``intensities`` the remissions when present.
-
-    Raises
-    ------
-    DataFormatError
-        A malformed line, named by path and line number (unless ``skip_bad``).
-    """
+) -> Iterator[tuple[LaserRecord, Scan]]:
+    """Like :func:`iter_scans`, but yield each scan with its raw record (message type, line number)."""
     p = Path(path)
     wanted = set(LASER_MESSAGES if messages is None else messages)
     unknown = wanted - set(LASER_MESSAGES)
@@ -625,7 +597,60 @@ def iter_scans(
                 continue
             raise
         st.scans += 1
+        yield rec, scan
+
+
+def iter_scans(
+    path: str | Path,
+    *,
+    skip_bad: bool = False,
+    messages: Collection[str] | None = None,
+    max_range: float | None = None,
+    stats: ReadStats | None = None,
+) -> Iterator[Scan]:
+    """Stream the laser scans of a CARMEN log as :class:`~fingerloc.sensors.Scan`, in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+        Plain or gzip CARMEN log.
+    skip_bad : bool, default False
+        Skip malformed lines instead of raising; their number is in
+        ``stats.skipped`` when the generator is exhausted.
+    messages : collection of str, optional
+        Laser message types to read (default all of :data:`LASER_MESSAGES`).
+        A log holding both ``FLASER`` and ``ROBOTLASER1`` usually records the
+        same laser twice: pick one (:func:`default_messages`).
+    max_range : float, optional
+        No-return threshold in metres for every laser; by default detected
+        per message type by a first streaming pass (:func:`inspect_log`).
+    stats : ReadStats, optional
+        Filled while streaming (lines, scans, skipped lines).
+
+    Yields
+    ------
+    Scan
+        Ranges in metres with ``inf`` for no return; bearings in the robot
+        frame; ``pose`` the robot's (corrected) pose; ``timestamp`` the IPC
+        timestamp; ``intensities`` the remissions when present.
+
+    Raises
+    ------
+    DataFormatError
+        A malformed line, named by path and line number (unless ``skip_bad``).
+    """
+    for _, scan in iter_laser(path, skip_bad=skip_bad, messages=messages, max_range=max_range, stats=stats):
         yield scan
+
+
+def default_messages(info: LogInfo) -> tuple[str, ...]:
+    """The laser messages to read from a log without duplicates.
+
+    ``FLASER`` and ``RLASER`` when the log has either, else ``ROBOTLASER1`` and
+    ``ROBOTLASER2`` (logs that hold both kinds record the same lasers twice).
+    """
+    old = tuple(m for m in ("FLASER", "RLASER") if info.counts.get(m, 0))
+    return old or tuple(m for m in ("ROBOTLASER1", "ROBOTLASER2") if info.counts.get(m, 0))
 
 
 def read_scans(
