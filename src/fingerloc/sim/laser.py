@@ -14,7 +14,7 @@ at range ``r`` and incidence ``a``::
 A retro-reflective beacon returns ``I = rho * (0.8 + 0.2 cos a) / (1 + 0.02 r)``
 whatever the incidence (``rho`` 1.5: about 1.2-1.5, twice the brightest wall).
 Each beam gets multiplicative noise of ``intensity_noise`` and an additive
-floor of 0.005.
+floor of ``0.1 intensity_noise |N(0, 1)|``.
 """
 
 from __future__ import annotations
@@ -123,8 +123,9 @@ def simulate_scan(
     hit = np.isfinite(dist)
     ranges = dist + range_noise * rng.standard_normal(dist.shape)
     ranges = np.where(hit, np.maximum(ranges, 0.0), np.inf)
-    inten = inten * (1.0 + intensity_noise * rng.standard_normal(dist.shape)) + 0.005 * np.abs(
-        rng.standard_normal(dist.shape)
-    )
+    # Multiplicative noise plus a small additive floor, both scaled by intensity_noise.
+    noise_mul = intensity_noise * rng.standard_normal(dist.shape)
+    noise_add = 0.1 * intensity_noise * np.abs(rng.standard_normal(dist.shape))
+    inten = inten * (1.0 + noise_mul) + noise_add
     inten = np.where(hit & (ranges < max_range), np.maximum(inten, 0.0), 0.0)
     return Scan(ranges=ranges, bearings=bearings, max_range=max_range, intensities=inten, pose=(x, y, th))
