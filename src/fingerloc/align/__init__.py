@@ -17,7 +17,7 @@ other string.
 
 Kernels: unit costs go to RapidFuzz's bit-parallel Levenshtein
 (``rapidfuzz.process.cdist``); weighted costs to a numba kernel that runs
-eight references side by side; cyclic costs to a numba kernel (see
+32 references side by side; cyclic costs to a numba kernel (see
 :func:`alignment_costs`).
 """
 
@@ -285,7 +285,7 @@ def alignment_costs(
     -----
     Unit costs, plain: ``rapidfuzz.process.cdist`` with the Levenshtein
     distance (bit-parallel, multi-threaded). Weighted, plain: a numba kernel
-    running eight references side by side in each thread. Cyclic, unit
+    running 32 references side by side (AVX2) in each thread. Cyclic, unit
     costs: a bit-parallel kernel (Myers/Hyyrö) that runs every rotation at
     once in AVX2 lanes; cyclic, weighted: exact DP per rotation, skipping the
     rotations whose lower bound cannot beat the best found (see

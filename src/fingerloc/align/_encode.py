@@ -16,6 +16,7 @@ __all__ = ["FingerprintLike", "as_letters", "encode", "encode_many", "letters_ma
 FingerprintLike = str | Fingerprint
 
 _BAD = re.compile(f"[^{re.escape(ALPHABET)}]")
+_ALPHABET_BYTES = ALPHABET.encode("ascii")
 _LUT = np.full(256, 255, dtype=np.uint8)
 for _i, _ch in enumerate(ALPHABET):
     _LUT[ord(_ch)] = _i
@@ -30,12 +31,20 @@ def _unknown(s: str, name: str) -> UnknownLetterError:
     )
 
 
+def _all_in_alphabet(s: str) -> bool:
+    try:
+        raw = s.encode("ascii")
+    except UnicodeEncodeError:
+        return False
+    return not raw.translate(None, _ALPHABET_BYTES)
+
+
 def as_letters(x: object, name: str) -> tuple[str, NDArray[np.float64] | None]:
     """Letters of ``x`` (validated) and its bearings (radians) when ``x`` is a :class:`Fingerprint`."""
     if isinstance(x, Fingerprint):
         return x.letters, x.bearings
     if isinstance(x, str):
-        if _BAD.search(x) is not None:
+        if not _all_in_alphabet(x):
             raise _unknown(x, name)
         return x, None
     raise InvalidParameterError(f"{name}: expected a fingerprint string or Fingerprint, got {type(x).__name__}")
@@ -62,8 +71,8 @@ def letters_many(xs: object, name: str) -> list[str]:
             out.append(x.letters)
         else:
             raise InvalidParameterError(f"{name}: expected fingerprint strings or Fingerprints, got {type(x).__name__}")
-    # One scan of everything; locate the culprit only on failure.
-    if _BAD.search("".join(out)) is not None:
+    # One C-speed scan of everything; locate the culprit only on failure.
+    if not _all_in_alphabet("".join(out)):
         for k, s in enumerate(out):
             if _BAD.search(s) is not None:
                 raise _unknown(s, f"{name}[{k}]")

