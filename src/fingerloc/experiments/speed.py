@@ -73,4 +73,5 @@ _SECTION_MODULES: list[str] = [
     # "fingerloc.experiments.speed_mog",
     "fingerloc.experiments.speed_align",
     # "fingerloc.experiments.speed_model",
+    "fingerloc.experiments.speed_sim",
 ]
