@@ -119,48 +119,47 @@ def render_grid(
         z_hit = camera_height + d_hit * tan_e[:, :, 0]
     up = np.broadcast_to(tan_e[:, :, 0] > 0, (R, C))
     s_all = np.where(surf, s_hit, np.where(up, -2, -1))
+    s_safe = np.where(surf, s_hit, 0)
 
-    # Materials and albedo.
+    # Materials and albedo: one gather from a table holding the materials, then floor, then ceiling.
     rgb, *_ = world.material_table()
-    mat = np.full((R, C), -1, dtype=np.int64)
-    if surf.any():
-        mat[surf] = world.surface_material(s_hit[surf], z_hit[surf])
+    n_mat = rgb.shape[0]
+    dz = world.decal_z[s_safe]
+    with np.errstate(invalid="ignore"):
+        on_decal = surf & (z_hit >= dz[..., 0]) & (z_hit <= dz[..., 1])
+    mat = np.where(on_decal, world.decal_material[s_safe], world.material[s_safe])
     mat = np.where(surf, mat, np.where(up, -2, -1))
-    albedo = np.empty((R, C, 3))
-    albedo[surf] = rgb[mat[surf]]
-    albedo[~surf & ~up] = world.floor_rgb
-    albedo[~surf & up] = world.ceiling_rgb
+    table = np.vstack([rgb, world.floor_rgb, world.ceiling_rgb])
+    albedo = table[np.where(surf, mat, np.where(up, n_mat + 1, n_mat))]
 
-    # 3D point of each pixel (for sun boxes) and structural shading.
-    ca, sa = np.cos(ang)[None, :], np.sin(ang)[None, :]
+    # Structural shading: one value per segment (its normal facing the camera against the main light).
+    seg_xy = world.segments
+    e = seg_xy[:, 2:] - seg_xy[:, :2]
+    e = e / np.linalg.norm(e, axis=1, keepdims=True)
+    nrm = np.column_stack([-e[:, 1], e[:, 0]])
+    side = np.sign(((np.array([x, y]) - seg_xy[:, :2]) * nrm).sum(axis=1) + 1e-12)
+    ndl = side * (nrm[:, 0] * np.cos(world.light_angle) + nrm[:, 1] * np.sin(world.light_angle))
+    seg_shade = 0.62 + 0.38 * (1.0 + ndl) / 2.0
     with np.errstate(divide="ignore", invalid="ignore"):
         d_plane = np.where(up, (H - camera_height) / tan_e[:, :, 0], camera_height / -tan_e[:, :, 0])
     d_pix = np.where(surf, d_hit, d_plane)
     d_pix = np.where(np.isfinite(d_pix), d_pix, 50.0)
-    px, py = x + d_pix * ca, y + d_pix * sa
-    pz = np.where(surf, z_hit, np.where(up, H, 0.0))
-    shade = np.where(up, 0.95, 0.8)
-    if surf.any():
-        e = world.segments[s_hit[surf], 2:] - world.segments[s_hit[surf], :2]
-        e = e / np.linalg.norm(e, axis=1, keepdims=True)
-        n = np.column_stack([-e[:, 1], e[:, 0]])
-        to_cam = np.column_stack([x - px[surf], y - py[surf]])
-        n = n * np.sign((n * to_cam).sum(axis=1) + 1e-12)[:, None]
-        ndl = n[:, 0] * np.cos(world.light_angle) + n[:, 1] * np.sin(world.light_angle)
-        base = 0.62 + 0.38 * (1.0 + ndl) / 2.0
-        base = base * (1.0 - 0.25 * np.exp(-np.maximum(z_hit[surf], 0.0) / 0.15))  # contact shadow at the floor
-        shade = np.array(np.broadcast_to(shade, (R, C)), dtype=np.float64)
-        shade[surf] = base
-    shade = np.broadcast_to(shade, (R, C)).astype(np.float64)
-    # Floor darkens a little with distance (light falls off away from the lamps).
-    shade = np.where(~surf & ~up, shade * (1.0 - 0.15 * np.tanh(d_pix / 5.0)), shade)
+    z_safe = np.where(surf, z_hit, 1.0)
+    wall_shade = seg_shade[s_safe] * (1.0 - 0.25 * np.exp(-np.maximum(z_safe, 0.0) / 0.15))  # contact shadow
+    # Floor darkens a little with distance (light falls off away from the lamps); the ceiling is even.
+    shade = np.where(surf, wall_shade, np.where(up, 0.95, 0.8 * (1.0 - 0.15 * np.tanh(d_pix / 5.0))))
 
+    # Sun patches and shadows: soft boxes around the 3D point of each pixel.
     sun = np.ones((R, C))
-    for cx, cy, cz, hx, hy, hz, g in world.sun:
-        w = np.ones((R, C))
-        for p, c, h in ((px, cx, hx), (py, cy, hy), (pz, cz, hz)):
-            w = w * np.clip((h - np.abs(p - c)) / _SUN_SOFT + 0.5, 0.0, 1.0)
-        sun = sun * (1.0 + g * w)
+    if world.sun.shape[0]:
+        ca, sa = np.cos(ang)[None, :], np.sin(ang)[None, :]
+        px, py = x + d_pix * ca, y + d_pix * sa
+        pz = np.where(surf, z_hit, np.where(up, H, 0.0))
+        for cx, cy, cz, hx, hy, hz, g in world.sun:
+            w = np.ones((R, C))
+            for pp, c, h in ((px, cx, hx), (py, cy, hy), (pz, cz, hz)):
+                w = w * np.clip((h - np.abs(pp - c)) / _SUN_SOFT + 0.5, 0.0, 1.0)
+            sun = sun * (1.0 + g * w)
     return _Render(albedo=albedo, shade=shade, sun=sun, seg=s_all, mat=mat)
 
 
