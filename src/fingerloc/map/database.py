@@ -1,0 +1,254 @@
+"""The place database: one SQLite file, versioned schema, atomic saves, never pickle.
+
+Layout (schema version 1)::
+
+    meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
+                                                   -- params (JSON), fp_lambda, unknown_cost
+    places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
+           consensus_letters TEXT, consensus_bearings BLOB)
+    observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, record TEXT)
+                                                   -- the JSON Lines record of the observation
+    fingerprints(obs_id INTEGER PRIMARY KEY, letters TEXT, bearings BLOB)
+    mixtures(place_id INTEGER, term TEXT, weights BLOB, means BLOB, sigmas BLOB,
+             PRIMARY KEY (place_id, term))
+    graph_edges(src TEXT, dst TEXT, count INTEGER, PRIMARY KEY (src, dst))
+
+Arrays are little-endian float64 blobs (radians). A save writes a complete new
+file next to the target in one transaction, syncs it, and renames it over the
+target: a crash mid-write leaves the old file as it was.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import tempfile
+from collections.abc import Iterator, Mapping
+from contextlib import closing, contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..errors import DatabaseError, DataFormatError, FingerlocError
+from ..fingerprint import Fingerprint
+from ..io.jsonl import observation_from_record, observation_to_record
+from ..model import PlaceData, PlaceModel
+
+__all__ = ["FORMAT", "SCHEMA_VERSION", "load_model", "read_graph_edges", "save_model"]
+
+FORMAT = "fingerloc-places"
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE places(id INTEGER PRIMARY KEY, label TEXT UNIQUE NOT NULL, medoid INTEGER NOT NULL,
+                    consensus_letters TEXT, consensus_bearings BLOB);
+CREATE TABLE observations(id INTEGER PRIMARY KEY, place_id INTEGER NOT NULL REFERENCES places(id),
+                          idx INTEGER NOT NULL, record TEXT NOT NULL);
+CREATE TABLE fingerprints(obs_id INTEGER PRIMARY KEY REFERENCES observations(id), letters TEXT NOT NULL,
+                          bearings BLOB NOT NULL);
+CREATE TABLE mixtures(place_id INTEGER NOT NULL REFERENCES places(id), term TEXT NOT NULL,
+                      weights BLOB NOT NULL, means BLOB NOT NULL, sigmas BLOB NOT NULL,
+                      PRIMARY KEY (place_id, term));
+CREATE TABLE graph_edges(src TEXT NOT NULL, dst TEXT NOT NULL, count INTEGER NOT NULL, PRIMARY KEY (src, dst));
+"""
+
+
+def _blob(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f8").tobytes()
+
+
+def _array(b: bytes) -> np.ndarray:
+    if len(b) % 8:
+        raise DatabaseError("corrupt array blob in the place database")
+    return np.frombuffer(b, dtype="<f8").astype(np.float64)
+
+
+def _costs_to_json(costs: Any) -> Any:
+    """An alignment cost model as JSON: its full tables (``None`` for unit costs)."""
+    if costs is None:
+        return None
+    try:
+        return {"substitution": np.asarray(costs.substitution).tolist(), "indel": np.asarray(costs.indel).tolist()}
+    except AttributeError as err:
+        raise DatabaseError(f"cannot store alignment costs of type {type(costs).__name__}") from err
+
+
+def _costs_from_json(data: Any) -> Any:
+    if data is None:
+        return None
+    from ..align import CostModel
+
+    return CostModel(substitution=np.asarray(data["substitution"]), indel=np.asarray(data["indel"]))
+
+
+def save_model(
+    model: PlaceModel,
+    path: str | Path,
+    *,
+    graph_edges: Mapping[tuple[str, str], int] | None = None,
+) -> int:
+    """Write a fitted model to a place database, atomically.
+
+    Parameters
+    ----------
+    model : PlaceModel
+        A fitted model.
+    path : str or Path
+        The database file; replaced as a whole if it exists.
+    graph_edges : mapping (src, dst) -> count, optional
+        Transitions of the place graph to store with the places.
+
+    Returns
+    -------
+    int
+        Size of the written file in bytes.
+    """
+    model._check_fitted()
+    target = Path(path)
+    params = model.get_params()
+    params["costs"] = _costs_to_json(params["costs"])
+    rs = params["random_state"]
+    params["random_state"] = rs if isinstance(rs, int) or rs is None else None
+    directory = target.parent if str(target.parent) else Path(".")
+    if not directory.is_dir():
+        raise DatabaseError(f"{target}: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=directory)
+    os.close(fd)
+    try:
+        with closing(sqlite3.connect(tmp)) as con:
+            con.execute("PRAGMA journal_mode=DELETE")
+            with con:  # one transaction
+                con.executescript("BEGIN;" + _SCHEMA.replace(";\n", ";\n"))
+                meta = {
+                    "format": FORMAT,
+                    "schema_version": str(SCHEMA_VERSION),
+                    "fingerloc_version": __version__,
+                    "params": json.dumps(params),
+                    "fp_lambda": repr(float(getattr(model, "fp_lambda_", 1.0))),
+                    "unknown_cost": repr(float(getattr(model, "unknown_cost_", 0.0))),
+                }
+                con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
+                for pid, place in enumerate(model.places_.values()):
+                    cons = place.consensus
+                    con.execute(
+                        "INSERT INTO places VALUES (?, ?, ?, ?, ?)",
+                        (
+                            pid,
+                            place.label,
+                            place.medoid,
+                            None if cons is None else cons.letters,
+                            None if cons is None else _blob(cons.bearings),
+                        ),
+                    )
+                    for idx, (obs, fp) in enumerate(zip(place.observations, place.fingerprints, strict=True)):
+                        cur = con.execute(
+                            "INSERT INTO observations(place_id, idx, record) VALUES (?, ?, ?)",
+                            (pid, idx, json.dumps(observation_to_record(obs, ndigits=12))),
+                        )
+                        con.execute(
+                            "INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, fp.letters, _blob(fp.bearings))
+                        )
+                    for term, (w, m, s) in place.mixtures.items():
+                        con.execute(
+                            "INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, term, _blob(w), _blob(m), _blob(s))
+                        )
+                for (src, dst), count in (graph_edges or {}).items():
+                    con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target.stat().st_size
+
+
+@contextmanager
+def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
+    p = Path(path)
+    if not p.is_file():
+        raise DatabaseError(f"{p}: no such place database")
+    try:
+        con = sqlite3.connect(f"file:{p}?mode=ro", uri=True)
+    except sqlite3.Error as err:
+        raise DatabaseError(f"{p}: cannot open as a place database ({err})") from err
+    try:
+        try:
+            ok = con.execute("PRAGMA quick_check").fetchone()
+            if ok is None or ok[0] != "ok":
+                raise DatabaseError(f"{p}: corrupt place database ({ok[0] if ok else 'no answer'})")
+            tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+            if "meta" not in tables:
+                raise DatabaseError(f"{p}: not a fingerloc place database (no meta table)")
+            meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+            if meta.get("format") != FORMAT:
+                raise DatabaseError(f"{p}: not a fingerloc place database (format {meta.get('format')!r})")
+            if meta.get("schema_version") != str(SCHEMA_VERSION):
+                raise DatabaseError(
+                    f"{p}: place database schema version {meta.get('schema_version')!r} is not supported "
+                    f"(this fingerloc reads version {SCHEMA_VERSION})"
+                )
+            yield con
+        except sqlite3.Error as err:
+            raise DatabaseError(f"{p}: not a valid place database ({err})") from err
+    finally:
+        con.close()
+
+
+def load_model(path: str | Path) -> PlaceModel:
+    """Read a model from a place database without refitting anything.
+
+    Raises
+    ------
+    DatabaseError
+        When the file is missing, not SQLite, truncated or corrupt, of another
+        format, or of an unsupported schema version.
+    """
+    with _open(path) as con:
+        meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+        try:
+            params = json.loads(meta["params"])
+            params["costs"] = _costs_from_json(params.get("costs"))
+            model = PlaceModel(**params)
+            model._validate()
+            model.fp_lambda_ = float(meta["fp_lambda"])
+            model.unknown_cost_ = float(meta["unknown_cost"])
+        except (KeyError, TypeError, ValueError, FingerlocError) as err:
+            raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
+        places: dict[str, PlaceData] = {}
+        rows = con.execute("SELECT id, label, medoid, consensus_letters, consensus_bearings FROM places ORDER BY id")
+        ids: dict[int, PlaceData] = {}
+        for pid, label, medoid, cl, cb in rows:
+            cons = None if cl is None else Fingerprint(cl, _array(cb))
+            pd = PlaceData(label, [], [], {}, int(medoid), cons)
+            places[label] = pd
+            ids[pid] = pd
+        q = (
+            "SELECT o.place_id, o.record, f.letters, f.bearings FROM observations o "
+            "JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
+        )
+        for pid, record, letters, bearings in con.execute(q):
+            try:
+                obs = observation_from_record(json.loads(record))
+            except (ValueError, DataFormatError) as err:
+                raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
+            ids[pid].observations.append(obs)
+            ids[pid].fingerprints.append(Fingerprint(letters, _array(bearings)))
+        for pid, term, w, m, s in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
+            ids[pid].mixtures[term] = (_array(w), _array(m), _array(s))
+    if not places:
+        raise DatabaseError(f"{path}: the place database holds no place")
+    model.places_ = places
+    model.classes_ = np.array(list(places), dtype=object)
+    model._index_references()
+    return model
+
+
+def read_graph_edges(path: str | Path) -> dict[tuple[str, str], int]:
+    """The place-graph transitions stored in a place database: ``{(src, dst): count}``."""
+    with _open(path) as con:
+        return {(s, d): int(c) for s, d, c in con.execute("SELECT src, dst, count FROM graph_edges")}

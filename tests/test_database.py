@@ -1,0 +1,129 @@
+import json
+import sqlite3
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fingerloc.errors import DatabaseError
+from fingerloc.io import write_observations
+from fingerloc.map.database import load_model, read_graph_edges, save_model
+from fingerloc.model import PlaceModel
+
+from .test_model import dataset
+
+
+def test_roundtrip_identical_predictions(tmp_path):
+    obs, labels = dataset()
+    from fingerloc.align import CostModel
+
+    for kw in (
+        {},
+        {"fp_reference": "consensus", "fp_likelihood": "exp"},
+        {"terms": ("VE", "Ex")},
+        {"costs": CostModel.feature_aware(), "cyclic": True, "unknown_prior": 0.1, "outlier_weight": 0.01},
+    ):
+        model = PlaceModel(3, **kw).fit(obs, labels)
+        path = tmp_path / "p.sqlite"
+        size = save_model(model, path, graph_edges={("a", "b"): 3})
+        assert size == path.stat().st_size > 0
+        again = load_model(path)
+        test, _ = dataset(seed=7, n=2)
+        np.testing.assert_array_equal(again.predict_log_proba(test), model.predict_log_proba(test))
+        assert list(again.classes_) == list(model.classes_)
+        assert again.get_params()["terms"] == list(model.terms)
+        assert read_graph_edges(path) == {("a", "b"): 3}
+
+
+def test_save_is_atomic(tmp_path, monkeypatch):
+    obs, labels = dataset(n=2)
+    path = tmp_path / "p.sqlite"
+    save_model(PlaceModel(2).fit(obs, labels), path)
+    good = path.read_bytes()
+
+    def boom(*a, **k):
+        raise RuntimeError("crash mid-write")
+
+    monkeypatch.setattr("fingerloc.map.database.observation_to_record", boom)
+    with pytest.raises(RuntimeError):
+        save_model(PlaceModel(3).fit(obs, labels), path)
+    assert path.read_bytes() == good
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.sqlite"]
+    load_model(path)
+
+
+def test_bad_files(tmp_path):
+    obs, labels = dataset(n=2)
+    path = tmp_path / "p.sqlite"
+    save_model(PlaceModel(2).fit(obs, labels), path)
+    data = path.read_bytes()
+    trunc = tmp_path / "trunc.sqlite"
+    trunc.write_bytes(data[: len(data) // 2])
+    text = tmp_path / "text.sqlite"
+    text.write_text("hello, not a database\n" * 100)
+    foreign = tmp_path / "foreign.sqlite"
+    con = sqlite3.connect(foreign)
+    con.execute("CREATE TABLE t(x)")
+    con.commit()
+    con.close()
+    newer = tmp_path / "newer.sqlite"
+    newer.write_bytes(data)
+    con = sqlite3.connect(newer)
+    con.execute("UPDATE meta SET value='99' WHERE key='schema_version'")
+    con.commit()
+    con.close()
+    for p, match in ((trunc, "trunc.sqlite"), (text, "text.sqlite"), (foreign, "not a fingerloc"),
+                     (newer, "version '99'"), (tmp_path / "none.sqlite", "no such")):
+        with pytest.raises(DatabaseError, match=match):
+            load_model(p)
+
+
+def _cli(*args):
+    return subprocess.run(
+        [sys.executable, "-c", "from fingerloc.cli import main; main()", *args], capture_output=True, text=True
+    )
+
+
+def test_cli_learn_localize_places(tmp_path):
+    obs, labels = dataset()
+    train = tmp_path / "train.jsonl"
+    write_observations(train, [o.with_label(lab) for o, lab in zip(obs, labels, strict=True)])
+    db = tmp_path / "places.sqlite"
+    r = _cli("learn", str(train), "--db", str(db), "-k", "3")
+    assert r.returncode == 0, r.stderr
+    test, tl = dataset(seed=11, n=2)
+    qfile = tmp_path / "q.jsonl"
+    write_observations(qfile, [o.with_label(lab) for o, lab in zip(test, tl, strict=True)])
+    out = tmp_path / "out.json"
+    r = _cli("localize", str(qfile), "--db", str(db), "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "right classification" in r.stdout
+    res = json.loads(out.read_text())
+    assert res["summary"]["n"] == 6 and 0 <= res["summary"]["top1"] <= 1
+    rec = res["observations"][0]
+    assert set(rec) >= {"index", "place", "best", "posterior", "rank_of_true", "terms", "heading_deg"}
+    assert abs(sum(rec["posterior"].values()) - 1) < 1e-9
+    assert set(rec["terms"]) == {"VE", "CP", "Ex", "B", "Fp"}
+    r = _cli("places", "--db", str(db))
+    assert r.returncode == 0 and "a" in r.stdout
+    # extending with a different option is an error
+    r = _cli("learn", str(train), "--db", str(db), "-k", "4")
+    assert r.returncode == 2 and "n_components=3" in r.stderr
+
+
+def test_cli_bad_database_exit_2(tmp_path):
+    q = tmp_path / "q.jsonl"
+    q.write_text('{"features": {"VE": [1]}}\n')
+    bad = tmp_path / "bad.sqlite"
+    bad.write_text("not sqlite at all " * 200)
+    obs, labels = dataset(n=2)
+    good = tmp_path / "good.sqlite"
+    save_model(PlaceModel(2).fit(obs, labels), good)
+    trunc = tmp_path / "trunc.sqlite"
+    trunc.write_bytes(good.read_bytes()[:3000])
+    for db in (bad, trunc):
+        r = _cli("localize", str(q), "--db", str(db))
+        assert r.returncode == 2
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: ") and db.name in lines[0]

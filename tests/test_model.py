@@ -1,0 +1,222 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rapidfuzz.distance import Levenshtein
+from scipy.special import erf, logsumexp
+
+from fingerloc import Observation, make_fingerprint
+from fingerloc.errors import InvalidParameterError, NotFittedError
+from fingerloc.model import PlaceModel, _normalise, consensus_fingerprint, rank_scores
+
+
+def office(rng, base, noise=3.0, **extra):
+    feats = {k: list(np.asarray(v) + rng.normal(0, noise, len(v))) for k, v in base.items()}
+    return Observation.from_degrees(feats, **extra)
+
+
+BASES = {
+    "a": {"VE": [10, 80, 170, 260], "Ex": [30, 200], "c": [45, 135, 225, 315], "B": [100]},
+    "b": {"VE": [40, 130, 300], "Ex": [90, 250, 330], "c": [45, 135, 225, 315], "B": [10, 200]},
+    "c": {"VE": [5, 60, 120, 180, 240], "Ex": [150], "c": [60, 300]},
+}
+
+
+def dataset(seed=0, n=6, noise=3.0):
+    rng = np.random.default_rng(seed)
+    obs, labels = [], []
+    for lab, base in BASES.items():
+        for _ in range(n):
+            obs.append(office(rng, base, noise))
+            labels.append(lab)
+    return obs, labels
+
+
+def spec_log_mog(x, w, m, s):
+    """log p_MOG(x) written directly from SPEC.md §3 (scipy erf)."""
+    terms = []
+    for wk, mk, sk in zip(w, m, s, strict=True):
+        if wk == 0:
+            continue
+        d = (x - mk + math.pi) % (2 * math.pi) - math.pi
+        eta = 1.0 / (math.sqrt(2 * math.pi) * sk * erf(math.pi / (math.sqrt(2) * sk)))
+        # w * eta * exp(-d^2 / (2 sigma^2)), summed in log space (far bearings underflow)
+        terms.append(math.log(wk * eta) - d**2 / (2 * sk**2))
+    return float(logsumexp(terms))
+
+
+def test_two_place_example_reproduces_spec():
+    rng = np.random.default_rng(1)
+    obs = [office(rng, BASES["a"]) for _ in range(4)] + [office(rng, BASES["b"]) for _ in range(4)]
+    labels = ["a"] * 4 + ["b"] * 4
+    model = PlaceModel(3, terms=("VE", "Ex", "Fp")).fit(obs, labels)
+    q = office(rng, BASES["a"], noise=6.0)
+    # by hand: uniform prior, product of mixture densities, 1 / (Levenshtein + 1)
+    fq = make_fingerprint(q).letters
+    joint = []
+    for lab in ("a", "b"):
+        p = model.places_[lab]
+        lp = 0.0
+        for term in ("VE", "Ex"):
+            w, m, s = p.mixtures[term]
+            lp += sum(spec_log_mog(x, w, m, s) for x in q.bearings(term))
+        cost = min(Levenshtein.distance(fq, fp.letters) for fp in p.fingerprints)
+        lp += math.log(1.0 / (cost + 1.0))
+        joint.append(lp + math.log(0.5))
+    expected = np.exp(np.array(joint) - logsumexp(joint))
+    got = model.predict_proba([q])[0]
+    assert list(model.classes_) == ["a", "b"]
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_injected_parameters_exact():
+    # one component per place, known parameters: the posterior of SPEC §4 in closed form
+    obs, labels = dataset(n=2)
+    model = PlaceModel(1, terms=("VE",)).fit(obs, labels)
+    params = {"a": (0.0, 0.3), "b": (1.0, 0.5), "c": (-2.0, 1.0)}
+    for lab, (mu, sig) in params.items():
+        model.places_[lab].mixtures["VE"] = (np.array([1.0]), np.array([mu]), np.array([sig]))
+    model._stack_mixtures()
+    q = Observation(ve=np.array([0.2, 0.5]))
+    ll = np.array([sum(spec_log_mog(x, [1.0], [mu], [sig]) for x in q.ve) for mu, sig in params.values()])
+    np.testing.assert_allclose(model.predict_log_proba([q])[0], ll - logsumexp(ll), rtol=1e-10)
+
+
+def test_rows_sum_to_one_and_shift_invariance():
+    obs, labels = dataset()
+    model = PlaceModel(3).fit(obs, labels)
+    p = model.predict_proba(obs)
+    np.testing.assert_allclose(p.sum(axis=1), 1.0, rtol=1e-12)
+    joint = sum(model.term_log_likelihoods(obs).values())
+    np.testing.assert_allclose(_normalise(joint + 123.4), _normalise(joint), atol=1e-9)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6), min_size=1, max_size=8), st.floats(-1e3, 1e3))
+def test_normalise_property(row, shift):
+    a = np.array([row])
+    out = np.exp(_normalise(a))
+    assert np.isclose(out.sum(), 1.0)
+    np.testing.assert_allclose(np.exp(_normalise(a + shift)), out, atol=1e-9)
+
+
+def test_classifies_and_ranks():
+    obs, labels = dataset(seed=2)
+    model = PlaceModel(3).fit(obs, labels)
+    test, tlabels = dataset(seed=3, n=3)
+    assert model.score(test, tlabels) >= 0.9
+    ranks = model.rank(test)
+    assert ranks.shape == (len(test), 3)
+    assert sorted(ranks[0]) == [1, 2, 3]
+    assert np.all(model.rank_of(test, tlabels) >= 1)
+    assert list(model.predict(test)).count("a") >= 2
+
+
+def test_rank_ties_count_against():
+    r = rank_scores(np.array([[0.0, 0.0, -1.0], [3.0, 1.0, 2.0]]))
+    assert r.tolist() == [[2, 2, 3], [1, 3, 2]]
+
+
+def test_no_nan_edge_cases():
+    obs, labels = dataset(n=3)
+    # place "c" has no beacons at all; a place with no training bearings of a type
+    model = PlaceModel(5, n_init=1).fit(obs, labels)
+    assert "B" not in model.places_["c"].mixtures
+    cases = [
+        Observation(),  # no features at all
+        Observation.from_degrees({"B": [10, 20, 30]}),  # only a type "c" never saw
+        Observation.from_degrees({"VE": [10], "Ex": [200]}, fov=[[-30, 30]]),  # narrow fov
+        Observation.from_degrees({"VE": [0, 0, 0, 0, 0, 0]}),
+    ]
+    p = model.predict_proba(cases)
+    assert np.all(np.isfinite(p))
+    np.testing.assert_allclose(p.sum(axis=1), 1.0)
+    # empty observation: every term uninformative except Fp
+    mog_only = PlaceModel(3, terms=("VE", "Ex")).fit(obs, labels)
+    np.testing.assert_allclose(mog_only.predict_proba([Observation()])[0], 1 / 3)
+
+
+def test_more_components_than_bearings():
+    obs = [Observation.from_degrees({"VE": [10]}, label="x"), Observation.from_degrees({"VE": [200, 210]}, label="y")]
+    model = PlaceModel(5, terms=("VE",)).fit(obs)
+    assert model.predict([Observation.from_degrees({"VE": [12]})])[0] == "x"
+    assert np.all(np.isfinite(model.predict_log_proba(obs)))
+
+
+def test_terms_and_weights():
+    obs, labels = dataset()
+    full = PlaceModel(3).fit(obs, labels)
+    tl = full.term_log_likelihoods(obs[:2])
+    assert set(tl) == {"VE", "CP", "Ex", "B", "Fp"}
+    ve = PlaceModel(3, terms=("VE",)).fit(obs, labels)
+    np.testing.assert_allclose(ve.predict_log_proba(obs[:2]), _normalise(ve.term_log_likelihoods(obs[:2])["VE"]))
+    w = PlaceModel(3, terms=("VE", "Ex"), weights={"VE": 0.0}).fit(obs, labels)
+    np.testing.assert_allclose(w.predict_log_proba(obs[:2]), _normalise(w.term_log_likelihoods(obs[:2])["Ex"]))
+
+
+def test_fp_exp_and_references():
+    obs, labels = dataset(seed=4, noise=6.0)
+    exp = PlaceModel(3, terms=("Fp",), fp_likelihood="exp").fit(obs, labels)
+    assert 1e-3 <= exp.fp_lambda_ <= 50
+    np.testing.assert_allclose(
+        exp.term_log_likelihoods(obs[:3])["Fp"], -exp.fp_lambda_ * exp.fingerprint_costs(obs[:3])
+    )
+    for ref in ("medoid", "consensus"):
+        m = PlaceModel(3, terms=("Fp",), fp_reference=ref).fit(obs, labels)
+        assert m.score(obs, labels) >= 0.6
+        assert m.fingerprint_costs(obs[:1]).shape == (1, 3)
+
+
+def test_consensus_not_worse_than_medoid():
+    obs, _ = dataset(seed=5, noise=8.0)
+    fps = [make_fingerprint(o) for o in obs[:6]]
+    cons = consensus_fingerprint(fps)
+
+    def total(s):
+        return sum(Levenshtein.distance(s, f.letters) for f in fps)
+
+    assert total(cons.letters) <= min(total(f.letters) for f in fps)
+
+
+def test_add_places_does_not_refit_others():
+    obs, labels = dataset()
+    first = [(o, lab) for o, lab in zip(obs, labels, strict=True) if lab != "c"]
+    model = PlaceModel(3).fit([o for o, _ in first], [lab for _, lab in first])
+    before = {lab: {t: tuple(a.copy() for a in v) for t, v in p.mixtures.items()} for lab, p in model.places_.items()}
+    model.add_places([o for o, lab in zip(obs, labels, strict=True) if lab == "c"], ["c"] * 6)
+    assert list(model.classes_) == ["a", "b", "c"]
+    for lab, mix in before.items():
+        for t, arrays in mix.items():
+            for x, y in zip(arrays, model.places_[lab].mixtures[t], strict=True):
+                np.testing.assert_array_equal(x, y)
+
+
+def test_unknown_place():
+    obs, labels = dataset()
+    model = PlaceModel(3, unknown_prior=0.1).fit(obs, labels)
+    rng = np.random.default_rng(9)
+    known = model.predict_unknown_proba(obs)
+    strange = [Observation.from_degrees({"VE": list(rng.uniform(0, 360, 7)), "c": list(rng.uniform(0, 360, 9))})
+               for _ in range(5)]
+    unknown = model.predict_unknown_proba(strange)
+    assert np.all((known >= 0) & (known <= 1))
+    assert np.median(known) < 0.5 < np.median(unknown)
+    assert np.all(PlaceModel(3).fit(obs, labels).predict_unknown_proba(obs) == 0)
+
+
+def test_errors():
+    obs, labels = dataset(n=2)
+    with pytest.raises(NotFittedError):
+        PlaceModel().predict(obs)
+    with pytest.raises(InvalidParameterError, match="unknown term 'XX'"):
+        PlaceModel(terms=("XX",)).fit(obs, labels)
+    with pytest.raises(InvalidParameterError, match="n_components"):
+        PlaceModel(0).fit(obs, labels)
+    with pytest.raises(InvalidParameterError, match="fp_likelihood"):
+        PlaceModel(fp_likelihood="nope").fit(obs, labels)  # type: ignore[arg-type]
+    with pytest.raises(InvalidParameterError, match="no place label"):
+        PlaceModel().fit([Observation()])
+    with pytest.raises(InvalidParameterError, match="one label per observation"):
+        PlaceModel().fit(obs, labels[:-1])
