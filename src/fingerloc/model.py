@@ -631,7 +631,7 @@ def _normalise(joint: FArray) -> FArray:
     joint = np.asarray(joint, dtype=np.float64)
     if joint.shape[1] == 0:
         raise NotFittedError("the model has no place")
-    dead: NDArray[np.bool_] = ~np.isfinite(joint).any(axis=1) | np.isnan(joint).any(axis=1)
+    dead = np.asarray(~np.isfinite(joint).any(axis=1) | np.isnan(joint).any(axis=1), dtype=bool)
     safe = np.where(dead[:, None], 0.0, np.nan_to_num(joint, nan=-np.inf, posinf=np.finfo(float).max))
     return safe - logsumexp(safe, axis=1, keepdims=True)
 

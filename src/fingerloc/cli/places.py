@@ -182,7 +182,7 @@ def places_cmd(
     from ..map.database import load_model
 
     model = load_model(db)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for p in model.places_.values():
         rows.append(
             {
