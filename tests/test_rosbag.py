@@ -234,3 +234,74 @@ def test_ros2_storage_file_directly(tmp_path):
     (db,) = [f for f in p.iterdir() if f.suffix in (".db3", ".mcap")]
     assert is_bag_path(db)
     assert len(read_bag_scans(db)) == 1
+
+
+# ---- fingerloc features on bags ------------------------------------------------------------------
+
+
+def _run(capsys, *args):
+    from fingerloc.cli import main
+
+    code = 0
+    try:
+        main([str(a) for a in args])
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def _box_with_beacons(n=271, fov_deg=270.0):
+    """A 270 deg scan from the middle of a 6 x 4 m box; two bright 4-beam stripes on the walls."""
+    a = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
+    c, s = np.cos(a), np.sin(a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tx = np.where(c > 1e-12, 3.0 / c, np.where(c < -1e-12, -3.0 / c, np.inf))
+        ty = np.where(s > 1e-12, 2.0 / s, np.where(s < -1e-12, -2.0 / s, np.inf))
+    r = np.minimum(tx, ty).astype(np.float32)
+    inten = np.full(n, 400.0, np.float32) + np.random.default_rng(0).normal(0, 20, n).astype(np.float32)
+    inten[100:104] = 9000.0
+    inten[200:204] = 3000.0
+    return r, inten
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_features_command_on_a_bag(tmp_path, capsys, ros1):
+    ts = _store(ros1)
+    r, inten = _box_with_beacons()
+    p = _path(tmp_path, ros1)
+    write_bag(p, ros1, scans=[(1.0, "/front/scan", {"ranges": r.copy()}), (1.0, "/rear/scan", {"ranges": r.copy()})])
+    # write_bag puts its own intensities; rewrite with the beacon intensities in a second bag
+    p2 = _path(tmp_path, ros1, "beacons")
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        w, ser = Writer(p2), ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+
+        w, ser = Writer(p2, version=9), ts.serialize_cdr
+    with w:
+        conn = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        msg = _scan_msg(ts, 2.0, ros1, ranges=r.copy())
+        msg.ranges[3:6] = r[3:6]  # keep the walls whole
+        msg.intensities = inten
+        w.write(conn, int(2e9), ser(msg, "sensor_msgs/msg/LaserScan"))
+    out = tmp_path / "o.jsonl"
+    code, text, err = _run(capsys, "features", p2, "--json", out)
+    assert code == 0, err
+    (row,) = text.strip().splitlines()
+    assert " B(2): " in row and " c(2): " in row and " Ex(0): " in row  # two corners within 270 deg, two beacons
+    from fingerloc.io.jsonl import read_observations
+
+    (obs,) = read_observations(out)
+    assert obs.b.size == 2 and np.degrees(obs.fov[0][1]) == pytest.approx(271.0, abs=0.01)
+    # an absolute threshold above the dimmer stripe keeps only the bright one
+    code, text, err = _run(capsys, "features", p2, "--beacon-threshold", "5000")
+    assert code == 0, err
+    assert " B(1): " in text
+    # two laser topics: --topic is required and the error lists them
+    code, _, err = _run(capsys, "features", p)
+    assert code == 2 and "/front/scan, /rear/scan" in err
+    code, text, err = _run(capsys, "features", p, "--topic", "/rear/scan")
+    assert code == 0 and len(text.strip().splitlines()) == 1

@@ -50,6 +50,11 @@ class FeatureOptions:
         Panoramas wider than this are resampled down (area averaging).
     topic : str or None
         Topic of a ROS bag (for the ``bag`` kind).
+    skip_bad : bool
+        Laser logs: skip malformed lines / messages (their count goes to stderr).
+    beacon_threshold : float or None
+        Laser logs: absolute intensity threshold of a beacon, overriding the
+        detector's per-scan adaptive threshold.
     """
 
     place: str | None = None
@@ -61,6 +66,8 @@ class FeatureOptions:
     band: tuple[float, float] | None = None
     max_width: int = 1440
     topic: str | None = None
+    skip_bad: bool = False
+    beacon_threshold: float | None = None
 
 
 Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
@@ -142,11 +149,25 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
     yield str(path), observation_from_views(panorama=pano, label=opts.place)
 
 
-#: Input kinds: name -> reader. Laser log readers register here (``carmen``, ``bag``):
-#: each yields one ``(name, observation_from_scan(scan, label=opts.place))`` per scan.
+def _read_carmen(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from .logs import iter_carmen_observations
+
+    return iter_carmen_observations(path, opts)
+
+
+def _read_bag(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from .logs import iter_bag_observations
+
+    return iter_bag_observations(path, opts)
+
+
+#: Input kinds: name -> reader. Laser log readers (``carmen``, ``bag``, in :mod:`.logs`)
+#: yield one ``(name, observation_from_scan(scan, label=opts.place))`` per scan.
 KINDS: dict[str, Reader] = {
     "panorama": _read_panorama,
     "omni": _read_omni,
+    "carmen": _read_carmen,
+    "bag": _read_bag,
 }
 
 
@@ -172,8 +193,15 @@ def format_observation(name: str, obs: Observation) -> str:
 
 @app.command("features")
 def features_cmd(
-    files: list[Path] = typer.Argument(..., help="Sensor files: panorama or omnidirectional images."),
-    kind: str = typer.Option("panorama", "--kind", help=f"Input kind: {' | '.join(KINDS)}."),
+    files: list[Path] = typer.Argument(
+        ..., help="Sensor files: panorama or omnidirectional images, CARMEN logs, ROS bags."
+    ),
+    kind: str = typer.Option(
+        "auto",
+        "--kind",
+        help=f"Input kind: auto | {' | '.join(KINDS)}. auto: .log, .log.gz, .gz, .clf -> carmen; "
+        ".bag, .db3, .mcap or a ROS 2 bag folder -> bag; other files -> omni with --center, else panorama.",
+    ),
     bearing_offset_deg: float = typer.Option(
         0.0, "--bearing-offset-deg", help="Bearing (deg) of the left edge of column 0 (omni: of the image's +x axis)."
     ),
@@ -195,13 +223,21 @@ def features_cmd(
         show_default=False,
     ),
     place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
+    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic (when there are several)."),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Laser logs: skip malformed lines and report how many."),
+    beacon_threshold: float | None = typer.Option(
+        None,
+        "--beacon-threshold",
+        help="Laser logs: absolute intensity threshold of a beacon (default: adaptive, per scan).",
+        show_default=False,
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the observations as JSON Lines to this file."),
 ) -> None:
     """Extract vertical edges and colour patches (and laser features) from sensor files; print their bearings."""
     from ..io.jsonl import write_observations
 
-    if kind not in KINDS:
-        raise InvalidParameterError(f"--kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if kind != "auto" and kind not in KINDS:
+        raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
         raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
     if radii is not None and not (0.0 <= radii[0] < radii[1]):
@@ -214,12 +250,20 @@ def features_cmd(
         radii=radii,
         mirror=mirror,
         band=band,
+        topic=topic,
+        skip_bad=skip_bad,
+        beacon_threshold=beacon_threshold,
     )
-    reader = KINDS[kind]
+    from .logs import LASER_KINDS, detect_kind, format_scan_line
+
     observations: list[Observation] = []
     for path in files:
-        for name, obs in reader(path, opts):
-            console.print(format_observation(name, obs), markup=False)
+        k = kind
+        if k == "auto":
+            k = detect_kind(path) or ("omni" if center is not None else "panorama")
+        fmt = format_scan_line if k in LASER_KINDS else format_observation
+        for name, obs in KINDS[k](path, opts):
+            console.print(fmt(name, obs), markup=False, soft_wrap=True)
             observations.append(obs)
     if json_out is not None:
         n = write_observations(json_out, observations)
