@@ -10,7 +10,12 @@ type first. The messages read here::
                 tv rv forward_safety_dist side_safety_dist turn_axis ipc_timestamp hostname logger_timestamp
     ODOM x y theta tv rv accel ipc_timestamp hostname logger_timestamp
 
-(``ROBOTLASER2`` has the layout of ``ROBOTLASER1``.) Every other message type
+(``ROBOTLASER2`` has the layout of ``ROBOTLASER1``.) The ``x y theta`` of an
+``FLASER``/``RLASER`` line is CARMEN's laser pose (the robot's pose moved by
+the ``robot_frontlaser_offset`` along the heading, 0 in most logs); it becomes
+the scan's ``pose`` with a zero ``sensor_offset``, so the end points land
+where the log puts them. ``ROBOTLASER`` lines give both poses: the robot's is
+the ``pose``, the laser's becomes the ``sensor_offset``. Every other message type
 (``PARAM``, ``NEFF``, ``SYNC``, ``TRUEPOS``, ``RAWLASER*``, comments starting
 with ``#``) is skipped, except that ``PARAM`` lines may give a laser's maximum
 range.
