@@ -148,6 +148,10 @@ def render_grid(
     wall_shade = seg_shade[s_safe] * (1.0 - 0.25 * np.exp(-np.maximum(z_safe, 0.0) / 0.15))  # contact shadow
     # Floor darkens a little with distance (light falls off away from the lamps); the ceiling is even.
     shade = np.where(surf, wall_shade, np.where(up, 0.95, 0.8 * (1.0 - 0.15 * np.tanh(d_pix / 5.0))))
+    emission = world.emission_table()
+    if emission.any():
+        glow = np.where(surf, emission[np.where(surf, mat, 0)], 0.0)
+        shade = np.where(glow > 0, glow, shade)  # windows and lamps: bright whatever their orientation
 
     # Sun patches and shadows: soft boxes around the 3D point of each pixel.
     sun = np.ones((R, C))

@@ -80,6 +80,8 @@ class _Spec:
     patches: list[dict[str, Any]]
     beacons: list[dict[str, Any]]
     suns: list[dict[str, Any]]
+    windows: list[dict[str, Any]]
+    lamps: list[dict[str, Any]]
 
 
 def _new_door(rng: np.random.Generator) -> dict[str, Any]:
@@ -136,6 +138,26 @@ def _new_beacon(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
+def _new_window(rng: np.random.Generator) -> dict[str, Any]:
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.2, 0.8)),
+        "width": float(rng.uniform(0.8, 1.6)),
+        "z0": float(rng.uniform(0.8, 1.0)),
+        "z1": float(rng.uniform(2.0, 2.3)),
+    }
+
+
+def _new_lamp(rng: np.random.Generator) -> dict[str, Any]:
+    return {
+        "u": float(rng.uniform(0.2, 0.8)),
+        "v": float(rng.uniform(0.2, 0.8)),
+        "hx": float(rng.uniform(0.15, 0.6)),
+        "hy": float(rng.uniform(0.15, 0.6)),
+        "gain": float(rng.uniform(0.3, 0.8)),
+    }
+
+
 def _new_sun(rng: np.random.Generator) -> dict[str, Any]:
     return {
         "u": float(rng.uniform(0.1, 0.9)),
@@ -155,6 +177,8 @@ _NEW = {
     "patches": _new_patch,
     "beacons": _new_beacon,
     "suns": _new_sun,
+    "windows": _new_window,
+    "lamps": _new_lamp,
 }
 _COUNTS = {
     "doors": (1, 2),
@@ -163,6 +187,8 @@ _COUNTS = {
     "patches": (2, 4),
     "beacons": (3, 6),
     "suns": (0, 2),
+    "windows": (0, 1),
+    "lamps": (1, 3),
 }
 
 
@@ -324,6 +350,7 @@ def _build(spec: _Spec, name: str) -> World:
     frame_m = b.material(Material(spec.frame_rgb, 0.3, gloss=0.2))
     corr_m = b.material(Material(spec.corridor_rgb, 0.45))
     beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
+    window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=1.3))  # daylight: overexposed
     furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
 
     # Per wall: occupied intervals (metres along the wall), cuts and decals.
@@ -437,6 +464,11 @@ def _build(spec: _Spec, name: str) -> World:
         if p is None:
             continue
         decals[p[0]].append((p[1], p[2], 0.1, 0.9, beacon_m))
+    for wd in spec.windows:
+        p = first_fit(wd["wall"], wd["u"], wd["width"], patch_ok)
+        if p is None:
+            continue
+        decals[p[0]].append((p[1], p[2], wd["z0"], min(wd["z1"], H - 0.15), window_m))
 
     for i in range(n):
         p0, p1 = poly[i], poly[(i + 1) % n]
@@ -485,6 +517,10 @@ def _build(spec: _Spec, name: str) -> World:
         cx = lo_xy[0] + sn["u"] * (hi_xy[0] - lo_xy[0])
         cy = lo_xy[1] + sn["v"] * (hi_xy[1] - lo_xy[1])
         sun.append((cx, cy, sn["z"], sn["hx"], sn["hy"], sn["hz"], float(np.clip(sn["gain"], -0.6, 0.8))))
+    for lp in spec.lamps:  # ceiling lamps: bright panels on the ceiling
+        cx = lo_xy[0] + lp["u"] * (hi_xy[0] - lo_xy[0])
+        cy = lo_xy[1] + lp["v"] * (hi_xy[1] - lo_xy[1])
+        sun.append((cx, cy, H, lp["hx"], lp["hy"], 0.05, float(np.clip(lp["gain"], 0.0, 1.0))))
 
     world = World(
         segments=np.array(b.seg),

@@ -186,7 +186,7 @@ def _camera_truth(
     n_rows = max(round((e_hi - e_lo) / row_step), 2)
     elev = np.asarray(e_lo + (np.arange(n_rows) + 0.5) * (e_hi - e_lo) / n_rows, dtype=np.float64)
     r = render_grid(world, pose, bear, elev, camera_height=camera_height)
-    img = r.albedo * r.shade[..., None]
+    img = np.minimum(r.albedo * r.shade[..., None], 1.0)  # an overexposed window is white
     diff = np.abs(img - np.roll(img, -1, axis=1)).max(axis=2)  # (rows, n): boundary after column j
     extent = (diff > ve_contrast).sum(axis=0) * (e_hi - e_lo) / n_rows
     is_edge = extent >= ve_min_extent

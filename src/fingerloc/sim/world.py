@@ -58,6 +58,9 @@ class Material:
         A saturated coloured patch (poster, sign): a ground-truth ``CP`` feature.
     gloss : float
         Specular share of the laser remission near normal incidence, ``[0, 1]``.
+    emission : float
+        Camera brightness of a light source (a window, a lamp), replacing the
+        shading of diffuse surfaces; above 1 it overexposes. 0 for ordinary surfaces.
     """
 
     rgb: tuple[float, float, float]
@@ -65,6 +68,7 @@ class Material:
     beacon: bool = False
     patch: bool = False
     gloss: float = 0.0
+    emission: float = 0.0
 
     def __post_init__(self) -> None:
         rgb = tuple(float(v) for v in self.rgb)
@@ -74,6 +78,8 @@ class Material:
             raise InvalidParameterError(f"reflectivity must be in [0, 2], got {self.reflectivity!r}")
         if not 0.0 <= self.gloss <= 1.0:
             raise InvalidParameterError(f"gloss must be in [0, 1], got {self.gloss!r}")
+        if not 0.0 <= self.emission <= 5.0:
+            raise InvalidParameterError(f"emission must be in [0, 5], got {self.emission!r}")
         object.__setattr__(self, "rgb", rgb)
 
     @property
@@ -196,6 +202,10 @@ class World:
     def n_segments(self) -> int:
         """Number of segments."""
         return int(self.segments.shape[0])
+
+    def emission_table(self) -> FArray:
+        """Per-material camera emission, shape (k,)."""
+        return np.array([m.emission for m in self.materials], dtype=np.float64)
 
     def material_table(self) -> tuple[FArray, FArray, NDArray[np.bool_], NDArray[np.bool_], FArray]:
         """Per-material arrays: rgb (k, 3), reflectivity (k,), beacon (k,), patch (k,), gloss (k,)."""
