@@ -70,7 +70,7 @@ def _load_sections() -> None:
 
 
 _SECTION_MODULES: list[str] = [
-    # "fingerloc.experiments.speed_mog",
+    "fingerloc.experiments.speed_mog",
     "fingerloc.experiments.speed_align",
     "fingerloc.experiments.speed_model",
     "fingerloc.experiments.speed_sim",

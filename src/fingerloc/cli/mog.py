@@ -1,0 +1,74 @@
+"""``fingerloc reproduce table1``: the paper's Table I (SPEC.md §5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from .app import console, err_console, reproduce_app
+from .bench import write_json
+
+
+@reproduce_app.command("table1")
+def table1_cmd(
+    trials: int = typer.Option(20, "--trials", min=1, help="Independent trials to average (new places each)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the places, noise and EM seeding."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write k, N, accuracy, stderr and paper as JSON."),
+    place_spread_deg: float | None = typer.Option(
+        None,
+        "--place-spread-deg",
+        min=0.0,
+        help="How alike the places are: std (deg) of each place's offset of the shared layout's edges "
+        "(smaller = more alike). Default: fingerloc.experiments.table1.DEFAULT_PLACE_SPREAD_DEG.",
+    ),
+    n_edges: int | None = typer.Option(None, "--edges", min=1, help="Edges of the shared office layout."),
+    noise_deg: float = typer.Option(5.0, "--noise-deg", min=0.0, help="Bearing noise of an observation (deg std)."),
+) -> None:
+    """Classify 10 alike simulated places by MOG likelihood, k in {3,4,5}, N in {5..35}; print beside the paper."""
+    from ..experiments.table1 import DEFAULT_N_EDGES, DEFAULT_PLACE_SPREAD_DEG, run_table1
+
+    spread = DEFAULT_PLACE_SPREAD_DEG if place_spread_deg is None else place_spread_deg
+    edges = DEFAULT_N_EDGES if n_edges is None else n_edges
+    with Progress(
+        TextColumn("Table I"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("trials", total=trials)
+        res = run_table1(
+            trials=trials,
+            seed=seed,
+            place_spread_deg=spread,
+            n_edges=edges,
+            noise_deg=noise_deg,
+            on_trial=lambda done: progress.update(task, completed=done),
+        )
+    acc, se, paper = res.accuracy * 100, res.stderr * 100, res.paper()
+    table = Table(
+        title=f"Table I: right classifications %, mean over {trials} trials, with its standard error, and the paper",
+        caption=f"10 places alike (spread {spread:g} deg, {edges} edges), 4 observations each, "
+        f"noise {noise_deg:g} deg, seed {seed}",
+    )
+    table.add_column("k", justify="right")
+    table.add_column("", justify="left")
+    for n in res.n:
+        table.add_column(f"N={n}", justify="right")
+    for a, k in enumerate(res.k):
+        table.add_row(str(k), "ours", *[f"{v:.1f}" for v in acc[a]])
+        table.add_row("", "± s.e.", *[f"{v:.1f}" for v in se[a]], style="dim")
+        if paper is not None:
+            table.add_row("", "paper", *[f"{v * 100:.1f}" for v in paper[a]], end_section=True)
+    console.print(table)
+    if paper is not None:
+        diff = acc - paper * 100
+        console.print(
+            f"mean: ours {acc.mean():.1f}%, paper {paper.mean() * 100:.1f}%; "
+            f"cell differences ours - paper: mean {diff.mean():+.1f}, rms {float((diff**2).mean() ** 0.5):.1f} points"
+        )
+    write_json(json_out, res.to_json())

@@ -1,0 +1,271 @@
+"""The paper's Table I: classifying simulated places by MOG likelihood (SPEC.md §5).
+
+Protocol (Tapus et al. 2004, section V-A, as restated in SPEC.md §5): ten
+synthetic places; for each, four observations of N vertical-edge bearings,
+similar but not identical, every bearing disturbed by Gaussian noise of
+standard deviation 5 deg; one mixture of k components fit by EM on the union
+of a place's four observations (4 N bearings); each of the 40 observations is
+then given to the place under whose mixture it is most likely,
+``argmax_loc sum_j log p_MOG(x_j | theta_loc)``. The figure is the share of
+right answers, averaged over independent trials.
+
+How the places are made alike
+-----------------------------
+The paper does not say; independent uniform bearings make every cell about
+100 %. We simulate from the model the paper itself assumes, ``P(VE | Loc) =
+prod_j p(x_j | Loc)``: the vertical edges of an observation are independent
+draws from a bearing density of the place. Offices along one corridor share a
+layout (door, window frames, shelves, cupboard at about the same bearings),
+so one trial draws one *layout* of ``n_edges`` edge bearings uniformly on the
+circle, shared by the ten places, and each place moves every edge by its own
+Gaussian offset of standard deviation ``place_spread_deg``. An observation of
+N features picks N of its place's edges at random (independently, so an edge
+may be seen twice, as by two nearby detections) and disturbs each bearing by
+the 5 deg noise. The four observations of a place are thus similar but not
+identical: other draws, other noise.
+
+``place_spread_deg`` says how alike the places are: 0 makes ten identical
+places, large values independent ones (~100 %). Even identical places score
+above chance (10 %) because each observation is among the training data of
+its own place's mixture (the paper's protocol), an advantage that shrinks as
+N grows.
+``n_edges`` defaults to 6, the paper's own count of vertical edges per real
+office measurement (5.6, Table II). The default spread,
+:data:`DEFAULT_PLACE_SPREAD_DEG`, is the value whose mean accuracy over the 21
+cells is closest to the paper's mean (sweep in docs/RESULTS.md): that single
+number sets the overall level; the trends across k and N, and the table's
+shape, are not fitted.
+
+We first tried places that share the *same* N features, each place moving
+each one (observations = the place's N bearings plus noise). That gives the
+"more components help" trend but not "more features help": a k-component
+mixture summarises N > k features, the per-feature offsets of two places
+average out inside a component as N grows while the evidence grows with N, and
+the two cancel (accuracy flat in N; figures in docs/RESULTS.md). Drawing an
+observation's features from a place density, as the paper's model does,
+makes the evidence grow with N.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidParameterError
+from ..mog import DEFAULT_MIN_SIGMA_DEG, DEFAULT_N_INIT, fit_mixtures, mixture_log_density
+
+__all__ = [
+    "DEFAULT_N_EDGES",
+    "DEFAULT_PLACE_SPREAD_DEG",
+    "PAPER_K",
+    "PAPER_N",
+    "PAPER_TABLE1",
+    "Table1Result",
+    "make_observations",
+    "make_places",
+    "run_table1",
+]
+
+#: Components per mixture in the paper's rows.
+PAPER_K: tuple[int, ...] = (3, 4, 5)
+#: Features per observation in the paper's columns.
+PAPER_N: tuple[int, ...] = (5, 10, 15, 20, 25, 30, 35)
+#: The paper's Table I, right classifications in percent, rows k = 3, 4, 5.
+PAPER_TABLE1: tuple[tuple[float, ...], ...] = (
+    (55.5, 81.5, 93.0, 93.5, 96.0, 97.5, 99.5),
+    (66.5, 93.0, 98.0, 95.0, 98.0, 99.5, 99.0),
+    (80.0, 98.5, 98.0, 99.5, 100.0, 99.5, 100.0),
+)
+#: Default standard deviation (deg) of a place's offset of each shared layout edge.
+DEFAULT_PLACE_SPREAD_DEG = 10.0
+#: Default number of edges of the shared layout (the paper's 5.6 VE per real measurement).
+DEFAULT_N_EDGES = 6
+
+
+@dataclass(frozen=True, slots=True)
+class Table1Result:
+    """Accuracies of the Table I protocol.
+
+    Attributes
+    ----------
+    k : tuple of int
+        Components, one per row.
+    n : tuple of int
+        Features per observation, one per column.
+    per_trial : ndarray, shape (trials, len(k), len(n))
+        Share of the observations classified right, in [0, 1], per trial.
+    params : dict
+        The generator and EM settings (JSON-ready).
+    """
+
+    k: tuple[int, ...]
+    n: tuple[int, ...]
+    per_trial: NDArray[np.float64]
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def accuracy(self) -> NDArray[np.float64]:
+        """Mean accuracy over trials, shape (len(k), len(n)), in [0, 1]."""
+        return np.asarray(self.per_trial.mean(axis=0), dtype=np.float64)
+
+    @property
+    def stderr(self) -> NDArray[np.float64]:
+        """Standard error of the mean over trials, shape (len(k), len(n)) (0 for one trial)."""
+        t = self.per_trial.shape[0]
+        if t < 2:
+            return np.zeros(self.per_trial.shape[1:])
+        return np.asarray(self.per_trial.std(axis=0, ddof=1) / np.sqrt(t), dtype=np.float64)
+
+    def paper(self) -> NDArray[np.float64] | None:
+        """The paper's cells for these k and n, in [0, 1], or None if some cell is not in the paper."""
+        if not (set(self.k) <= set(PAPER_K) and set(self.n) <= set(PAPER_N)):
+            return None
+        tab = np.asarray(PAPER_TABLE1) / 100.0
+        return np.asarray(tab[np.ix_([PAPER_K.index(k) for k in self.k], [PAPER_N.index(n) for n in self.n])])
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"k", "N", "accuracy", "stderr", "paper", ...settings}``, accuracies in [0, 1]."""
+        paper = self.paper()
+        return {
+            "k": list(self.k),
+            "N": list(self.n),
+            "accuracy": np.round(self.accuracy, 6).tolist(),
+            "stderr": np.round(self.stderr, 6).tolist(),
+            "paper": None if paper is None else paper.tolist(),
+            "trials": int(self.per_trial.shape[0]),
+            **self.params,
+        }
+
+
+def make_places(rng: np.random.Generator, n_places: int, n_edges: int, place_spread_deg: float) -> NDArray[np.float64]:
+    """Edge bearings of ``n_places`` alike places: one shared layout, moved per place.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    n_places, n_edges : int
+    place_spread_deg : float
+        Standard deviation (deg) of each place's offset of each layout edge.
+
+    Returns
+    -------
+    ndarray, shape (n_places, n_edges)
+        Bearings in radians (not wrapped).
+    """
+    layout = rng.uniform(-np.pi, np.pi, n_edges)
+    return np.asarray(layout + rng.normal(0.0, np.deg2rad(place_spread_deg), (n_places, n_edges)))
+
+
+def make_observations(
+    rng: np.random.Generator, places: NDArray[np.float64], n_observations: int, n_features: int, noise_deg: float
+) -> NDArray[np.float64]:
+    """Observations of each place: features drawn from its edges, plus bearing noise.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    places : ndarray, shape (n_places, n_edges)
+        Edge bearings (radians), from :func:`make_places`.
+    n_observations, n_features : int
+    noise_deg : float
+        Standard deviation of the bearing noise, degrees.
+
+    Returns
+    -------
+    ndarray, shape (n_places, n_observations, n_features)
+        Bearings in radians (not wrapped).
+    """
+    n_places, n_edges = places.shape
+    pick = rng.integers(0, n_edges, (n_places, n_observations, n_features))
+    edges = np.take_along_axis(np.broadcast_to(places[:, None, :], (n_places, n_observations, n_edges)), pick, axis=2)
+    return np.asarray(edges + rng.normal(0.0, np.deg2rad(noise_deg), edges.shape))
+
+
+def _check(name: str, values: Sequence[int], minimum: int) -> tuple[int, ...]:
+    out = tuple(int(v) for v in values)
+    if not out or any(v < minimum for v in out):
+        raise InvalidParameterError(f"{name} must be a non-empty list of ints >= {minimum}, got {list(values)}")
+    return out
+
+
+def run_table1(
+    *,
+    trials: int = 20,
+    seed: int = 0,
+    ks: Sequence[int] = PAPER_K,
+    ns: Sequence[int] = PAPER_N,
+    n_places: int = 10,
+    n_observations: int = 4,
+    n_edges: int = DEFAULT_N_EDGES,
+    noise_deg: float = 5.0,
+    place_spread_deg: float = DEFAULT_PLACE_SPREAD_DEG,
+    n_init: int = DEFAULT_N_INIT,
+    min_sigma_deg: float = DEFAULT_MIN_SIGMA_DEG,
+    on_trial: Callable[[int], None] | None = None,
+) -> Table1Result:
+    """Run the Table I protocol (module docstring) and return the accuracies.
+
+    Parameters
+    ----------
+    trials : int
+        Independent repetitions (new layout, places and noise each).
+    seed : int
+        Seed of everything random (data and EM seeding).
+    ks, ns : sequence of int
+        Components per mixture (rows) and features per observation (columns).
+    n_places, n_observations : int
+        Places (10 in the paper) and observations per place (4).
+    n_edges : int
+        Edges of the shared layout, hence of every place (module docstring).
+    noise_deg : float
+        Bearing noise of an observation, standard deviation in degrees (5).
+    place_spread_deg : float
+        How different the places are (module docstring); degrees, >= 0.
+    n_init, min_sigma_deg : passed to :func:`fingerloc.mog.fit_mixtures`.
+    on_trial : callable, optional
+        Called with the number of trials done after each trial.
+    """
+    ks_t = _check("ks", ks, 1)
+    ns_t = _check("ns", ns, 1)
+    if not isinstance(trials, int) or trials < 1:
+        raise InvalidParameterError(f"trials must be an int >= 1, got {trials!r}")
+    if n_places < 2 or n_observations < 1 or n_edges < 1:
+        raise InvalidParameterError(
+            f"need n_places >= 2, n_observations >= 1 and n_edges >= 1, got {n_places}, {n_observations}, {n_edges}"
+        )
+    for name, v in (("noise_deg", noise_deg), ("place_spread_deg", place_spread_deg)):
+        if not (np.isfinite(v) and v >= 0):
+            raise InvalidParameterError(f"{name} must be a finite number >= 0, got {v!r}")
+    rng = np.random.default_rng(seed)
+    n_max = max(ns_t)
+    truth = np.repeat(np.arange(n_places), n_observations)  # label of each observation
+    per_trial = np.empty((trials, len(ks_t), len(ns_t)))
+    for t in range(trials):
+        places = make_places(rng, n_places, n_edges, place_spread_deg)
+        obs = make_observations(rng, places, n_observations, n_max, noise_deg)
+        for a, k in enumerate(ks_t):
+            samples = [obs[p, :, :n].ravel() for n in ns_t for p in range(n_places)]
+            fit = fit_mixtures(samples, k, n_init=n_init, min_sigma_deg=min_sigma_deg, random_state=rng)
+            for b, n in enumerate(ns_t):
+                sl = slice(b * n_places, (b + 1) * n_places)
+                x = obs[:, :, :n].reshape(-1)  # (places * observations * n,)
+                ll = mixture_log_density(x, fit.weights[sl], fit.means[sl], fit.sigmas[sl])
+                score = ll.reshape(n_places, n_places * n_observations, n).sum(axis=2)  # (model, observation)
+                per_trial[t, a, b] = float(np.mean(score.argmax(axis=0) == truth))
+        if on_trial is not None:
+            on_trial(t + 1)
+    params = {
+        "seed": seed,
+        "n_places": n_places,
+        "n_observations": n_observations,
+        "n_edges": n_edges,
+        "noise_deg": noise_deg,
+        "place_spread_deg": place_spread_deg,
+        "n_init": n_init,
+        "min_sigma_deg": min_sigma_deg,
+    }
+    return Table1Result(k=ks_t, n=ns_t, per_trial=per_trial, params=params)

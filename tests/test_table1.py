@@ -1,0 +1,104 @@
+"""Tests of the Table I experiment and of ``fingerloc reproduce table1``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from fingerloc.cli import main
+from fingerloc.errors import InvalidParameterError
+from fingerloc.experiments.table1 import (
+    DEFAULT_N_EDGES,
+    PAPER_K,
+    PAPER_N,
+    PAPER_TABLE1,
+    make_observations,
+    make_places,
+    run_table1,
+)
+
+
+def run(capsys, *args):
+    code = 0
+    try:
+        main(list(args))
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_paper_table_is_the_papers():
+    assert PAPER_K == (3, 4, 5) and PAPER_N == (5, 10, 15, 20, 25, 30, 35)
+    tab = np.asarray(PAPER_TABLE1)
+    assert tab.shape == (3, 7)
+    assert tab[0, 0] == 55.5 and tab[2, 6] == 100.0 and tab[1, 3] == 95.0
+
+
+def test_generator_shapes_and_alikeness():
+    rng = np.random.default_rng(0)
+    places = make_places(rng, 10, DEFAULT_N_EDGES, 10.0)
+    assert places.shape == (10, DEFAULT_N_EDGES)
+    # one shared layout: each edge's spread across places is about the place spread, not uniform
+    spread = np.rad2deg(places.std(axis=0))
+    assert np.all(spread < 25.0)
+    obs = make_observations(rng, places, 4, 35, 5.0)
+    assert obs.shape == (10, 4, 35)
+    # every feature lies near one of its own place's edges
+    d = np.abs(np.angle(np.exp(1j * (obs[..., None] - places[:, None, None, :])))).min(axis=-1)
+    assert np.rad2deg(d).max() < 5.0 * 6
+    identical = make_places(np.random.default_rng(1), 3, 4, 0.0)
+    assert np.all(identical == identical[0])
+
+
+def test_run_table1_format_and_determinism():
+    a = run_table1(trials=2, seed=3, ks=(3, 5), ns=(5, 20))
+    b = run_table1(trials=2, seed=3, ks=(3, 5), ns=(5, 20))
+    np.testing.assert_array_equal(a.per_trial, b.per_trial)
+    assert a.per_trial.shape == (2, 2, 2)
+    assert np.all((a.accuracy >= 0) & (a.accuracy <= 1))
+    assert a.stderr.shape == (2, 2)
+    paper = a.paper()
+    assert paper is not None
+    np.testing.assert_allclose(paper, [[0.555, 0.935], [0.80, 0.995]])
+    js = a.to_json()
+    assert js["k"] == [3, 5] and js["N"] == [5, 20] and js["trials"] == 2
+    assert np.asarray(js["accuracy"]).shape == (2, 2) and np.asarray(js["stderr"]).shape == (2, 2)
+    json.dumps(js)  # JSON-ready
+    assert run_table1(trials=1, ks=(3,), ns=(6,)).paper() is None
+
+
+def test_alikeness_controls_accuracy():
+    far = run_table1(trials=2, seed=0, ks=(4,), ns=(10,), place_spread_deg=180.0).accuracy[0, 0]
+    near = run_table1(trials=2, seed=0, ks=(4,), ns=(10,), place_spread_deg=2.0).accuracy[0, 0]
+    assert far > 0.95
+    assert near < far - 0.2
+
+
+def test_bad_parameters():
+    with pytest.raises(InvalidParameterError, match="trials"):
+        run_table1(trials=0)
+    with pytest.raises(InvalidParameterError, match="ks"):
+        run_table1(trials=1, ks=())
+    with pytest.raises(InvalidParameterError, match="place_spread_deg"):
+        run_table1(trials=1, place_spread_deg=-1.0)
+
+
+def test_cli_reproduce_table1(tmp_path, capsys):
+    out_json = tmp_path / "t1.json"
+    code, out, err = run(capsys, "reproduce", "table1", "--trials", "2", "--seed", "1", "--json", str(out_json))
+    assert code == 0, err
+    assert "Table I" in out and "paper" in out and "55.5" in out
+    data = json.loads(out_json.read_text())
+    assert data["k"] == [3, 4, 5] and data["N"] == [5, 10, 15, 20, 25, 30, 35]
+    acc = np.asarray(data["accuracy"])
+    assert acc.shape == (3, 7) and np.all((acc >= 0) & (acc <= 1))
+    assert np.asarray(data["stderr"]).shape == (3, 7)
+    assert data["paper"][0][0] == pytest.approx(0.555)
+
+
+def test_cli_reproduce_table1_bad_input(capsys):
+    code, _, _ = run(capsys, "reproduce", "table1", "--trials", "0")
+    assert code == 2
