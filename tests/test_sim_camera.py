@@ -293,3 +293,35 @@ def test_truth_in_offices_and_observation() -> None:
     obs = true_observation(w, pose, label=w.name)
     assert isinstance(obs, Observation) and obs.label == w.name
     np.testing.assert_allclose(obs.ve, f["VE"])
+
+
+def test_emissive_window_is_bright_whatever_its_orientation() -> None:
+    window = Material((0.93, 0.95, 1.0), emission=1.3)
+    w = World(
+        segments=[(2.0, -1.0, 2.0, 1.0), (-1.0, 2.0, 1.0, 2.0)],
+        z_range=[(0.0, 2.5)] * 2,
+        material=[0, 0],
+        materials=(WALL, window),
+        decal_z=[(0.9, 2.2), (0.9, 2.2)],
+        decal_material=[1, 1],
+        light_angle=2.0,
+    )
+    pano = render_panorama(w, (0.0, 0.0, 0.0), **CLEAN)
+    row = int(pano.image.shape[0] * 0.35)  # elevation about +4 deg: inside both windows
+    for b in (0.0, np.pi / 2):
+        px = pano.image[row, int(pano.bearing_column(b))]
+        assert px.min() > 0.95
+
+
+def _spread(similarity: float) -> float:
+    """Mean absolute difference of room sizes between offices generated together."""
+    out = []
+    for seed in range(4):
+        sizes = np.array([np.ptp(w.room, axis=0) for w in make_offices(6, similarity=similarity, random_state=seed)])
+        out.append(np.abs(sizes[:, None] - sizes[None]).mean())
+    return float(np.mean(out))
+
+
+def test_similarity_controls_how_alike_offices_are() -> None:
+    assert _spread(1.0) == 0.0
+    assert _spread(0.9) < _spread(0.5) < _spread(0.0)
