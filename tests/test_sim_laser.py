@@ -172,3 +172,18 @@ def test_scan_speed_smoke() -> None:
     for _ in range(5):
         simulate_scan(w, (*w.anchor, 0.0))
     assert (time.perf_counter() - t0) / 5 < 0.5  # loose: the target (<100 ms) is measured by bench speed
+
+
+def test_protocol_poses() -> None:
+    from fingerloc.sim import protocol_poses
+
+    for w in make_offices(3, random_state=9):
+        train, test = protocol_poses(w, random_state=1, heading=0.25)
+        assert train.shape == (8, 3) and test.shape == (2, 3)
+        d_train = np.hypot(train[:, 0] - w.anchor[0], train[:, 1] - w.anchor[1])
+        d_test = np.hypot(test[:, 0] - w.anchor[0], test[:, 1] - w.anchor[1])
+        assert np.all(d_train <= 0.7 + 1e-9) and np.all(d_test < d_train.max())
+        assert np.all(train[:, 2] == 0.25) and np.all(test[:, 2] == 0.25)
+        assert np.all(w.clearance(train[:, :2]) >= 0.3) and np.all(w.contains(train[:, :2]))
+        again, _ = protocol_poses(w, random_state=1, heading=0.25)
+        np.testing.assert_array_equal(train, again)
