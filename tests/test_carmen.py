@@ -332,3 +332,23 @@ def test_iter_laser_gives_line_numbers_and_default_messages(tmp_path):
     assert default_messages(inspect_log(p)) == ("FLASER",)
     p2 = write_log(tmp_path, [robotlaser([1.0, 2.0, 3.0])], name="r.log")
     assert default_messages(inspect_log(p2)) == ("ROBOTLASER1",)
+
+
+def test_streaming_memory_stays_flat(tmp_path):
+    # 600 scans of 361 beams: reading them one by one must not hold the log.
+    import tracemalloc
+
+    rng = np.random.default_rng(0)
+    p = tmp_path / "big.log.gz"
+    with gzip.open(p, "wt", encoding="utf-8", compresslevel=1) as fh:
+        row = " ".join(f"{v:.2f}" for v in rng.uniform(0.5, 20, 361))
+        for k in range(600):
+            fh.write(f"FLASER 361 {row} {k * 0.01} 0 0 0 0 0 {k} h {k}\nODOM 0 0 0 0 0 0 {k} h {k}\n")
+    tracemalloc.start()
+    n = 0
+    for s in iter_scans(p):
+        n += s.ranges.size
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert n == 600 * 361
+    assert peak < 1_500_000  # bytes (about 0.3 MB measured); the scans as a list take about 4 MB
