@@ -813,3 +813,64 @@ def plot_benchmark(run: BenchmarkRun, path: str | Path, *, method: str | None = 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Speed section (``fingerloc bench speed --only carmen``)
+# ---------------------------------------------------------------------------------------------------
+
+
+def _synthetic_scans(n: int, beams: int, rng: np.random.Generator) -> list[Scan]:
+    from ..io.carmen import flaser_bearings
+
+    b = flaser_bearings(beams)
+    out = []
+    for k in range(n):
+        w, h = rng.uniform(2.0, 12.0, size=2)
+        px, py = rng.uniform(0.3, 0.7) * w, rng.uniform(0.3, 0.7) * h
+        a = b + rng.uniform(-math.pi, math.pi)
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tx = np.where(c > 1e-12, (w - px) / c, np.where(c < -1e-12, -px / c, np.inf))
+            ty = np.where(s > 1e-12, (h - py) / s, np.where(s < -1e-12, -py / s, np.inf))
+        out.append(Scan(np.minimum(tx, ty), b, max_range=80.0, pose=(float(k), 0.0, 0.0)))
+    return out
+
+
+def _speed_section(quick: bool) -> dict[str, Any]:
+    import gzip
+    import tempfile
+
+    from ..io.carmen import iter_scans
+    from .speed import best_time
+
+    rng = np.random.default_rng(0)
+    n_lines = 300 if quick else 3000
+    figs: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / "speed.log.gz"
+        with gzip.open(p, "wt", encoding="utf-8", compresslevel=1) as fh:
+            for k in range(n_lines):
+                row = " ".join(f"{v:.2f}" for v in rng.uniform(0.5, 30.0, 361))
+                fh.write(f"FLASER 361 {row} {k * 0.01:.2f} 0 0 0 0 0 {k} h {k}\n")
+        t = best_time(lambda: sum(1 for _ in iter_scans(p)), repeat=2)
+        figs["carmen_read_scans_per_s"] = n_lines / t
+        figs["carmen_read_us_per_beam"] = 1e6 * t / (n_lines * 361)
+    n_places, per_place, n_q = (10, 2, 10) if quick else (50, 4, 100)
+    train = _synthetic_scans(n_places * per_place, 181, rng)
+    labels = np.repeat(np.arange(n_places), per_place)
+    queries = _synthetic_scans(n_q, 181, rng)
+    for m in (ScanContextBaseline(), HistogramBaseline()):
+        m.fit(train, labels)
+        t = best_time(lambda m=m: m.score(queries), repeat=2)  # type: ignore[misc]
+        figs[f"{m.name}_ms_per_query_{n_places * per_place}_train"] = 1000.0 * t / n_q
+    return figs
+
+
+def _register_speed() -> None:
+    from .speed import section
+
+    section("carmen")(_speed_section)
+
+
+_register_speed()

@@ -74,4 +74,5 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.speed_align",
     "fingerloc.experiments.speed_model",
     "fingerloc.experiments.speed_sim",
+    "fingerloc.experiments.carmen",
 ]
