@@ -184,7 +184,7 @@ _COUNTS = {
     "doors": (1, 2),
     "furniture": (3, 6),
     "pillars": (0, 1),
-    "patches": (2, 4),
+    "patches": (3, 5),
     "beacons": (3, 6),
     "suns": (0, 2),
     "windows": (0, 1),
