@@ -84,6 +84,14 @@ def test_bad_parameters():
         run_table1(trials=1, ks=())
     with pytest.raises(InvalidParameterError, match="place_spread_deg"):
         run_table1(trials=1, place_spread_deg=-1.0)
+    with pytest.raises(InvalidParameterError, match="observation_model"):
+        run_table1(trials=1, observation_model="bogus")
+
+
+def test_fixed_observation_model():
+    r = run_table1(trials=1, seed=0, ks=(3,), ns=(5, 35), observation_model="fixed")
+    assert r.per_trial.shape == (1, 1, 2)
+    assert r.to_json()["observation_model"] == "fixed"
 
 
 def test_cli_reproduce_table1(tmp_path, capsys):

@@ -266,6 +266,12 @@ def fit_mixtures(
     ------
     InvalidParameterError
         A bad parameter, an empty, non-1-D or non-finite sample, or no samples.
+
+    Notes
+    -----
+    Never warns: a mixture that reached ``max_iter`` has ``converged`` False.
+    From :data:`PARALLEL_MIN_MIXTURES` mixtures on, the fits run on numba's
+    threads; the results do not depend on it.
     """
     k, tol_f, it, ni, msd = _check_params(n_components, tol, max_iter, n_init, min_sigma_deg)
     rng = _check_random_state(random_state)

@@ -26,6 +26,12 @@ def table1_cmd(
     ),
     n_edges: int | None = typer.Option(None, "--edges", min=1, help="Edges of the shared office layout."),
     noise_deg: float = typer.Option(5.0, "--noise-deg", min=0.0, help="Bearing noise of an observation (deg std)."),
+    model: str = typer.Option(
+        "draws",
+        "--model",
+        help="draws: an observation's features are drawn from its place's edges (default); "
+        "fixed: every observation is its place's N bearings plus noise.",
+    ),
 ) -> None:
     """Classify 10 alike simulated places by MOG likelihood, k in {3,4,5}, N in {5..35}; print beside the paper."""
     from ..experiments.table1 import DEFAULT_N_EDGES, DEFAULT_PLACE_SPREAD_DEG, run_table1
@@ -47,12 +53,13 @@ def table1_cmd(
             place_spread_deg=spread,
             n_edges=edges,
             noise_deg=noise_deg,
+            observation_model=model,
             on_trial=lambda done: progress.update(task, completed=done),
         )
     acc, se, paper = res.accuracy * 100, res.stderr * 100, res.paper()
     table = Table(
         title=f"Table I: right classifications %, mean over {trials} trials, with its standard error, and the paper",
-        caption=f"10 places alike (spread {spread:g} deg, {edges} edges), 4 observations each, "
+        caption=f"10 places alike (spread {spread:g} deg, {edges} edges, model {model}), 4 observations each, "
         f"noise {noise_deg:g} deg, seed {seed}",
     )
     table.add_column("k", justify="right")

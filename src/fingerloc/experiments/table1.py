@@ -201,6 +201,7 @@ def run_table1(
     n_places: int = 10,
     n_observations: int = 4,
     n_edges: int = DEFAULT_N_EDGES,
+    observation_model: str = "draws",
     noise_deg: float = 5.0,
     place_spread_deg: float = DEFAULT_PLACE_SPREAD_DEG,
     n_init: int = DEFAULT_N_INIT,
@@ -221,6 +222,12 @@ def run_table1(
         Places (10 in the paper) and observations per place (4).
     n_edges : int
         Edges of the shared layout, hence of every place (module docstring).
+        Ignored by the ``"fixed"`` model.
+    observation_model : {"draws", "fixed"}
+        ``"draws"`` (default): an observation's N features are drawn from its
+        place's edges (module docstring). ``"fixed"``: the layout has N
+        features, each place moves each one, and every observation is its
+        place's N bearings plus noise (the first generator we tried).
     noise_deg : float
         Bearing noise of an observation, standard deviation in degrees (5).
     place_spread_deg : float
@@ -233,6 +240,8 @@ def run_table1(
     ns_t = _check("ns", ns, 1)
     if not isinstance(trials, int) or trials < 1:
         raise InvalidParameterError(f"trials must be an int >= 1, got {trials!r}")
+    if observation_model not in ("draws", "fixed"):
+        raise InvalidParameterError(f"observation_model must be 'draws' or 'fixed', got {observation_model!r}")
     if n_places < 2 or n_observations < 1 or n_edges < 1:
         raise InvalidParameterError(
             f"need n_places >= 2, n_observations >= 1 and n_edges >= 1, got {n_places}, {n_observations}, {n_edges}"
@@ -245,8 +254,12 @@ def run_table1(
     truth = np.repeat(np.arange(n_places), n_observations)  # label of each observation
     per_trial = np.empty((trials, len(ks_t), len(ns_t)))
     for t in range(trials):
-        places = make_places(rng, n_places, n_edges, place_spread_deg)
-        obs = make_observations(rng, places, n_observations, n_max, noise_deg)
+        if observation_model == "draws":
+            places = make_places(rng, n_places, n_edges, place_spread_deg)
+            obs = make_observations(rng, places, n_observations, n_max, noise_deg)
+        else:  # "fixed": N shared features per place; the first N of the N_max ones
+            places = make_places(rng, n_places, n_max, place_spread_deg)
+            obs = places[:, None, :] + rng.normal(0.0, np.deg2rad(noise_deg), (n_places, n_observations, n_max))
         for a, k in enumerate(ks_t):
             samples = [obs[p, :, :n].ravel() for n in ns_t for p in range(n_places)]
             fit = fit_mixtures(samples, k, n_init=n_init, min_sigma_deg=min_sigma_deg, random_state=rng)
@@ -263,6 +276,7 @@ def run_table1(
         "n_places": n_places,
         "n_observations": n_observations,
         "n_edges": n_edges,
+        "observation_model": observation_model,
         "noise_deg": noise_deg,
         "place_spread_deg": place_spread_deg,
         "n_init": n_init,
