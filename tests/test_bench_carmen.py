@@ -300,3 +300,11 @@ def test_cli_bench_carmen(tmp_path, capsys):
     assert code == 2 and "unknown method 'nope'" in err
     code, text, _ = _run_cli(capsys, "bench", "carmen", "--list-methods")
     assert code == 0 and "baseline-scancontext-original  (run only when named)" in text
+
+
+def test_speed_section_quick():
+    from fingerloc.experiments.carmen import _speed_section
+
+    figs = _speed_section(True)
+    assert figs["carmen_read_scans_per_s"] > 0
+    assert {"baseline-scancontext_ms_per_query_20_train", "baseline-histogram_ms_per_query_20_train"} <= set(figs)
