@@ -184,8 +184,8 @@ _COUNTS = {
     "doors": (1, 2),
     "furniture": (3, 6),
     "pillars": (0, 1),
-    "patches": (3, 5),
-    "beacons": (3, 6),
+    "patches": (4, 6),
+    "beacons": (4, 6),
     "suns": (0, 2),
     "windows": (0, 1),
     "lamps": (1, 3),
@@ -435,11 +435,12 @@ def _build(spec: _Spec, name: str) -> World:
     def first_fit(
         wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]
     ) -> tuple[int, float, float] | None:
-        # The wanted spot, else the nearest of a few shifted ones along the same wall.
-        for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
-            p = place(wall, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
-            if p is not None and ok(*p):
-                return p
+        # The wanted spot, else the nearest of a few shifted ones along the same wall, else the next walls.
+        for dw in range(n):
+            for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
+                p = place(wall + dw, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
+                if p is not None and ok(*p):
+                    return p
         return None
 
     def patch_ok(i: int, lo: float, hi: float) -> bool:
