@@ -131,7 +131,9 @@ def print_benchmark(js: dict[str, Any]) -> None:
 
 @bench_app.command("carmen")
 def carmen_cmd(
-    logs: list[Path] | None = typer.Argument(None, help="CARMEN logs (.log, .log.gz, .clf), plain or gzip."),
+    logs: list[Path] | None = typer.Argument(
+        None, metavar="LOG", help="CARMEN logs (.log, .log.gz, .clf), plain or gzip."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
     plot: Path | None = typer.Option(
         None, "--plot", help="Write a PNG: map, place centres, queries right (green) / wrong (red)."
