@@ -33,7 +33,7 @@ from ..align._encode import encode_many
 from ..fingerprint import ALPHABET
 from .speed import best_time, section
 
-__all__ = ["random_fingerprints", "speed_align"]
+__all__ = ["align_figures", "random_fingerprints", "speed_align"]
 
 
 def random_fingerprints(n: int, length: int, rng: np.random.Generator) -> list[str]:
@@ -45,13 +45,31 @@ def random_fingerprints(n: int, length: int, rng: np.random.Generator) -> list[s
 @section("align")
 def speed_align(quick: bool) -> dict[str, Any]:
     """Time the alignment kernels; return JSON-ready figures."""
-    rng = np.random.default_rng(20040426)
-    n_q, n_r, length = (5, 1_000, 40) if quick else (20, 10_000, 40)
-    n_sub = min(n_r, 1_000)  # references for the slow baselines
+    if quick:
+        return align_figures(n_queries=5, n_references=1_000, repeat=2)
+    return align_figures()
+
+
+def align_figures(
+    *,
+    n_queries: int = 20,
+    n_references: int = 10_000,
+    length: int = 40,
+    n_baseline: int = 1_000,
+    repeat: int = 3,
+    seed: int = 20040426,
+) -> dict[str, Any]:
+    """The figures of the ``align`` section for the given sizes (see the module docstring).
+
+    ``n_baseline`` references (at most ``n_references``) time the slow
+    baselines, whose figures are scaled to ``n_references``.
+    """
+    rng = np.random.default_rng(seed)
+    n_q, n_r = n_queries, n_references
+    n_sub = min(n_r, n_baseline)
     queries = random_fingerprints(n_q, length, rng)
     refs = random_fingerprints(n_r, length, rng)
     feature = CostModel.feature_aware()
-    repeat = 2 if quick else 3
     out: dict[str, Any] = {
         "queries": n_q,
         "references": n_r,
@@ -83,7 +101,7 @@ def speed_align(quick: bool) -> dict[str, Any]:
     qc, qo = encode_many(queries)
     rc, ro = encode_many(refs[:n_sub])
     unit = CostModel()
-    cyclic_batch_brute(qc[:length], qo[:2], rc[: 8 * length], ro[:9], unit.substitution, unit.indel)  # compile
+    cyclic_batch_brute(qc[:length], qo[:2], rc[:length], ro[:2], unit.substitution, unit.indel)  # compile
     t_b = best_time(lambda: cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel), repeat=1)
     brute = cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel)
     fast = alignment_costs(queries, refs[:n_sub], cyclic=True)
