@@ -81,3 +81,18 @@ def test_bad_inputs_name_the_problem(tmp_path, capsys):
     assert code == 2 and "lidar" in err
     code, _, err = run(capsys, "features", p, "--band", "0.8", "0.2")
     assert code == 2 and "--band" in err
+
+
+def test_bench_features_small(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "b.json"
+    code, stdout, err = run(capsys, "bench", "features", "--offices", 1, "--poses", 2, "--no-omni", "--json", out)
+    assert code == 0, err
+    assert "precision" in stdout
+    res = json.loads(out.read_text())
+    assert res["protocol"]["measurements"] == 2
+    for t in ("c", "Ex", "B", "VE", "CP"):
+        s = res["types"][t]
+        assert s["precision"] is None or 0 <= s["precision"] <= 1
+        assert s["recall"] is None or 0 <= s["recall"] <= 1

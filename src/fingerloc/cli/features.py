@@ -20,7 +20,7 @@ from ..errors import DataFormatError, InvalidParameterError
 from ..fingerprint import hue_letter
 from ..observation import Observation
 from ..sensors import Panorama
-from .app import app, console, err_console
+from .app import app, bench_app, console, err_console
 
 __all__ = ["KINDS", "FeatureOptions", "format_observation", "load_image", "panorama_from_file"]
 
@@ -268,3 +268,56 @@ def features_cmd(
     if json_out is not None:
         n = write_observations(json_out, observations)
         err_console.print(f"wrote {n} observations to {json_out}")
+
+
+@bench_app.command("features")
+def bench_features_cmd(
+    offices: int = typer.Option(10, "--offices", help="Simulated offices."),
+    poses: int = typer.Option(10, "--poses", help="Poses per office (within --radius of its anchor)."),
+    radius: float = typer.Option(0.7, "--radius", help="Poses lie within this distance of the anchor, metres."),
+    tol_deg: float = typer.Option(5.0, "--tol-deg", help="Largest bearing error of a match, degrees."),
+    jpeg: int = typer.Option(85, "--jpeg", help="JPEG quality of the rendered images (0: no compression)."),
+    no_omni: bool = typer.Option(False, "--no-omni", help="Skip the omnidirectional images."),
+    seed: int = typer.Option(0, "--seed", help="Seed of offices, poses and sensor noise."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
+) -> None:
+    """Precision and recall of the feature extractors against the simulator's ground truth."""
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from ..experiments.extractors import run_extractor_bench
+    from .bench import write_json
+
+    if not 0 <= jpeg <= 100:
+        raise InvalidParameterError(f"--jpeg must be in 0..100, got {jpeg}")
+    with Progress(console=err_console, transient=True) as progress:
+        task = progress.add_task("extracting", total=offices * poses)
+        res = run_extractor_bench(
+            n_offices=offices,
+            n_poses=poses,
+            radius=radius,
+            tol_deg=tol_deg,
+            jpeg_quality=jpeg or None,
+            omni=not no_omni,
+            seed=seed,
+            on_step=lambda done, total: progress.update(task, completed=done),
+        )
+    table = Table(title=f"feature extractors vs simulator truth (within {tol_deg:g} deg, {offices}x{poses} poses)")
+    for col in ("type", "true/meas.", "found/meas.", "precision", "recall", "mean |err| deg", "hue letter"):
+        table.add_column(col, justify="right")
+
+    def fmt(v: object, spec: str = ".3f") -> str:
+        return "-" if v is None else format(v, spec)
+
+    for name, s in res["types"].items():
+        table.add_row(
+            name,
+            fmt(s["true_per_measurement"], ".2f"),
+            fmt(s["found_per_measurement"], ".2f"),
+            fmt(s["precision"]),
+            fmt(s["recall"]),
+            fmt(s["mean_abs_error_deg"], ".2f"),
+            fmt(s.get("hue_letter_right")),
+        )
+    console.print(table)
+    write_json(json_out, res)

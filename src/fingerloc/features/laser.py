@@ -19,11 +19,13 @@ The pipeline, after Arras and Siegwart (the paper's reference [1]):
 4. **Extremities**: segment ends next to a depth jump on the near (occluding)
    side, or next to beams without a return: the ends of walls at door frames,
    of furniture, of pillars.
-5. **Beacons** from the intensity (remission) channel. The threshold adapts
-   to the scan's own intensity distribution (median and spread of the log
-   intensities), so sensors with intensity scales from hundreds to tens of
-   thousands give the same beacons; ``beacon_threshold`` overrides it with an
-   absolute value in the sensor's unit. No intensities, no beacons.
+5. **Beacons** from the intensity (remission) channel: narrow runs of beams
+   brighter by a factor than their neighbours (the local median, which
+   follows the smooth fall of intensity with range and incidence) and than
+   the scan's median. Only ratios are used, so sensors with intensity scales
+   from hundreds to tens of thousands give the same beacons;
+   ``beacon_threshold`` overrides this with an absolute value in the sensor's
+   unit. No intensities, no beacons.
 
 Every bearing returned is in radians in the robot frame (the sensor offset is
 applied), wrapped to ``[-pi, pi)``.
@@ -37,6 +39,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from ..angles import TWO_PI, wrap
 from ..errors import InvalidParameterError
@@ -98,17 +101,20 @@ class LaserParams:
     min_extremity_extent : float, default 0.1
         Smallest extent (metres, end point to end point) of a segment whose
         ends count as extremities.
-    extremity_slack_beams : int, default 2
-        A segment end is a line extremity only when a fitted line reaches
-        within this many beams of it (ragged clutter ends are not).
+    extremity_max_tail : float, default 0.3
+        A segment end is a line extremity only when a fitted line ends within
+        this distance (metres) of it: a short unfitted tail (a door jamb seen
+        edge-on) is allowed, a ragged clutter end is not.
     beacon_threshold : float or None, default None
         Absolute intensity above which a beam is bright, in the sensor's unit.
-        ``None``: adapt to the scan (see ``beacon_k`` and ``beacon_ratio``).
-    beacon_k : float, default 6
-        Adaptive threshold: this many robust standard deviations (1.4826 MAD)
-        of the log intensities above their median...
-    beacon_ratio : float, default 4
-        ...and at least this factor above the median intensity.
+        ``None``: adapt to the scan (see ``beacon_ratio``, ``beacon_global_ratio``).
+    beacon_ratio : float, default 2
+        Adaptive threshold: a bright beam is at least this factor above the
+        median intensity of the ``beacon_window`` beams on each side...
+    beacon_global_ratio : float, default 1.5
+        ...and at least this factor above the scan's median intensity.
+    beacon_window : int, default 12
+        Half width, in beams, of the local background window.
     beacon_max_width : float, default 0.5
         A bright run wider than this (metres) is a reflective surface, not a
         beacon.
@@ -129,10 +135,11 @@ class LaserParams:
     corner_max_dist: float = 0.3
     min_segment_points: int = 3
     min_extremity_extent: float = 0.1
-    extremity_slack_beams: int = 2
+    extremity_max_tail: float = 0.3
     beacon_threshold: float | None = None
-    beacon_k: float = 6.0
-    beacon_ratio: float = 4.0
+    beacon_ratio: float = 2.0
+    beacon_global_ratio: float = 1.5
+    beacon_window: int = 12
     beacon_max_width: float = 0.5
     beacon_max_fraction: float = 0.2
 
@@ -143,6 +150,7 @@ class LaserParams:
             "min_line_length",
             "corner_max_dist",
             "beacon_ratio",
+            "beacon_global_ratio",
             "beacon_max_width",
             "beacon_max_fraction",
         )
@@ -150,7 +158,7 @@ class LaserParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise InvalidParameterError(f"{name} must be a positive number, got {v!r}")
-        for name in ("split_tol_rel", "min_extremity_extent", "beacon_k"):
+        for name in ("split_tol_rel", "min_extremity_extent", "extremity_max_tail"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise InvalidParameterError(f"{name} must be a number >= 0, got {v!r}")
@@ -166,9 +174,9 @@ class LaserParams:
             )
         for name, lo in (
             ("max_bridge_beams", 0),
-            ("extremity_slack_beams", 0),
             ("min_line_points", 2),
             ("min_segment_points", 1),
+            ("beacon_window", 2),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -540,12 +548,15 @@ def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
         pos = valid & (inten > 0)
         if np.count_nonzero(pos) < 10:
             return np.empty(0)
-        li = np.log(inten[pos])
-        med = float(np.median(li))
-        mad = 1.4826 * float(np.median(np.abs(li - med)))
-        thr = med + max(p.beacon_k * mad, float(np.log(p.beacon_ratio)))
-        bright = np.zeros_like(valid)
-        bright[pos] = li > thr
+        li = np.full(inten.shape, np.nan)
+        li[pos] = np.log(inten[pos])
+        med = float(np.median(li[pos]))
+        # local background: median log intensity of the beams around (beams without a return
+        # count as the scan's median); smooth trends with range and incidence cancel out
+        filled = np.where(pos, li, med)
+        mode = "wrap" if prep.circular else "nearest"
+        local = ndimage.median_filter(filled, size=2 * p.beacon_window + 1, mode=mode)
+        bright = pos & (filled - local > np.log(p.beacon_ratio)) & (filled - med > np.log(p.beacon_global_ratio))
         if np.count_nonzero(bright) > p.beacon_max_fraction * np.count_nonzero(valid):
             return np.empty(0)
     idx = np.flatnonzero(bright)
@@ -636,8 +647,8 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
         if float(np.linalg.norm(pts[last] - pts[first])) < p.min_extremity_extent:
             continue
         ends = (
-            (first, seg.before, -1, lines[0].start - first <= p.extremity_slack_beams),
-            (last, seg.after, +1, last - (lines[-1].stop - 1) <= p.extremity_slack_beams),
+            (first, seg.before, -1, float(np.linalg.norm(lines[0].p0 - pts[first])) <= p.extremity_max_tail),
+            (last, seg.after, +1, float(np.linalg.norm(lines[-1].p1 - pts[last])) <= p.extremity_max_tail),
         )
         for end, kind, sign, on_line, line in (
             (*ends[0], lines[0]),

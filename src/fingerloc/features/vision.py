@@ -229,8 +229,15 @@ class EdgeParams:
 
     Parameters
     ----------
+    min_extent : float, default 0.12
+        An edge is a vertical run of edge pixels over at least this part of
+        the rows (``0..1``)...
     min_support : float, default 0.3
-        Part of the rows (``0..1``) that must carry the edge.
+        ...or edge pixels (not necessarily contiguous, e.g. a door frame
+        partly hidden by a desk) over at least this part of the rows.
+    vertical_smooth : float, default 0.015
+        Gaussian smoothing along the elevation, as a part of the height,
+        before differentiating (noise and JPEG blocks average out).
     min_contrast : float, default 0.08
         Smallest step counted across an edge, in log-luminance units (0.08:
         about 8 % brightness change), after undoing the smoothing.
@@ -252,7 +259,9 @@ class EdgeParams:
         gradient within twice ``nms_deg`` is ignored (ringing, JPEG blocks).
     """
 
+    min_extent: float = 0.12
     min_support: float = 0.3
+    vertical_smooth: float = 0.015
     min_contrast: float = 0.08
     noise_k: float = 4.0
     chroma_weight: float = 2.0
@@ -262,7 +271,10 @@ class EdgeParams:
     relative_min: float = 0.25
 
     def __post_init__(self) -> None:
-        _check_positive(self, ("min_support", "min_contrast", "nms_deg"))
+        _check_positive(self, ("min_extent", "min_support", "min_contrast", "nms_deg"))
+        _check_positive(self, ("vertical_smooth",), allow_zero=True)
+        if self.min_extent > 1:
+            raise InvalidParameterError(f"min_extent must be in (0, 1], got {self.min_extent!r}")
         if not 0 <= self.relative_min < 1:
             raise InvalidParameterError(f"relative_min must be in [0, 1), got {self.relative_min!r}")
         _check_positive(self, ("noise_k", "chroma_weight", "smooth_px", "slant_deg"), allow_zero=True)
@@ -286,7 +298,7 @@ def _slant_cols(p: EdgeParams, w: int) -> int:
 
 
 def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
-    """Column support (part of the rows with an edge at each column boundary) and mean strength."""
+    """Edge score of each column boundary (>= 1: an edge) and its mean gradient strength."""
     img = pano.image.astype(np.float64)
     h, w, _ = img.shape
     scale = w / 720.0
@@ -298,23 +310,46 @@ def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
     sigma = p.smooth_px * max(scale, 0.5)
     loglum, gl = _smooth_cols(loglum, sigma)
     chrom, gc = _smooth_cols(chrom, 2.0 * sigma)
+    # vertical edges are vertical: averaging along the elevation removes pixel and JPEG noise
+    # without blurring them
+    if p.vertical_smooth > 0:
+        sv = p.vertical_smooth * h
+        loglum = ndimage.gaussian_filter1d(loglum, sv, axis=0, mode="nearest")
+        chrom = ndimage.gaussian_filter1d(chrom, sv, axis=0, mode="nearest")
     # forward differences, circular: d[:, j] is the change across the boundary between j and j+1
     dl = gl * (np.roll(loglum, -1, axis=1) - loglum)
     dc = gc * (np.roll(chrom, -1, axis=1) - chrom)
-    g = np.sqrt(dl**2 + (p.chroma_weight**2) * (dc**2).sum(axis=2))
-    med = float(np.median(g))
-    mad = 1.4826 * float(np.median(np.abs(g - med)))
-    thr = max(p.min_contrast, med + p.noise_k * mad)
+    gvec = np.concatenate([dl[:, :, None], p.chroma_weight * dc], axis=2)  # (h, w, 3)
+    # an edge keeps its polarity along the elevation: project each gradient on its column's mean
+    # direction, so that noise (random sign) breaks runs that a real edge keeps
+    mean_dir = gvec.sum(axis=0)
+    mean_dir /= np.maximum(np.linalg.norm(mean_dir, axis=1, keepdims=True), 1e-12)
+    g = np.maximum(np.einsum("hwc,wc->hw", gvec, mean_dir), 0.0)
+    # noise scale per row from the unsigned magnitude: in log units, dark rows (floor) are noisier
+    mag = np.linalg.norm(gvec, axis=2)
+    med = np.median(mag, axis=1, keepdims=True)
+    mad = 1.4826 * np.median(np.abs(mag - med), axis=1, keepdims=True)
+    thr = np.maximum(p.min_contrast, med + p.noise_k * mad)
     peak = (g >= np.roll(g, 1, axis=1)) & (g >= np.roll(g, -1, axis=1)) & (g > thr)
     # ringing and block artefacts beside a strong edge (JPEG) are much weaker than that edge
     near = max(2, round(2.0 * p.nms_deg / 360.0 * w))
     peak &= g >= p.relative_min * ndimage.maximum_filter1d(g, 2 * near + 1, axis=1, mode="wrap")
     slant = _slant_cols(p, w)
     peak = ndimage.maximum_filter1d(peak, 2 * slant + 1, axis=1, mode="wrap")
-    # rows that are flat (e.g. outside an omni ring, saturated sky) do not vote
     support = peak.mean(axis=0)
+    # longest vertical run of edge pixels (gaps of a couple of rows bridged), part of the height
+    gap = max(1, round(0.01 * h))
+    filled = ndimage.binary_closing(peak, structure=np.ones((2 * gap + 1, 1), dtype=bool), border_value=0) | peak
+    run = np.zeros(w)
+    best = np.zeros(w)
+    for row in filled:
+        run = (run + 1.0) * row
+        np.maximum(best, run, out=best)
+    extent = best / h
     strength = np.where(peak, g, 0.0).sum(axis=0) / max(h, 1)
-    return support, strength
+    # a column passes with a long unbroken run, or with enough edge rows in all
+    score = np.maximum(extent / p.min_extent, support / p.min_support)
+    return score, strength
 
 
 def vertical_edges(pano: Panorama, **params: Any) -> FArray:
@@ -337,7 +372,7 @@ def vertical_edges(pano: Panorama, **params: Any) -> FArray:
     score = support + 1e-3 * strength / max(float(strength.max()), 1e-12)  # break plateaus by strength
     half = max(1, round(np.deg2rad(p.nms_deg) / TWO_PI * w))
     local_max = score >= ndimage.maximum_filter1d(score, 2 * half + 1, mode="wrap")
-    cand = np.flatnonzero(local_max & (support >= p.min_support))
+    cand = np.flatnonzero(local_max & (support >= 1.0))
     # plateaus of equal score: keep one per run
     keep: list[int] = []
     for jj in cand:
