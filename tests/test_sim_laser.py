@@ -6,6 +6,9 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from fingerloc.errors import InvalidParameterError
 from fingerloc.sensors import Scan
@@ -187,3 +190,40 @@ def test_protocol_poses() -> None:
         assert np.all(w.clearance(train[:, :2]) >= 0.3) and np.all(w.contains(train[:, :2]))
         again, _ = protocol_poses(w, random_state=1, heading=0.25)
         np.testing.assert_array_equal(train, again)
+
+
+def _slow_cast(segs: np.ndarray, origin: tuple[float, float], angle: float) -> float:
+    """Textbook oracle: intersect one ray with each segment in turn."""
+    best = np.inf
+    o = np.array(origin)
+    d = np.array([np.cos(angle), np.sin(angle)])
+    for x0, y0, x1, y1 in segs:
+        p, e = np.array([x0, y0]), np.array([x1 - x0, y1 - y0])
+        m = np.array([[d[0], -e[0]], [d[1], -e[1]]])
+        if abs(np.linalg.det(m)) < 1e-12:
+            continue
+        u, t = np.linalg.solve(m, p - o)
+        if u > 1e-6 and -1e-9 <= t <= 1 + 1e-9:
+            best = min(best, u)
+    return best
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    segs=hnp.arrays(np.float64, st.tuples(st.integers(1, 6), st.just(4)), elements=st.floats(-5, 5)),
+    angles=hnp.arrays(np.float64, st.integers(1, 20), elements=st.floats(-np.pi, np.pi)),
+)
+def test_cast_rays_matches_slow_oracle(segs: np.ndarray, angles: np.ndarray) -> None:
+    lengths = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1])
+    assume(np.all(lengths > 1e-3))
+    origin = (0.1, -0.2)
+    # Keep the origin off the segments (a ray starting on a wall is ill-posed).
+    w = World(segments=segs, z_range=[(0.0, 1.0)] * len(segs), material=[0] * len(segs), materials=(WALL,))
+    assume(float(w.clearance(np.array(origin))) > 1e-3)
+    dist, _, _ = cast_rays(w, origin, angles)
+    for a, d in zip(angles, dist, strict=True):
+        ref = _slow_cast(segs, origin, float(a))
+        if np.isinf(ref):
+            assert np.isinf(d)
+        else:
+            assert d == pytest.approx(ref, rel=1e-7, abs=1e-7)
