@@ -77,6 +77,10 @@ def global_alignment(
 def global_alignment(
     a: FingerprintLike, b: FingerprintLike, *, costs: CostModel | None = ..., return_alignment: Literal[True]
 ) -> tuple[float, list[tuple[int | None, int | None]]]: ...
+@overload
+def global_alignment(
+    a: FingerprintLike, b: FingerprintLike, *, costs: CostModel | None = ..., return_alignment: bool
+) -> float | tuple[float, list[tuple[int | None, int | None]]]: ...
 def global_alignment(
     a: FingerprintLike,
     b: FingerprintLike,

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidParameterError, UnknownLetterError
-from ..fingerprint import ALPHABET, HUE_LETTERS
+from ..fingerprint import ALPHABET, HUE_LETTERS, WALL_LENGTH_EDGES_M, WALL_LETTERS
 
 __all__ = ["CODE", "N_LETTERS", "CostModel"]
 
@@ -50,13 +50,13 @@ class CostModel:
     ----------
     substitution : float or array_like or mapping, optional
         Cost of pairing two different letters. A number gives every
-        mismatch that cost (default 1). An array of shape ``(21, 21)`` indexed
+        mismatch that cost (default 1). An array of shape ``(N_LETTERS, N_LETTERS)`` indexed
         by the letters' positions in :data:`~fingerloc.fingerprint.ALPHABET`
         gives the full table. A mapping ``{"xy": cost}`` overrides single
         pairs (both orders) on top of a mismatch cost of 1.
     indel : float or array_like or mapping, optional
         Cost of leaving a letter unpaired (default 1). A number, an array of
-        shape ``(21,)``, or a mapping ``{letter: cost}`` overriding a default
+        shape ``(N_LETTERS,)``, or a mapping ``{letter: cost}`` overriding a default
         of 1.
 
     Raises
@@ -97,6 +97,7 @@ class CostModel:
         hue_step: float = 0.25,
         f_partial: float = 0.5,
         n_indel: float = 0.5,
+        wall_step: float = 0.5,
         mismatch: float = 1.0,
         indel: float = 1.0,
     ) -> CostModel:
@@ -115,6 +116,11 @@ class CostModel:
           ``n_indel`` (0.5): the count of ``n`` in a gap is a rounding of the
           gap's width (a 39 deg gap gives one, a 41 deg gap two), so an extra
           ``n`` is weaker evidence than an extra feature.
+        * Two wall letters of the laser extension (``h``..``t``, see
+          :mod:`fingerloc.fingerprint`) cost ``min(mismatch, wall_step * d)``,
+          ``d`` the number of class steps between them (length steps plus
+          range steps): a wall seen from a little further, or cut a little
+          shorter by an occlusion, changes class; half of it still matches.
         * Every other pair of different letters costs ``mismatch`` (1) and
           every other letter is inserted or deleted for ``indel`` (1).
 
@@ -126,6 +132,8 @@ class CostModel:
             Cost of ``f`` against ``c`` or ``v``; ``>= 0``.
         n_indel : float, default 0.5
             Insertion/deletion cost of ``n``; ``>= 0``.
+        wall_step : float, default 0.5
+            Cost per class step between two wall letters; ``>= 0``.
         mismatch : float, default 1
             Cost of any other pair of different letters; ``>= 0``.
         indel : float, default 1
@@ -135,6 +143,7 @@ class CostModel:
             ("hue_step", hue_step),
             ("f_partial", f_partial),
             ("n_indel", n_indel),
+            ("wall_step", wall_step),
             ("mismatch", mismatch),
             ("indel", indel),
         ):
@@ -147,6 +156,11 @@ class CostModel:
                 sub[CODE[x], CODE[y]] = min(float(mismatch), hue_step * d)
         for y in "cv":
             sub[CODE["f"], CODE[y]] = sub[CODE[y], CODE["f"]] = f_partial
+        ncol = len(WALL_LENGTH_EDGES_M) + 1
+        for i, x in enumerate(WALL_LETTERS):
+            for j, y in enumerate(WALL_LETTERS):
+                d = abs(i // ncol - j // ncol) + abs(i % ncol - j % ncol)
+                sub[CODE[x], CODE[y]] = min(float(mismatch), wall_step * d)
         np.fill_diagonal(sub, 0.0)
         ind = np.full(N_LETTERS, float(indel))
         ind[CODE["n"]] = n_indel

@@ -42,6 +42,7 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
+from ._costs import N_LETTERS
 from ._kernels import nw_cost
 
 __all__ = [
@@ -121,7 +122,7 @@ def _myers_all_rotations(
 ) -> int:  # pragma: no cover - compiled
     """Minimal Levenshtein distance of ``p`` (1..64 letters) against every rotation of ``t`` (>= 1 letter).
 
-    ``peq`` (21,), ``pb`` (>= 2 len(t)), ``vps`` and ``vns`` (>= len(t)) are work buffers.
+    ``peq`` (N_LETTERS,), ``pb`` (>= 2 len(t)), ``vps`` and ``vns`` (>= len(t)) are work buffers.
     """
     n = p.shape[0]
     m = t.shape[0]
@@ -179,7 +180,7 @@ def cyclic_batch_unit(
         maxlen = max(maxlen, qoff[q + 1] - qoff[q])
     nchunks = (nr + _CHUNK - 1) // _CHUNK
     for c in prange(nchunks):
-        peq = np.empty(21, dtype=np.uint64)
+        peq = np.empty(N_LETTERS, dtype=np.uint64)
         pb = np.empty(2 * maxlen, dtype=np.uint64)
         vps = np.empty(maxlen, dtype=np.uint64)
         vns = np.empty(maxlen, dtype=np.uint64)

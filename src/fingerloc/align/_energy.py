@@ -85,7 +85,7 @@ class EnergyParams:
             raise InvalidParameterError(f"wrap: must be True or False, got {self.wrap!r}")
 
     def type_table(self) -> NDArray[np.float64]:
-        """Type energy of every pair of letters, shape ``(21, 21)``: 0 on the diagonal, ``mismatch`` elsewhere."""
+        """Type energy of every pair of letters, shape ``(N_LETTERS, N_LETTERS)``: 0 on the diagonal, ``mismatch`` elsewhere."""
         t = np.full((N_LETTERS, N_LETTERS), float(self.mismatch))
         np.fill_diagonal(t, 0.0)
         return t

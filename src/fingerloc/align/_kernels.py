@@ -1,7 +1,7 @@
 """Compiled Needleman-Wunsch kernels (numba) for weighted costs.
 
 Letters are ``uint8`` codes (positions in the alphabet); ``sub`` is the
-``(21, 21)`` substitution table and ``indel`` the ``(21,)`` insertion/deletion
+``(N_LETTERS, N_LETTERS)`` substitution table and ``indel`` the ``(N_LETTERS,)`` insertion/deletion
 costs of a :class:`~fingerloc.align.CostModel`.
 
 The batch kernel runs ``LANES`` (32) references side by side: the innermost
