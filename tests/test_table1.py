@@ -18,6 +18,7 @@ from fingerloc.experiments.table1 import (
     make_places,
     run_table1,
 )
+from fingerloc.mog import fit_mixtures
 
 
 def run(capsys, *args):
@@ -86,6 +87,40 @@ def test_bad_parameters():
         run_table1(trials=1, place_spread_deg=-1.0)
     with pytest.raises(InvalidParameterError, match="observation_model"):
         run_table1(trials=1, observation_model="bogus")
+    with pytest.raises(InvalidParameterError, match="evaluation"):
+        run_table1(trials=1, evaluation="bogus")
+
+
+def test_held_out_is_harder_than_resubstitution():
+    # identical places: with itself in its place's training data an observation is found far above chance;
+    # held out, only chance (10 %) is left
+    kw = {"trials": 3, "seed": 1, "ks": (5,), "ns": (5,), "place_spread_deg": 0.0}
+    resub = run_table1(**kw).accuracy[0, 0]
+    held = run_table1(evaluation="held-out", **kw).accuracy[0, 0]
+    assert resub > 0.5
+    assert held < 0.3
+    assert run_table1(evaluation="held-out", **kw).to_json()["evaluation"] == "held-out"
+
+
+def test_held_out_scoring_matches_plain_loops():
+    # replay run_table1's random draws, then score every observation with plain loops
+    seed, n_places, n_obs, n, k = 5, 10, 4, 10, 3
+    r = run_table1(trials=1, seed=seed, ks=(k,), ns=(n,), evaluation="held-out", place_spread_deg=20.0)
+    rng = np.random.default_rng(seed)
+    places = make_places(rng, n_places, DEFAULT_N_EDGES, 20.0)
+    obs = make_observations(rng, places, n_obs, n, 5.0)
+    samples = [obs[p].ravel() for p in range(n_places)]
+    samples += [np.delete(obs[p], o, axis=0).ravel() for p in range(n_places) for o in range(n_obs)]
+    fit = fit_mixtures(samples, k, random_state=rng)
+    right = 0
+    for p in range(n_places):
+        for o in range(n_obs):
+            scores = []
+            for q in range(n_places):
+                m = n_places + p * n_obs + o if q == p else q
+                scores.append(fit.log_density(obs[p, o])[m].sum())
+            right += int(np.argmax(scores) == p)
+    assert r.accuracy[0, 0] == pytest.approx(right / (n_places * n_obs))
 
 
 def test_fixed_observation_model():

@@ -26,6 +26,11 @@ def table1_cmd(
     ),
     n_edges: int | None = typer.Option(None, "--edges", min=1, help="Edges of the shared office layout."),
     noise_deg: float = typer.Option(5.0, "--noise-deg", min=0.0, help="Bearing noise of an observation (deg std)."),
+    held_out: bool = typer.Option(
+        False,
+        "--held-out",
+        help="Score each observation against its place's mixture fit without it (default: with it, as the paper).",
+    ),
     model: str = typer.Option(
         "draws",
         "--model",
@@ -54,13 +59,14 @@ def table1_cmd(
             n_edges=edges,
             noise_deg=noise_deg,
             observation_model=model,
+            evaluation="held-out" if held_out else "resubstitution",
             on_trial=lambda done: progress.update(task, completed=done),
         )
     acc, se, paper = res.accuracy * 100, res.stderr * 100, res.paper()
     table = Table(
         title=f"Table I: right classifications %, mean over {trials} trials, with its standard error, and the paper",
         caption=f"10 places alike (spread {spread:g} deg, {edges} edges, model {model}), 4 observations each, "
-        f"noise {noise_deg:g} deg, seed {seed}",
+        f"noise {noise_deg:g} deg, seed {seed}" + (", held-out" if held_out else ""),
     )
     table.add_column("k", justify="right")
     table.add_column("", justify="left")

@@ -202,6 +202,7 @@ def run_table1(
     n_observations: int = 4,
     n_edges: int = DEFAULT_N_EDGES,
     observation_model: str = "draws",
+    evaluation: str = "resubstitution",
     noise_deg: float = 5.0,
     place_spread_deg: float = DEFAULT_PLACE_SPREAD_DEG,
     n_init: int = DEFAULT_N_INIT,
@@ -228,6 +229,11 @@ def run_table1(
         place's edges (module docstring). ``"fixed"``: the layout has N
         features, each place moves each one, and every observation is its
         place's N bearings plus noise (the first generator we tried).
+    evaluation : {"resubstitution", "held-out"}
+        ``"resubstitution"`` (default, the paper's protocol as SPEC.md reads
+        it): an observation is scored against its place's mixture fit on all
+        four observations, itself included. ``"held-out"``: against a mixture
+        of its place fit on the other three (the other places keep all four).
     noise_deg : float
         Bearing noise of an observation, standard deviation in degrees (5).
     place_spread_deg : float
@@ -240,6 +246,11 @@ def run_table1(
     ns_t = _check("ns", ns, 1)
     if not isinstance(trials, int) or trials < 1:
         raise InvalidParameterError(f"trials must be an int >= 1, got {trials!r}")
+    if evaluation not in ("resubstitution", "held-out"):
+        raise InvalidParameterError(f"evaluation must be 'resubstitution' or 'held-out', got {evaluation!r}")
+    held_out = evaluation == "held-out"
+    if held_out and n_observations < 2:
+        raise InvalidParameterError("held-out evaluation needs n_observations >= 2")
     if observation_model not in ("draws", "fixed"):
         raise InvalidParameterError(f"observation_model must be 'draws' or 'fixed', got {observation_model!r}")
     if n_places < 2 or n_observations < 1 or n_edges < 1:
@@ -260,14 +271,28 @@ def run_table1(
         else:  # "fixed": N shared features per place; the first N of the N_max ones
             places = make_places(rng, n_places, n_max, place_spread_deg)
             obs = places[:, None, :] + rng.normal(0.0, np.deg2rad(noise_deg), (n_places, n_observations, n_max))
+        n_obs_all = n_places * n_observations
         for a, k in enumerate(ks_t):
             samples = [obs[p, :, :n].ravel() for n in ns_t for p in range(n_places)]
+            if held_out:  # one more mixture per observation: its place without it
+                samples += [
+                    np.delete(obs[p, :, :n], o, axis=0).ravel()
+                    for n in ns_t
+                    for p in range(n_places)
+                    for o in range(n_observations)
+                ]
             fit = fit_mixtures(samples, k, n_init=n_init, min_sigma_deg=min_sigma_deg, random_state=rng)
+            base = len(ns_t) * n_places
             for b, n in enumerate(ns_t):
                 sl = slice(b * n_places, (b + 1) * n_places)
                 x = obs[:, :, :n].reshape(-1)  # (places * observations * n,)
                 ll = mixture_log_density(x, fit.weights[sl], fit.means[sl], fit.sigmas[sl])
-                score = ll.reshape(n_places, n_places * n_observations, n).sum(axis=2)  # (model, observation)
+                score = ll.reshape(n_places, n_obs_all, n).sum(axis=2)  # (model, observation)
+                if held_out:
+                    lo = slice(base + b * n_obs_all, base + (b + 1) * n_obs_all)
+                    own = mixture_log_density(x, fit.weights[lo], fit.means[lo], fit.sigmas[lo])
+                    own_score = own.reshape(n_obs_all, n_obs_all, n).sum(axis=2).diagonal()
+                    score[truth, np.arange(n_obs_all)] = own_score
                 per_trial[t, a, b] = float(np.mean(score.argmax(axis=0) == truth))
         if on_trial is not None:
             on_trial(t + 1)
@@ -277,6 +302,7 @@ def run_table1(
         "n_observations": n_observations,
         "n_edges": n_edges,
         "observation_model": observation_model,
+        "evaluation": evaluation,
         "noise_deg": noise_deg,
         "place_spread_deg": place_spread_deg,
         "n_init": n_init,
