@@ -266,3 +266,12 @@ def test_cyclic_batch_long_strings_and_role_swap():
     out_w = alignment_costs(qs, rs, cyclic=True, costs=FEATURE)
     expect_w = np.array([[brute_cyclic(q, r, FEATURE) for r in rs] for q in qs])
     np.testing.assert_allclose(out_w, expect_w, atol=1e-9)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.text(alphabet=ALPHABET, max_size=70), min_size=1, max_size=3), st.lists(FP, min_size=1, max_size=4))
+def test_cyclic_unit_kernel_full_alphabet(qs, rs):
+    out = alignment_costs(qs, rs, cyclic=True, workers=-1)
+    expect = np.array([[brute_cyclic(q, r) for r in rs] for q in qs])
+    np.testing.assert_array_equal(out, expect)
+    np.testing.assert_array_equal(alignment_costs(rs, qs, cyclic=True, workers=1), expect.T)
