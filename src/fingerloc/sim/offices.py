@@ -32,6 +32,9 @@ _DOOR_TOP = 2.05  # metres: height of a door opening
 _FURN_GAP = 0.02  # metres between furniture and the wall it stands against
 
 #: Furniture kinds: (width range, depth range, height range), metres.
+#: Door leaves: albedo (low saturation) and laser reflectivity.
+_LEAF_MATS = [((0.66, 0.6, 0.5), 0.45), ((0.85, 0.85, 0.83), 0.55), ((0.5, 0.52, 0.55), 0.35)]
+
 _FURNITURE = {
     "desk": ((1.2, 1.6), (0.7, 0.8), (0.72, 0.76)),
     "cabinet": ((0.8, 1.2), (0.4, 0.5), (1.8, 2.0)),
@@ -90,6 +93,10 @@ def _new_door(rng: np.random.Generator) -> dict[str, Any]:
         "u": float(rng.uniform(0.15, 0.85)),
         "width": float(rng.uniform(0.85, 1.0)),
         "corridor": float(rng.uniform(1.3, 2.5)),
+        "leaf": bool(rng.uniform() < 0.5),
+        "leaf_angle": float(rng.uniform(80.0, 100.0)),
+        "hinge": int(rng.integers(0, 2)),
+        "leaf_mat": int(rng.integers(0, len(_LEAF_MATS))),
     }
 
 
@@ -351,11 +358,13 @@ def _build(spec: _Spec, name: str) -> World:
     corr_m = b.material(Material(spec.corridor_rgb, 0.45))
     beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
     window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=1.3))  # daylight: overexposed
+    leaf_m = [b.material(Material(rgb, refl)) for rgb, refl in _LEAF_MATS]
     furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
 
     # Per wall: occupied intervals (metres along the wall), cuts and decals.
     length = [float(np.hypot(*(poly[(i + 1) % n] - poly[i]))) for i in range(n)]
     doors: dict[int, list[tuple[float, float, float]]] = {i: [] for i in range(n)}
+    leaves: list[tuple[int, float, float, float, int, int]] = []
     blocked: dict[int, list[tuple[float, float]]] = {i: [] for i in range(n)}  # where furniture/pillars stand
     decals: dict[int, list[tuple[float, float, float, float, int]]] = {i: [] for i in range(n)}
 
@@ -373,6 +382,8 @@ def _build(spec: _Spec, name: str) -> World:
         if p is None or any(_overlaps((p[1], p[2]), (a, c), 0.3) for a, c, _ in doors[p[0]]):
             continue
         doors[p[0]].append((p[1], p[2], dd["corridor"]))
+        if dd.get("leaf", False):
+            leaves.append((p[0], p[1], p[2], float(dd["leaf_angle"]), int(dd["hinge"]), int(dd["leaf_mat"])))
 
     def world_inside(box: tuple[float, float, float, float]) -> bool:
         c = np.array([(box[0], box[1]), (box[2], box[1]), (box[0], box[3]), (box[2], box[3])])
@@ -393,7 +404,7 @@ def _build(spec: _Spec, name: str) -> World:
         return any(box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3] for o in others)
 
     # Keep-out boxes: one metre inside each door, and the footprints of what is already placed.
-    taken = [footprint(i, a - 0.1, c + 0.1, 0.0, 1.0) for i in range(n) for a, c, _ in doors[i]]
+    taken = [footprint(i, a - 0.25, c + 0.25, 0.0, 1.05) for i in range(n) for a, c, _ in doors[i]]
     furniture_boxes: list[tuple[int, float, float, float, float, int]] = []
     for f in spec.furniture:
         found = None
@@ -498,6 +509,14 @@ def _build(spec: _Spec, name: str) -> World:
                 b.add(at(s), at(s, -_WALL_THICKNESS), (0.0, _DOOR_TOP), frame_m, "door_frame")
             # Frame head and the corridor wall seen through the door.
             b.add(at(a - 1.5, -cd), at(c + 1.5, -cd), (0.0, H), corr_m, "corridor")
+        for wi, a, c, angle, hinge, lm in leaves:
+            if wi != i:
+                continue
+            # An open door leaf swung into the room by ``angle`` degrees about its hinge.
+            phi = np.deg2rad(angle)
+            along = np.cos(phi) * (t if hinge == 0 else -t) + np.sin(phi) * nin
+            root = at(a if hinge == 0 else c)
+            b.add(root, root + (c - a - 0.02) * along, (0.0, _DOOR_TOP - 0.02), leaf_m[lm], "door_leaf")
         for wi, lo, hi, depth, height, m in furniture_boxes:
             if wi != i:
                 continue
