@@ -103,4 +103,4 @@ def test_bad_parameters():
     with pytest.raises(InvalidParameterError, match="mismatch"):
         minimum_energy("c", "v", mismatch=float("nan"))
     with pytest.raises(UnknownLetterError):
-        minimum_energy_costs(["c"], ["q"])
+        minimum_energy_costs(["c"], ["x"])

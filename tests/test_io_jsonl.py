@@ -88,3 +88,30 @@ def test_empty_file(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(DataFormatError, match="cannot read"):
         read_observations(tmp_path / "nope.jsonl")
+
+
+def test_walls_and_scan_roundtrip(tmp_path):
+    import dataclasses
+
+    a = Observation.from_degrees({"W": [{"bearing": 10, "length": 2.5, "range": 1.2}, (-30, 0.4, 3.0)], "Ex": [5]})
+    a = dataclasses.replace(a, ranges=np.array([1.0, np.inf, 2.5]), range_bearings=np.deg2rad([-10.0, 0.0, 10.0]))
+    p = tmp_path / "w.jsonl"
+    write_observations(p, [a])
+    (b,) = read_observations(p)
+    assert np.allclose(b.w, a.w) and np.allclose(b.w_length, a.w_length) and np.allclose(b.w_range, a.w_range)
+    assert b.ranges is not None and np.isinf(b.ranges[1]) and np.allclose(b.ranges[[0, 2]], [1.0, 2.5])
+    assert '"ranges": [1.0, null, 2.5]' in p.read_text()
+
+
+@pytest.mark.parametrize(
+    ("line", "match"),
+    [
+        ('{"features": {"W": [{"bearing": 1, "length": 0, "range": 2}]}}', "must be > 0"),
+        ('{"features": {"W": [{"bearing": 1}]}}', "each wall"),
+        ('{"features": {}, "scan": {"bearings": [1, 2], "ranges": [1]}}', "one range per bearing"),
+        ('{"features": {}, "scan": {"bearings": [1], "ranges": [-1]}}', ">= 0"),
+    ],
+)
+def test_bad_wall_and_scan(tmp_path, line, match):
+    with pytest.raises(DataFormatError, match=match):
+        read_observations(_write(tmp_path, [line]))

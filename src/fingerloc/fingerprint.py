@@ -14,7 +14,30 @@ letter      meaning
 ``n``       one per ``empty_step_deg`` (20 deg) of seen, empty bearing
 ==========  ============================================================
 
-Extremities (``Ex``) enter the Bayesian program but never the string.
+Extremities (``Ex``) enter the Bayesian program but never the paper's string.
+
+Laser letters (our extension, ``laser_letters=True``; off by default). A 2D
+laser alone gives few of the paper's letters (a corner now and then), so the
+string says little. With the option on, two more kinds of laser feature
+become letters, in the same bearing order:
+
+* ``e``: an extremity (a line end next to a depth jump: door frames,
+  furniture ends);
+* a wall segment (observation feature type ``W``), one letter by its length
+  class (short < 1 m, medium 1-3 m, long >= 3 m) and the range class of its
+  midpoint (near < 1.5 m, mid 1.5-3 m, far 3-6 m, very far >= 6 m):
+
+  ===========  =====  ======  ====
+  range        short  medium  long
+  ===========  =====  ======  ====
+  near         ``h``  ``i``   ``j``
+  mid          ``k``  ``l``   ``m``
+  far          ``o``  ``p``   ``q``
+  very far     ``r``  ``s``   ``t``
+  ===========  =====  ======  ====
+
+The class edges are indoor scales (a door or a desk, an office wall, a
+corridor), fixed before any benchmark and not tuned per log.
 """
 
 from __future__ import annotations
@@ -32,6 +55,9 @@ from .observation import Observation
 
 __all__ = [
     "ALPHABET",
+    "PAPER_ALPHABET",
+    "WALL_LETTERS",
+    "wall_letter",
     "HUE_LETTERS",
     "Fingerprint",
     "hue_letter",
@@ -41,8 +67,18 @@ __all__ = [
 
 #: Colour-patch letters, hue bin 0 (``A``, hue 0-22.5 deg) to 15 (``P``).
 HUE_LETTERS = "ABCDEFGHIJKLMNOP"
-#: Every letter a fingerprint may hold.
-ALPHABET = "v" + HUE_LETTERS + "cbfn"
+#: Laser extension: extremity letter.
+EXTREMITY_LETTER = "e"
+#: Laser extension: wall letters, row = range class, column = length class.
+WALL_LETTERS = "hijklmopqrst"
+#: Edges of the wall length classes, metres.
+WALL_LENGTH_EDGES_M = (1.0, 3.0)
+#: Edges of the wall range classes, metres.
+WALL_RANGE_EDGES_M = (1.5, 3.0, 6.0)
+#: Every letter a fingerprint may hold (the paper's 21, then the laser extension).
+ALPHABET = "v" + HUE_LETTERS + "cbfn" + EXTREMITY_LETTER + WALL_LETTERS
+#: The paper's letters.
+PAPER_ALPHABET = "v" + HUE_LETTERS + "cbfn"
 #: Hue bin width in degrees.
 HUE_BIN_DEG = 22.5
 #: Tolerance (degrees) when counting empty-space steps: a seen gap of exactly 40 deg gives two ``n``.
@@ -58,6 +94,13 @@ def hue_letter(hue_deg: float) -> str:
     if not (0.0 <= h < 360.0):
         raise InvalidParameterError(f"hue must be in [0, 360) degrees, got {hue_deg!r}")
     return HUE_LETTERS[min(int(h // HUE_BIN_DEG), len(HUE_LETTERS) - 1)]
+
+
+def wall_letter(length_m: float, range_m: float) -> str:
+    """The laser-extension letter of a wall segment of a length and midpoint range (metres)."""
+    li = sum(length_m >= e for e in WALL_LENGTH_EDGES_M)
+    ri = sum(range_m >= e for e in WALL_RANGE_EDGES_M)
+    return WALL_LETTERS[ri * (len(WALL_LENGTH_EDGES_M) + 1) + li]
 
 
 def _check_letters(letters: str) -> None:
@@ -235,6 +278,7 @@ def make_fingerprint(
     *,
     empty_step_deg: float = 20.0,
     merge_tol_deg: float = 5.0,
+    laser_letters: bool = False,
 ) -> Fingerprint:
     """Generate the fingerprint of an observation (SPEC.md §2).
 
@@ -257,6 +301,10 @@ def make_fingerprint(
         Degrees of seen, empty bearing per ``n`` letter; positive.
     merge_tol_deg : float, default 5
         Largest corner-to-edge angle (degrees) merged into ``f``; ``>= 0``.
+    laser_letters : bool, default False
+        Also write extremities (``e``) and wall segments (their length/range
+        letter) into the string: our extension for laser-only robots (module
+        docstring). False gives exactly the paper's string.
 
     Returns
     -------
@@ -291,6 +339,12 @@ def make_fingerprint(
     feats += [(c, "c") for i, c in enumerate(cs) if i not in used_c]
     feats += [(x, hue_letter(h)) for x, h in zip(_degrees(obs.cp), obs.cp_hue.tolist(), strict=True)]
     feats += [(x, "b") for x in _degrees(obs.b)]
+    if laser_letters:
+        feats += [(x, EXTREMITY_LETTER) for x in _degrees(obs.ex)]
+        feats += [
+            (x, wall_letter(ln, r))
+            for x, ln, r in zip(_degrees(obs.w), obs.w_length.tolist(), obs.w_range.tolist(), strict=True)
+        ]
     feats.sort(key=lambda t: (t[0], _TIE_ORDER[t[1]]))
 
     pieces = _seen_pieces_deg(obs.fov)

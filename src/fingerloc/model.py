@@ -12,6 +12,13 @@ Parametric forms:
   ``loc`` (:mod:`fingerloc.mog`);
 * ``P(Fp | loc) = 1 / (GlobalAlignment(Fp, fp_loc) + 1)`` (``fp_likelihood="paper"``).
 
+Beyond the paper (opt-in): the range term ``R``, ``P(R | loc) ∝ exp(-lambda_R
+d(R, R_loc))``, ``d`` the L1 distance of cumulative range histograms (an earth
+mover's distance between the distributions of beam ranges, heading-free) to
+the nearest training scan of ``loc``, ``lambda_R`` fit on the training data
+(see :class:`PlaceModel`). It needs observations carrying their raw range
+profile (``Observation.ranges``).
+
 The question ``P(Loc | VE CP Ex B Fp)`` is answered in log space and normalised
 over the learned places.
 
@@ -56,8 +63,10 @@ __all__ = ["MOG_TERMS", "TERMS", "PlaceData", "PlaceModel"]
 
 #: Terms of the Bayesian program computed from mixtures of Gaussians.
 MOG_TERMS: tuple[str, ...] = ("VE", "CP", "Ex", "B")
-#: Every term a model may use.
-TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
+#: The paper's terms (the default).
+PAPER_TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
+#: Every term a model may use: the paper's and the range term ``R`` (our extension).
+TERMS: tuple[str, ...] = (*PAPER_TERMS, "R")
 
 FArray = NDArray[np.float64]
 LOG_UNIFORM = -math.log(TWO_PI)
@@ -105,7 +114,9 @@ class PlaceModel:
         Mixture components per place and feature type (``k`` of Tables I, IV).
     terms : sequence of str, default ("VE", "CP", "Ex", "B", "Fp")
         Terms of the decomposition to use; any non-empty subset (the paper's
-        ablations: ``("VE",)``, ``("Ex",)``, ``("VE", "Ex")``, ``("VE", "Ex", "Fp")``).
+        ablations: ``("VE",)``, ``("Ex",)``, ``("VE", "Ex")``, ``("VE", "Ex", "Fp")``)
+        of the paper's terms, plus the range term ``"R"`` (our extension,
+        module docstring).
     fp_likelihood : {"paper", "exp"}, default "paper"
         ``"paper"``: ``P(Fp|loc) = 1 / (cost + 1)``. ``"exp"``:
         ``P(Fp|loc) ∝ exp(-lambda * cost)``, ``lambda`` chosen on the training
@@ -133,7 +144,14 @@ class PlaceModel:
         ``(1 - w) p_MOG + w / (2 pi)``, so one spurious bearing cannot veto a
         place. 0 is the paper's form.
     min_sigma_deg, tol, max_iter, n_init : mixture fitting (:func:`fingerloc.mog.fit_mixtures`).
-    empty_step_deg, merge_tol_deg : fingerprint generation (:func:`fingerloc.make_fingerprint`).
+    empty_step_deg, merge_tol_deg, laser_letters : fingerprint generation
+        (:func:`fingerloc.make_fingerprint`); ``laser_letters=True`` writes
+        extremities and wall segments into the string (our extension for
+        laser-only robots).
+    range_bin_m, range_max_m : float, default 0.25 and 10
+        Bin width and last bin edge (metres) of the range histograms of the
+        ``R`` term; ranges beyond ``range_max_m`` and beams without return
+        share one last bin.
     fov_grid : int, default 720
         Grid points used to integrate a mixture over a partial field of view.
     min_fov_mass : float, default 1e-3
@@ -146,7 +164,7 @@ class PlaceModel:
         self,
         n_components: int = 5,
         *,
-        terms: Sequence[str] = TERMS,
+        terms: Sequence[str] = PAPER_TERMS,
         fp_likelihood: FpLikelihood = "paper",
         fp_reference: FpReference = "all",
         cyclic: bool = False,
@@ -160,6 +178,9 @@ class PlaceModel:
         n_init: int = 3,
         empty_step_deg: float = 20.0,
         merge_tol_deg: float = 5.0,
+        laser_letters: bool = False,
+        range_bin_m: float = 0.25,
+        range_max_m: float = 10.0,
         fov_grid: int = 720,
         min_fov_mass: float = 1e-3,
         random_state: int | np.random.Generator | None = 0,
@@ -179,6 +200,9 @@ class PlaceModel:
         self.n_init = n_init
         self.empty_step_deg = empty_step_deg
         self.merge_tol_deg = merge_tol_deg
+        self.laser_letters = laser_letters
+        self.range_bin_m = range_bin_m
+        self.range_max_m = range_max_m
         self.fov_grid = fov_grid
         self.min_fov_mass = min_fov_mass
         self.random_state = random_state
@@ -202,6 +226,9 @@ class PlaceModel:
             "n_init": self.n_init,
             "empty_step_deg": self.empty_step_deg,
             "merge_tol_deg": self.merge_tol_deg,
+            "laser_letters": self.laser_letters,
+            "range_bin_m": self.range_bin_m,
+            "range_max_m": self.range_max_m,
             "fov_grid": self.fov_grid,
             "min_fov_mass": self.min_fov_mass,
             "random_state": self.random_state,
@@ -232,6 +259,11 @@ class PlaceModel:
             raise InvalidParameterError(f"unknown_prior must be in [0, 1), got {self.unknown_prior!r}")
         if not (0.0 <= self.outlier_weight < 1.0):
             raise InvalidParameterError(f"outlier_weight must be in [0, 1), got {self.outlier_weight!r}")
+        if not (0 < self.range_bin_m < self.range_max_m and math.isfinite(self.range_max_m)):
+            raise InvalidParameterError(
+                f"range_bin_m and range_max_m must satisfy 0 < range_bin_m < range_max_m, "
+                f"got {self.range_bin_m!r} and {self.range_max_m!r}"
+            )
         if not (isinstance(self.fov_grid, int) and self.fov_grid >= 36):
             raise InvalidParameterError(f"fov_grid must be an integer >= 36, got {self.fov_grid!r}")
         if not (0.0 < self.min_fov_mass <= 1.0):
@@ -253,8 +285,8 @@ class PlaceModel:
         """
         self._validate()
         self.places_: dict[str, PlaceData] = {}
-        self.fp_lambda_: float = 1.0
-        self.unknown_cost_: float = 0.0
+        self.lambdas_: dict[str, float] = {}
+        self.unknown_costs_: dict[str, float] = {}
         self._add(observations, labels, refit_global=True)
         return self
 
@@ -263,7 +295,7 @@ class PlaceModel:
 
         Observations of a new label create a place; observations of a known
         label are added to that place, which alone is refit. The global
-        fingerprint calibration (``fp_lambda_``, ``unknown_cost_``) is kept.
+        calibration of the distance terms (``lambdas_``, ``unknown_costs_``) is kept.
         """
         if not hasattr(self, "places_"):
             return self.fit(observations, labels)
@@ -293,11 +325,16 @@ class PlaceModel:
         self._fit_references([self.places_[lab] for lab in groups])
         self.classes_ = np.array(list(self.places_), dtype=object)
         self._index_references()
-        if refit_global and "Fp" in self.terms and (self.fp_likelihood == "exp" or self.unknown_prior > 0):
-            self._calibrate_fp()
+        if refit_global:
+            self._calibrate()
 
     def _fingerprint(self, obs: Observation) -> Fingerprint:
-        return make_fingerprint(obs, empty_step_deg=self.empty_step_deg, merge_tol_deg=self.merge_tol_deg)
+        return make_fingerprint(
+            obs,
+            empty_step_deg=self.empty_step_deg,
+            merge_tol_deg=self.merge_tol_deg,
+            laser_letters=self.laser_letters,
+        )
 
     def _fit_mixtures(self, places: list[PlaceData]) -> None:
         from .mog import fit_mixtures
@@ -360,6 +397,17 @@ class PlaceModel:
         self._ref_starts = np.searchsorted(self._ref_owner, np.arange(len(self.places_)))
         self.__dict__.pop("_crop_cache", None)
         self.__dict__.pop("_fov_cache", None)
+        if "R" in self.terms:
+            descs: list[FArray] = []
+            rowner: list[int] = []
+            for j, p in enumerate(self.places_.values()):
+                for o in p.observations:
+                    if o.ranges is not None:
+                        descs.append(self._range_descriptor(o))
+                        rowner.append(j)
+            width = self._range_bins().size + 1
+            self._range_refs = np.stack(descs) if descs else np.zeros((0, width))
+            self._range_owner = np.asarray(rowner, dtype=np.int64)
         self._stack_mixtures()
 
     def _stack_mixtures(self) -> None:
@@ -381,48 +429,79 @@ class PlaceModel:
                     has[j] = True
             self._mix[term] = (w, m, s, has)
 
-    def _calibrate_fp(self, max_queries: int = 2000) -> None:
-        """Leave-one-out fingerprint costs on the training data -> ``fp_lambda_`` and ``unknown_cost_``.
+    @property
+    def fp_lambda_(self) -> float:
+        """``lambda`` of ``fp_likelihood="exp"`` (1 until calibrated)."""
+        return self.lambdas_.get("Fp", 1.0)
 
-        Uses at most ``max_queries`` training fingerprints (a seeded sample) as
-        queries against every stored one, so learning stays linear in the
-        number of places.
+    def _distance_terms(self) -> list[str]:
+        """Terms whose likelihood is a function of a distance to the place's references."""
+        return [t for t in ("Fp", "R") if t in self.terms]
+
+    def _term_distances(self, term: str, observations: Sequence[Observation]) -> FArray:
+        """Distance of each observation to each place for a distance term, shape (n, P)."""
+        if term == "Fp":
+            return self.fingerprint_costs(observations)
+        return self.range_distances(observations)
+
+    def _calibrate(self, max_queries: int = 2000) -> None:
+        """Leave-one-out distances on the training data -> ``lambdas_`` and ``unknown_costs_``.
+
+        For each distance term, ``unknown_costs_[term]`` is the median distance
+        of a training observation to the nearest *other* place, and
+        ``lambdas_[term]`` (``exp`` forms: ``R`` always, ``Fp`` with
+        ``fp_likelihood="exp"``) maximises the mean leave-one-out log-probability
+        of the right place under that term alone. At most ``max_queries``
+        training observations (a seeded sample) serve as queries, so learning
+        stays linear in the number of places.
         """
+        places = list(self.places_.values())
+        obs = [o for p in places for o in p.observations]
+        owner = np.array([j for j, p in enumerate(places) for _ in p.observations])
+        if len(places) < 2:
+            return
+        rows = np.arange(len(obs))
+        if len(obs) > max_queries:
+            rows = np.sort(np.random.default_rng(0).choice(len(obs), max_queries, replace=False))
+        for term in self._distance_terms():
+            if term == "Fp" and self.fp_likelihood == "paper" and self.unknown_prior <= 0:
+                continue
+            if term == "R" and not any(o.ranges is not None for o in obs):
+                continue
+            d = self._loo_distances(term, obs, rows, owner, len(places))
+            truth = owner[rows]
+            ok = np.isfinite(d[np.arange(rows.size), truth])
+            if not ok.any():
+                continue
+            c, t = d[ok], truth[ok]
+            wrong = c.copy()
+            wrong[np.arange(t.size), t] = np.inf
+            nearest_wrong = wrong.min(axis=1)
+            if np.isfinite(nearest_wrong).any():
+                self.unknown_costs_[term] = float(np.median(nearest_wrong[np.isfinite(nearest_wrong)]))
+            if term == "R" or self.fp_likelihood == "exp":
+                self.lambdas_[term] = _fit_lambda(c, t)
+
+    def _loo_distances(
+        self, term: str, obs: list[Observation], rows: NDArray[np.int64], owner: NDArray[np.int64], n_places: int
+    ) -> FArray:
+        """Per-place least distance of training observations ``rows`` to the *other* training observations."""
         from .align import alignment_costs
 
-        places = list(self.places_.values())
-        fps = [fp for p in places for fp in p.fingerprints]
-        owner = np.array([j for j, p in enumerate(places) for _ in p.fingerprints])
-        if len(places) < 2 or len(fps) < 2:
-            return
-        rows = np.arange(len(fps))
-        if len(fps) > max_queries:
-            rows = np.sort(np.random.default_rng(0).choice(len(fps), max_queries, replace=False))
-        d = alignment_costs([fps[i] for i in rows], fps, cyclic=self.cyclic, costs=self.costs)
+        if term == "Fp":
+            fps = [fp for p in self.places_.values() for fp in p.fingerprints]
+            d = alignment_costs([fps[i] for i in rows], fps, cyclic=self.cyclic, costs=self.costs)
+        else:
+            from scipy.spatial.distance import cdist
+
+            has = np.array([o.ranges is not None for o in obs])
+            desc = np.zeros((len(obs), self._range_bins().size + 1))
+            desc[has] = np.stack([self._range_descriptor(o) for o in obs if o.ranges is not None])
+            d = cdist(desc[rows], desc, metric="cityblock")
+            d[:, ~has] = np.inf
+            d[~has[rows]] = np.inf
         d[np.arange(rows.size), rows] = np.inf  # leave one out
-        # per observation and place: least cost to that place's (other) fingerprints
-        per_place = _min_per_place(d, np.searchsorted(owner, np.arange(len(places))))
-        owner = owner[rows]
-        has_self = np.isfinite(per_place[np.arange(rows.size), owner])
-        if not has_self.any():
-            return
-        c = per_place[has_self]
-        truth = owner[has_self]
-        # unknown_cost_: median cost to the nearest wrong place
-        wrong = c.copy()
-        wrong[np.arange(len(truth)), truth] = np.inf
-        self.unknown_cost_ = float(np.median(wrong.min(axis=1)))
-        if self.fp_likelihood == "exp":
-            from scipy.optimize import minimize_scalar
-
-            cf = np.where(np.isfinite(c), c, 1e6)
-
-            def nll(log_lam: float) -> float:
-                ll = -math.exp(log_lam) * cf
-                return float(-(ll[np.arange(len(truth)), truth] - logsumexp(ll, axis=1)).mean())
-
-            res = minimize_scalar(nll, bounds=(math.log(1e-3), math.log(50.0)), method="bounded")
-            self.fp_lambda_ = float(math.exp(res.x))
+        return _min_per_place(d, np.searchsorted(owner, np.arange(n_places)))
 
     # -- inference ---------------------------------------------------------------
     def _check_fitted(self) -> None:
@@ -475,6 +554,9 @@ class PlaceModel:
             if term == "Fp":
                 out["Fp"] = self._fp_log_likelihood(obs)
                 continue
+            if term == "R":
+                out["R"] = -self.lambdas_.get("R", 1.0) * self.range_distances(obs)
+                continue
             w, m, s, has = self._mix[term]
             ll = np.zeros((len(obs), n_places))
             for i, o in enumerate(obs):
@@ -504,6 +586,40 @@ class PlaceModel:
             out[idx] = _min_per_place(d, self._ref_starts)
         return out
 
+    def _range_bins(self) -> FArray:
+        return np.arange(self.range_bin_m, self.range_max_m + 1e-9, self.range_bin_m)
+
+    def _range_descriptor(self, obs: Observation) -> FArray:
+        return range_descriptor(obs, self._range_bins())
+
+    def range_distances(self, observations: Sequence[Observation]) -> FArray:
+        """Range-term distance of each observation to each place, shape ``(n, P)``.
+
+        The L1 distance between cumulative range histograms (``range_bin_m``
+        bins up to ``range_max_m``, then one bin for farther or no return),
+        least over the place's training observations that carry ranges. Rows
+        of observations without ranges are 0 (the term says nothing); a place
+        without any training ranges gets the row's largest finite distance.
+        """
+        self._check_fitted()
+        from scipy.spatial.distance import cdist
+
+        obs = list(observations)
+        n_places = len(self.places_)
+        out = np.zeros((len(obs), n_places))
+        idx = [i for i, o in enumerate(obs) if o.ranges is not None]
+        if not idx or self._range_refs.shape[0] == 0:
+            return out
+        q = np.stack([self._range_descriptor(obs[i]) for i in idx])
+        d = cdist(q, self._range_refs, metric="cityblock")
+        per = np.full((len(idx), n_places), np.inf)
+        starts = np.searchsorted(self._range_owner, np.arange(n_places))
+        has = np.bincount(self._range_owner, minlength=n_places) > 0
+        per[:, has] = _min_per_place(d, starts[has])
+        worst = np.max(np.where(np.isfinite(per), per, -np.inf), axis=1, keepdims=True)
+        out[idx] = np.where(np.isfinite(per), per, worst)
+        return out
+
     def _references_for(self, fov: tuple[tuple[float, float], ...]) -> list[Fingerprint]:
         if self.cyclic or any(width >= TWO_PI - 1e-12 for _, width in fov):
             return self._ref_fps
@@ -516,7 +632,7 @@ class PlaceModel:
         c = self.fingerprint_costs(obs)
         if self.fp_likelihood == "paper":
             return -np.log1p(c)  # P(Fp|loc) = 1 / (cost + 1)
-        return -self.fp_lambda_ * c
+        return -self.fp_lambda_ * c  # P(Fp|loc) ∝ exp(-lambda cost)
 
     def _joint_log_likelihood(self, terms: Mapping[str, FArray]) -> FArray:
         total = sum(self._weight(t) * ll for t, ll in terms.items())
@@ -567,8 +683,9 @@ class PlaceModel:
         The "unknown" hypothesis has prior ``unknown_prior`` and a background
         likelihood: the uniform density ``1 / (2 pi)`` per bearing for the
         mixture terms (renormalised to the field of view like the places), and
-        for ``Fp`` the fingerprint likelihood at ``unknown_cost_``, the median
-        cost of a training fingerprint to the nearest *other* place. A view
+        for ``Fp`` and ``R`` the term's likelihood at ``unknown_costs_[term]``,
+        the median distance of a training observation to the nearest *other*
+        place. A view
         that matches some place better than views usually match wrong places
         is then attributed to a known place. Zero when ``unknown_prior`` is 0.
         """
@@ -580,9 +697,15 @@ class PlaceModel:
         joint = self._joint_log_likelihood(terms)
         bg = np.zeros(len(obs))
         for term in terms:
-            if term == "Fp":
-                c = self.unknown_cost_
-                bg += self._weight(term) * (-math.log1p(c) if self.fp_likelihood == "paper" else -self.fp_lambda_ * c)
+            if term in ("Fp", "R"):
+                c = self.unknown_costs_.get(term, 0.0)
+                if term == "Fp" and self.fp_likelihood == "paper":
+                    bg += self._weight(term) * -math.log1p(c)
+                elif term == "Fp":
+                    bg += self._weight(term) * -self.fp_lambda_ * c
+                else:  # R: observations without ranges have a zero row, so the background is 0 too
+                    has = np.array([o.ranges is not None for o in obs], dtype=float)
+                    bg += self._weight(term) * -self.lambdas_.get("R", 1.0) * c * has
             else:
                 for i, o in enumerate(obs):
                     n = o.bearings(term).size
@@ -618,6 +741,39 @@ class PlaceModel:
             if best is not None and best.heading_deg is not None:
                 out[i] = best.heading_deg
         return out
+
+
+def range_descriptor(obs: Observation, bins: FArray) -> FArray:
+    """Cumulative histogram of an observation's beam ranges, shape ``(len(bins) + 1,)``.
+
+    ``bins`` are the upper edges (metres) of all but the last bin; ranges at
+    or beyond the last edge and beams without return fall in the last bin.
+    The histogram is normalised to sum 1 before the cumulative sum, so the
+    last entry is 1 and L1 distances between descriptors are earth mover's
+    distances (in bins) between the range distributions.
+    """
+    if obs.ranges is None:
+        raise InvalidParameterError("the range term needs observations with ranges (Observation.ranges)")
+    r = obs.ranges
+    idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
+    h = np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1).astype(np.float64)
+    total = h.sum()
+    return np.cumsum(h / total) if total > 0 else np.ones(bins.size + 1)
+
+
+def _fit_lambda(c: FArray, truth: NDArray[np.int64]) -> float:
+    """``lambda`` maximising the mean ``log softmax(-lambda c)[truth]`` (leave-one-out distances ``c``)."""
+    from scipy.optimize import minimize_scalar
+
+    cf = np.where(np.isfinite(c), c, np.nanmax(np.where(np.isfinite(c), c, np.nan)) * 10 + 1)
+    rows = np.arange(truth.size)
+
+    def nll(log_lam: float) -> float:
+        ll = -math.exp(log_lam) * cf
+        return float(-(ll[rows, truth] - logsumexp(ll, axis=1)).mean())
+
+    res = minimize_scalar(nll, bounds=(math.log(1e-3), math.log(1e4)), method="bounded")
+    return float(math.exp(res.x))
 
 
 def _min_per_place(d: FArray, starts: NDArray[np.int64]) -> FArray:

@@ -15,7 +15,13 @@ key       feature                                letter
 ``Ex``    extremity of a laser line segment      (none)
 ``c``     corner (laser)                         ``c``
 ``B``     beacon (laser, high reflectance)       ``b``
+``W``     wall segment with length and range     (laser letters, see
+          (laser; our extension)                 :mod:`fingerloc.fingerprint`)
 ========  =====================================  ===========
+
+An observation may also carry the raw range profile of its laser scan
+(``ranges`` at ``range_bearings``), which the range term ``R`` of
+:class:`~fingerloc.model.PlaceModel` uses.
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from .errors import InvalidParameterError
 __all__ = ["FEATURE_TYPES", "FULL_FOV", "Observation", "fov_from_degrees"]
 
 #: Feature-type keys, in the order used everywhere (files, models, output).
-FEATURE_TYPES: tuple[str, ...] = ("VE", "CP", "Ex", "c", "B")
+FEATURE_TYPES: tuple[str, ...] = ("VE", "CP", "Ex", "c", "B", "W")
 
 #: The full circle as a field of view: one range, start -pi, width 2 pi.
 FULL_FOV: tuple[tuple[float, float], ...] = ((-np.pi, TWO_PI),)
@@ -96,6 +102,14 @@ class Observation:
         Bearings in radians of colour patches.
     cp_hue : array_like of float, shape (m,)
         Hue of each colour patch in degrees, in ``[0, 360)``.
+    w : array_like of float, shape (k,)
+        Bearings in radians of the midpoints of fitted wall segments (laser).
+    w_length, w_range : array_like of float, shape (k,)
+        Length of each wall segment and range of its midpoint, metres (> 0).
+    ranges : array_like of float, shape (r,), optional
+        Raw laser ranges in metres (``inf`` where a beam had no return).
+    range_bearings : array_like of float, shape (r,), optional
+        Bearing of each range in radians (robot frame); required with ``ranges``.
     fov : tuple of (start, width), optional
         Field of view in radians: ranges running counter-clockwise from
         ``start`` for ``width`` (``0 < width <= 2 pi``). Default: full circle.
@@ -114,6 +128,11 @@ class Observation:
     ex: FArray = field(default_factory=lambda: np.empty(0))
     c: FArray = field(default_factory=lambda: np.empty(0))
     b: FArray = field(default_factory=lambda: np.empty(0))
+    w: FArray = field(default_factory=lambda: np.empty(0))
+    w_length: FArray = field(default_factory=lambda: np.empty(0))
+    w_range: FArray = field(default_factory=lambda: np.empty(0))
+    ranges: FArray | None = None
+    range_bearings: FArray | None = None
     fov: tuple[tuple[float, float], ...] = FULL_FOV
     label: str | None = None
     pose: tuple[float, float, float] | None = None
@@ -137,6 +156,7 @@ class Observation:
         for name, arr in (("cp", cp[order]), ("cp_hue", hue[order])):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        self._init_walls_and_ranges()
         fov = tuple((float(s), float(w)) for s, w in self.fov)
         if not fov:
             raise InvalidParameterError("fov: at least one range is needed")
@@ -157,6 +177,38 @@ class Observation:
                 raise InvalidParameterError(f"timestamp: must be finite, got {self.timestamp!r}")
             object.__setattr__(self, "timestamp", ts)
 
+    def _init_walls_and_ranges(self) -> None:
+        w = wrap(_readonly(self.w, "w"))
+        length = _readonly(self.w_length, "w_length")
+        rng = _readonly(self.w_range, "w_range")
+        if not (w.shape == length.shape == rng.shape):
+            raise InvalidParameterError(
+                f"w_length, w_range: one length and one range per wall segment are needed, got "
+                f"{length.size} and {rng.size} for {w.size} segments"
+            )
+        if np.any(length <= 0) or np.any(rng <= 0):
+            raise InvalidParameterError("w_length, w_range: wall lengths and ranges must be > 0 metres")
+        order = np.argsort(w, kind="stable")
+        for name, arr in (("w", w[order]), ("w_length", length[order]), ("w_range", rng[order])):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if (self.ranges is None) != (self.range_bearings is None):
+            raise InvalidParameterError("ranges and range_bearings must be given together")
+        if self.ranges is not None and self.range_bearings is not None:
+            r = np.array(self.ranges, dtype=np.float64).reshape(-1)
+            rb = np.array(self.range_bearings, dtype=np.float64).reshape(-1)
+            if r.shape != rb.shape:
+                raise InvalidParameterError(
+                    f"range_bearings: one bearing per range is needed, got {rb.size} for {r.size} ranges"
+                )
+            r = np.where(np.isnan(r), np.inf, r)
+            if np.any(r < 0) or not np.all(np.isfinite(rb)):
+                raise InvalidParameterError("ranges must be >= 0 (inf for no return) with finite bearings")
+            r.setflags(write=False)
+            rb.setflags(write=False)
+            object.__setattr__(self, "ranges", r)
+            object.__setattr__(self, "range_bearings", rb)
+
     # -- convenience -----------------------------------------------------
     @classmethod
     def from_degrees(
@@ -176,6 +228,8 @@ class Observation:
             Keys among :data:`FEATURE_TYPES`. ``VE``, ``Ex``, ``c``, ``B``:
             sequences of bearings in degrees. ``CP``: a sequence of
             ``(bearing_deg, hue_deg)`` pairs or ``{"bearing": .., "hue": ..}``.
+            ``W``: ``(bearing_deg, length_m, range_m)`` triples or
+            ``{"bearing": .., "length": .., "range": ..}``.
         fov : list of [start, end] in degrees, optional
             Counter-clockwise ranges; ``None`` for the full circle.
         pose : (x, y, theta_deg), optional
@@ -187,6 +241,19 @@ class Observation:
             raise InvalidParameterError(
                 f"unknown feature type {unknown[0]!r} (expected one of {', '.join(FEATURE_TYPES)})"
             )
+        walls = list(features.get("W", []))
+        w_b: list[float] = []
+        w_l: list[float] = []
+        w_r: list[float] = []
+        for p in walls:
+            if isinstance(p, Mapping):
+                w_b.append(p["bearing"])
+                w_l.append(p["length"])
+                w_r.append(p["range"])
+            else:
+                w_b.append(p[0])
+                w_l.append(p[1])
+                w_r.append(p[2])
         cps = list(features.get("CP", []))
         cp_b: list[float] = []
         cp_h: list[float] = []
@@ -209,6 +276,9 @@ class Observation:
             ex=deg_to_rad(np.asarray(features.get("Ex", []), dtype=float)),
             c=deg_to_rad(np.asarray(features.get("c", []), dtype=float)),
             b=deg_to_rad(np.asarray(features.get("B", []), dtype=float)),
+            w=deg_to_rad(np.asarray(w_b, dtype=float)),
+            w_length=np.asarray(w_l, dtype=float),
+            w_range=np.asarray(w_r, dtype=float),
             fov=fov_from_degrees(fov),
             label=label,
             pose=p3,
@@ -250,6 +320,11 @@ class Observation:
             ex=self.ex + angle,
             c=self.c + angle,
             b=self.b + angle,
+            w=self.w + angle,
+            w_length=self.w_length,
+            w_range=self.w_range,
+            ranges=self.ranges,
+            range_bearings=None if self.range_bearings is None else self.range_bearings + angle,
             fov=tuple((s + angle, w) for s, w in self.fov),
             label=self.label,
             pose=self.pose,
@@ -265,6 +340,8 @@ class Observation:
             return NotImplemented
         return (
             all(np.array_equal(getattr(self, n), getattr(other, n)) for n in _ARRAYS)
+            and _same_optional(self.ranges, other.ranges)
+            and _same_optional(self.range_bearings, other.range_bearings)
             and self.fov == other.fov
             and self.label == other.label
             and self.pose == other.pose
@@ -274,5 +351,11 @@ class Observation:
     __hash__ = None  # type: ignore[assignment]
 
 
-_ATTR = {"VE": "ve", "CP": "cp", "Ex": "ex", "c": "c", "B": "b"}
-_ARRAYS = ("ve", "cp", "cp_hue", "ex", "c", "b")
+_ATTR = {"VE": "ve", "CP": "cp", "Ex": "ex", "c": "c", "B": "b", "W": "w"}
+_ARRAYS = ("ve", "cp", "cp_hue", "ex", "c", "b", "w", "w_length", "w_range")
+
+
+def _same_optional(a: FArray | None, b: FArray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return bool(np.array_equal(a, b))

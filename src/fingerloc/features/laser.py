@@ -695,17 +695,39 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
     )
 
 
-def observation_from_scan(scan: Scan, *, label: str | None = None, **params: Any) -> Observation:
+def observation_from_scan(
+    scan: Scan, *, label: str | None = None, walls: bool = True, ranges: bool = True, **params: Any
+) -> Observation:
     """A laser-only :class:`Observation` of one scan: corners ``c``, extremities ``Ex``, beacons ``B``.
 
-    The field of view is the scan's own (``scan.fov``); pose and timestamp are
-    copied from the scan.
+    With ``walls`` (default) the fitted line segments become wall features
+    ``W`` (midpoint bearing, length, midpoint range), and with ``ranges``
+    (default) the scan's raw range profile is kept (``Observation.ranges``):
+    both feed our laser extensions (laser letters in the fingerprint, the
+    range term ``R``) and cost nothing to the paper's terms. The field of view
+    is the scan's own (``scan.fov``); pose and timestamp are copied from the
+    scan.
     """
     f = extract_laser_features(scan, **params)
+    seg = f.segments
+    if walls and seg.shape[0]:
+        mid = seg.mean(axis=1)
+        w = np.arctan2(mid[:, 1], mid[:, 0])
+        w_length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
+        w_range = np.linalg.norm(mid, axis=1)
+        keep = (w_length > 0) & (w_range > 0)
+        w, w_length, w_range = w[keep], w_length[keep], w_range[keep]
+    else:
+        w = w_length = w_range = np.empty(0)
     return Observation(
         c=f.corners,
         ex=f.extremities,
         b=f.beacons,
+        w=w,
+        w_length=w_length,
+        w_range=w_range,
+        ranges=scan.ranges if ranges else None,
+        range_bearings=scan.bearings + scan.sensor_offset[2] if ranges else None,
         fov=scan.fov,
         label=label,
         pose=scan.pose,

@@ -8,7 +8,10 @@ One observation a line, bearings and angles in degrees::
      "timestamp": 12.5}
 
 ``fov`` lists counter-clockwise ``[start, end]`` ranges in degrees; a record
-without it saw the full circle. ``place``, ``pose`` and ``timestamp`` are
+without it saw the full circle. Two optional laser extensions (ours):
+``features.W`` lists wall segments ``{"bearing": deg, "length": m, "range": m}``,
+and ``"scan": {"bearings": [deg, ...], "ranges": [m or null, ...]}`` holds the
+raw range profile (``null`` where a beam had no return). ``place``, ``pose`` and ``timestamp`` are
 optional; ``features`` is required (it may be empty). Blank lines are skipped.
 Other top-level keys are ignored, so tools may carry their own.
 """
@@ -22,6 +25,8 @@ import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -85,6 +90,18 @@ def observation_from_record(record: Any) -> Observation:
                     raise DataFormatError(f"hue must be in [0, 360) degrees, got {p['hue']!r}")
                 cps.append((b, h))
             out[key] = cps
+        elif key == "W":
+            if not isinstance(value, list):
+                raise DataFormatError(f"features.W must be a list of {{bearing, length, range}} objects, got {value!r}")
+            walls = []
+            for p in value:
+                if not isinstance(p, Mapping) or not {"bearing", "length", "range"} <= set(p):
+                    raise DataFormatError(f'each wall must be {{"bearing": .., "length": .., "range": ..}}, got {p!r}')
+                vals = tuple(_number(p[k], f"{k} in features.W") for k in ("bearing", "length", "range"))
+                if vals[1] <= 0 or vals[2] <= 0:
+                    raise DataFormatError(f"wall length and range must be > 0 metres, got {p!r}")
+                walls.append(vals)
+            out[key] = walls
         else:
             out[key] = _bearing_list(value, key)
     place = record.get("place")
@@ -106,8 +123,24 @@ def observation_from_record(record: Any) -> Observation:
     ts = record.get("timestamp")
     if ts is not None:
         ts = _number(ts, '"timestamp"')
+    ranges = range_bearings = None
+    scan = record.get("scan")
+    if scan is not None:
+        if not isinstance(scan, Mapping) or not isinstance(scan.get("bearings"), list) or not isinstance(
+            scan.get("ranges"), list
+        ):
+            raise DataFormatError('"scan" must be {"bearings": [deg, ...], "ranges": [m or null, ...]}')
+        if len(scan["bearings"]) != len(scan["ranges"]):
+            raise DataFormatError('"scan": one range per bearing is needed')
+        range_bearings = np.deg2rad([_number(b, "scan bearing") for b in scan["bearings"]])
+        ranges = np.array([np.inf if r is None else _number(r, "scan range") for r in scan["ranges"]])
+        if np.any(ranges < 0):
+            raise DataFormatError(f'"scan": ranges must be >= 0 metres, got {float(ranges[ranges < 0][0])!r}')
     try:
-        return Observation.from_degrees(out, fov=fov, label=place, pose=pose, timestamp=ts)
+        obs = Observation.from_degrees(out, fov=fov, label=place, pose=pose, timestamp=ts)
+        if ranges is not None:
+            obs = replace(obs, ranges=ranges, range_bearings=range_bearings)
+        return obs
     except DataFormatError:
         raise
     except FingerlocError as err:
@@ -128,6 +161,12 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
                     {"bearing": b, "hue": round(float(h), ndigits)}
                     for b, h in zip(degs(obs.cp), obs.cp_hue, strict=True)
                 ]
+        elif key == "W":
+            if obs.w.size:
+                feats["W"] = [
+                    {"bearing": b, "length": round(float(ln), ndigits), "range": round(float(r), ndigits)}
+                    for b, ln, r in zip(degs(obs.w), obs.w_length, obs.w_range, strict=True)
+                ]
         elif obs.bearings(key).size:
             feats[key] = degs(obs.bearings(key))
     rec: dict[str, Any] = {}
@@ -144,6 +183,11 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
     if obs.timestamp is not None:
         rec["timestamp"] = obs.timestamp
     rec["features"] = feats
+    if obs.ranges is not None and obs.range_bearings is not None:
+        rec["scan"] = {
+            "bearings": [round(float(b), ndigits) for b in np.rad2deg(obs.range_bearings)],
+            "ranges": [None if not np.isfinite(r) else round(float(r), 4) for r in obs.ranges],
+        }
     return rec
 
 

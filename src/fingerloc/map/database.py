@@ -3,7 +3,7 @@
 Layout (schema version 1)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
-                                                   -- params (JSON), fp_lambda, unknown_cost
+                                                   -- params, lambdas, unknown_costs (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, record TEXT)
@@ -128,8 +128,8 @@ def save_model(
                     "schema_version": str(SCHEMA_VERSION),
                     "fingerloc_version": __version__,
                     "params": json.dumps(params),
-                    "fp_lambda": repr(float(getattr(model, "fp_lambda_", 1.0))),
-                    "unknown_cost": repr(float(getattr(model, "unknown_cost_", 0.0))),
+                    "lambdas": json.dumps(model.lambdas_),
+                    "unknown_costs": json.dumps(model.unknown_costs_),
                 }
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
                 for pid, place in enumerate(model.places_.values()):
@@ -215,8 +215,8 @@ def load_model(path: str | Path) -> PlaceModel:
             params["costs"] = _costs_from_json(params.get("costs"))
             model = PlaceModel(**params)
             model._validate()
-            model.fp_lambda_ = float(meta["fp_lambda"])
-            model.unknown_cost_ = float(meta["unknown_cost"])
+            model.lambdas_ = {str(k): float(v) for k, v in json.loads(meta["lambdas"]).items()}
+            model.unknown_costs_ = {str(k): float(v) for k, v in json.loads(meta["unknown_costs"]).items()}
         except (KeyError, TypeError, ValueError, FingerlocError) as err:
             raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
         places: dict[str, PlaceData] = {}
