@@ -55,14 +55,14 @@ from .observation import Observation
 
 __all__ = [
     "ALPHABET",
+    "HUE_LETTERS",
     "PAPER_ALPHABET",
     "WALL_LETTERS",
-    "wall_letter",
-    "HUE_LETTERS",
     "Fingerprint",
     "hue_letter",
     "make_fingerprint",
     "parse_fingerprint",
+    "wall_letter",
 ]
 
 #: Colour-patch letters, hue bin 0 (``A``, hue 0-22.5 deg) to 15 (``P``).
