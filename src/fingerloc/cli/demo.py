@@ -1,50 +1,77 @@
-"""``fingerloc demo``: the main job on an embedded example."""
+"""``fingerloc demo``: the whole story on simulated offices, with a report folder.
+
+Simulate the paper's robot experiment once (ten offices alike, raw laser scans
+and omnidirectional images), extract the features, learn the places, localize
+the test measurements, print the paper-style tables beside the paper's
+figures, and write a report folder (Markdown page, PNG figures, JSON).
+"""
 
 from __future__ import annotations
 
-import numpy as np
+import time
+from pathlib import Path
+
 import typer
-from rapidfuzz.distance import Levenshtein
-from rich.table import Table
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from ..fingerprint import make_fingerprint
-from ..observation import Observation
-from .app import app, console
-
-# Four small offices: feature bearings (degrees) as a robot at the room centre sees them.
-_PLACES: dict[str, dict[str, list[float]]] = {
-    "office-1": {"VE": [15, 95, 170, 265], "c": [45, 135, 225, 315], "B": [200]},
-    "office-2": {"VE": [30, 120, 250], "c": [45, 135, 225, 315], "B": [80, 290]},
-    "corridor": {"VE": [5, 175, 185, 355], "c": [60, 120, 240, 300]},
-    "lab": {"VE": [20, 60, 100, 140, 260], "c": [45, 315], "B": [180]},
-}
+from .app import app, console, err_console
 
 
 @app.command("demo")
 def demo_cmd(
-    seed: int = typer.Option(0, help="Random seed of the simulated noise."),
-    noise_deg: float = typer.Option(4.0, help="Bearing noise, degrees (standard deviation)."),
+    out: Path = typer.Option(Path("fingerloc-report"), "--out", help="Report folder (created; files overwritten)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the offices, poses and sensor noise."),
+    quick: bool = typer.Option(False, "--quick", help="Four small offices and small images: a smoke test in seconds."),
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, help="Processes simulating offices (default: cores, at most 4)."
+    ),
 ) -> None:
-    """Learn four embedded places, localize noisy views of them by fingerprint alignment."""
-    rng = np.random.default_rng(seed)
+    """Simulate 10 offices, extract features from raw scans and images, learn, localize, print tables, write a report."""
+    from ..experiments.report import write_demo_report
+    from ..experiments.robot import (
+        RobotProtocol,
+        RobotResult,
+        default_workers,
+        evaluate_trial,
+        simulate_trial,
+        simulation_pool,
+    )
+    from ..experiments.robot import small_protocol as small
 
-    def view(feats: dict[str, list[float]]) -> Observation:
-        noisy = {k: list(np.asarray(v) + rng.normal(0, noise_deg, len(v))) for k, v in feats.items()}
-        return Observation.from_degrees(noisy)
+    protocol = small() if quick else RobotProtocol()
+    n_workers = default_workers() if workers is None else workers
+    timings: dict[str, float] = {}
+    n_meas = protocol.n_offices * (protocol.n_train + 2 * protocol.n_test)
+    with Progress(
+        SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=err_console, transient=True
+    ) as progress:
+        task = progress.add_task(
+            f"simulating {protocol.n_offices} offices, {n_meas} scans and omnidirectional images, "
+            f"extracting features ({n_workers} process{'es' if n_workers > 1 else ''})"
+        )
+        t0 = time.perf_counter()
+        with simulation_pool(n_workers) as ex:
+            data = simulate_trial(protocol, (seed, 0), keep_raw=[0], executor=ex)
+        timings["simulate + extract features"] = time.perf_counter() - t0
+        progress.update(task, description="learning the places, localizing the test measurements")
+        t0 = time.perf_counter()
+        ev = evaluate_trial(data, protocol, random_state=seed)
+        timings["learn + localize (all tables)"] = time.perf_counter() - t0
+        res = RobotResult(protocol=protocol, seed=seed, trials=[ev])
+        progress.update(task, description=f"writing the report to {out}")
+        t0 = time.perf_counter()
+        page = write_demo_report(out, data, ev, res, timings=timings)
+        timings["figures + report"] = time.perf_counter() - t0
 
-    refs = {name: make_fingerprint(view(f)).letters for name, f in _PLACES.items()}
-    table = Table(title=f"fingerprint localization, noise {noise_deg} deg")
-    for col in ("true place", "query fingerprint", "best", "cost"):
-        table.add_column(col)
-    right = 0
-    total = 0
-    for name, feats in _PLACES.items():
-        for _ in range(3):
-            q = make_fingerprint(view(feats)).letters
-            costs = {p: Levenshtein.distance(q, r) for p, r in refs.items()}
-            best = min(costs, key=lambda p: costs[p])
-            right += best == name
-            total += 1
-            table.add_row(name, q, best, str(costs[best]))
-    console.print(table)
-    console.print(f"right classification: {right}/{total} ({100 * right / total:.0f}%)")
+    from .robot import print_robot_tables
+
+    console.print(
+        f"[bold]fingerloc demo[/bold]: {protocol.n_offices} simulated offices alike, "
+        f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
+    )
+    print_robot_tables(res, console, title_note=f"seed {seed}")
+    total = sum(timings.values())
+    console.print(
+        f"report: {page} (map, scan, panorama, fingerprint, mixture, posterior, confusion matrix); {total:.1f} s in all"
+    )
+    console.print("average over many trials: fingerloc reproduce robot --trials 10")

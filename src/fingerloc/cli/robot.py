@@ -1,0 +1,166 @@
+"""``fingerloc reproduce robot``: the paper's Tables II-IV in simulation (SPEC.md §5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from .app import console, err_console, reproduce_app
+from .bench import write_json
+
+if TYPE_CHECKING:
+    from ..experiments.robot import RobotResult
+
+_ROW_NAMES = {"VE": "VE only", "Ex": "Ex only", "VE+Ex": "VE & Ex", "VE+Ex+Fp": "VE, Ex & fingerprint"}
+_METHOD_NAMES = {
+    "minimum_energy": "string matching, minimum energy",
+    "global_alignment": "string matching, global alignment",
+}
+
+
+def _pm(mean: float, std: float, n_trials: int, fmt: str) -> str:
+    return f"{mean:{fmt}}" if n_trials < 2 else f"{mean:{fmt}} ±{std:{fmt}}"
+
+
+def print_robot_tables(res: RobotResult, out: Console, *, title_note: str = "") -> None:
+    """Print Tables II-IV and the random-heading row of a :class:`~fingerloc.experiments.robot.RobotResult`."""
+    from ..experiments.robot import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+
+    n = len(res.trials)
+    avg = f"mean over {n} trials ± standard deviation" if n > 1 else "one trial"
+    note = f" ({title_note})" if title_note else ""
+
+    t2 = Table(title=f"Table II: mean features per measurement, {avg}{note}")
+    t2.add_column("feature")
+    t2.add_column("ours", justify="right")
+    t2.add_column("paper", justify="right")
+    names = {
+        "VE": "vertical edges VE",
+        "Ex": "extremities Ex",
+        "CP": "colour patches CP",
+        "B": "beacons B",
+        "c": "corners c",
+    }
+    for t, (m, s) in res.feature_stats().items():
+        paper = PAPER_TABLE2.get(t)
+        t2.add_row(names[t], _pm(m, s, n, ".1f"), "-" if paper is None else f"{paper:.1f}")
+    out.print(t2)
+
+    cells = res.cell_stats()
+    t3 = Table(title=f"Table III: string matching, right classification % / mean rank, {avg}")
+    t3.add_column("method")
+    t3.add_column("ours %", justify="right")
+    t3.add_column("ours rank", justify="right")
+    t3.add_column("paper", justify="right")
+    for key, label in _METHOD_NAMES.items():
+        a, as_, r, rs = cells[("table3", key)]
+        pa, pr = PAPER_TABLE3[key]
+        t3.add_row(label, _pm(100 * a, 100 * as_, n, ".1f"), _pm(r, rs, n, ".2f"), f"{100 * pa:.1f} / {pr:.2f}")
+    out.print(t3)
+
+    ks = list(res.protocol.ks)
+    t4 = Table(title=f"Table IV: Bayesian program, right classification % / mean rank, {avg}")
+    t4.add_column("terms")
+    t4.add_column("", justify="left")
+    for k in ks:
+        t4.add_column(f"k={k}", justify="right")
+    for row, label in _ROW_NAMES.items():
+        ours = []
+        for k in ks:
+            a, as_, r, rs = cells[("table4", row, str(k))]
+            ours.append(f"{_pm(100 * a, 100 * as_, n, '.1f')} / {_pm(r, rs, n, '.2f')}")
+        t4.add_row(label, "ours", *ours)
+        paper_cells = [
+            f"{100 * PAPER_TABLE4[row][k][0]:.1f} / {PAPER_TABLE4[row][k][1]:.2f}" if k in PAPER_TABLE4[row] else "-"
+            for k in ks
+        ]
+        t4.add_row("", "paper", *paper_cells, style="dim", end_section=True)
+    out.print(t4)
+
+    if ("random_heading", "global_alignment") in cells:
+        tr = Table(title=f"Random heading, cyclic matching (not in the paper), {avg}")
+        tr.add_column("method")
+        tr.add_column("right %", justify="right")
+        tr.add_column("mean rank", justify="right")
+        a, as_, r, rs = cells[("random_heading", "global_alignment")]
+        tr.add_row("string matching, cyclic global alignment", _pm(100 * a, 100 * as_, n, ".1f"), _pm(r, rs, n, ".2f"))
+        for k in ks:
+            a, as_, r, rs = cells[("random_heading", "VE+Ex+Fp", str(k))]
+            tr.add_row(
+                f"VE, Ex & fingerprint, k={k}, heading from cyclic alignment",
+                _pm(100 * a, 100 * as_, n, ".1f"),
+                _pm(r, rs, n, ".2f"),
+            )
+        out.print(tr)
+        err = res.heading_error_deg()
+        if err is not None:
+            out.print(f"median heading error of the cyclic alignment (true place): {err:.1f} deg")
+
+
+def print_verdict(res: RobotResult, out: Console) -> None:
+    """The issue's targets, checked on the measured means."""
+    from ..experiments.robot import TABLE4_TERMS
+
+    cells = res.cell_stats()
+    k = str(max(res.protocol.ks))
+    full = cells[("table4", "VE+Ex+Fp", k)][0]
+    me, ga = cells[("table3", "minimum_energy")][0], cells[("table3", "global_alignment")][0]
+    singles = {t: cells[("table4", t, k)][0] for t in TABLE4_TERMS if t in ("VE", "Ex")}
+    checks = [
+        (f"full program VE&Ex&Fp at k={k} >= 95%", full >= 0.95, f"{100 * full:.1f}%"),
+        ("global alignment beats minimum energy", ga > me, f"{100 * ga:.1f}% vs {100 * me:.1f}%"),
+        (
+            f"full program beats every single term (k={k})",
+            all(full > v for v in singles.values()),
+            ", ".join(f"{t} {100 * v:.1f}%" for t, v in singles.items()),
+        ),
+    ]
+    for what, ok, detail in checks:
+        mark = "[green]yes[/green]" if ok else "[red]no[/red]"
+        out.print(f"{what}: {mark} ({detail})")
+
+
+@reproduce_app.command("robot")
+def robot_cmd(
+    trials: int = typer.Option(10, "--trials", min=1, help="Independent trials to average (new offices each)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the offices, poses, sensor noise and EM."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the tables (top1 in [0, 1]) as JSON."),
+    similarity: float | None = typer.Option(
+        None, "--similarity", min=0.0, max=1.0, help="How alike the offices are (default: the simulator's)."
+    ),
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, help="Processes simulating offices (default: cores, at most 4)."
+    ),
+    quick: bool = typer.Option(
+        False, "--quick", help="Four small offices and small images: a smoke test, not the protocol."
+    ),
+) -> None:
+    """Simulate the paper's robot experiment (10 offices, 8 training + 2 test measurements each) and print Tables II-IV."""
+    from ..experiments.robot import RobotProtocol, run_robot, small_protocol
+
+    protocol = small_protocol(similarity=similarity) if quick else RobotProtocol(similarity=similarity)
+    with Progress(
+        TextColumn("robot experiment"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("trials", total=trials)
+        res = run_robot(
+            trials=trials,
+            seed=seed,
+            protocol=protocol,
+            workers=workers,
+            on_trial=lambda done: progress.update(task, completed=done),
+        )
+    sim_note = "default similarity" if similarity is None else f"similarity {similarity:g}"
+    print_robot_tables(res, console, title_note=f"{sim_note}, seed {seed}")
+    print_verdict(res, console)
+    write_json(json_out, res.to_json())

@@ -1,0 +1,35 @@
+"""``fingerloc demo``: the report folder (quick size)."""
+
+from PIL import Image
+
+from fingerloc.cli import main
+from fingerloc.experiments.report import FIGURES
+
+
+def test_demo_writes_report(tmp_path, capsys):
+    out = tmp_path / "report"
+    code = 0
+    try:
+        main(["demo", "--quick", "--workers", "1", "--out", str(out)])
+    except SystemExit as e:
+        code = int(e.code or 0)
+    stdout = capsys.readouterr().out
+    assert code == 0
+    assert "Table III" in stdout and "Table IV" in stdout and "report:" in stdout
+    page = (out / "index.md").read_text()
+    for name in FIGURES:
+        assert (out / name).exists(), name
+        assert f"]({name})" in page
+        with Image.open(out / name) as im:
+            assert im.format == "PNG" and im.size[0] > 200 and im.size[1] > 150
+    assert "Table II" in page and "paper" in page
+    assert (out / "results.json").exists()
+
+
+def test_demo_help(capsys):
+    code = 0
+    try:
+        main(["demo", "--help"])
+    except SystemExit as e:
+        code = int(e.code or 0)
+    assert code == 0 and "--out" in capsys.readouterr().out
