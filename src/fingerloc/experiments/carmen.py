@@ -712,6 +712,9 @@ def run_log(
     for m in methods:
         if on_method is not None:
             on_method(m.name)
+        set_context = getattr(m, "set_context", None)
+        if set_context is not None:  # methods that need the trajectory (the Markov filter)
+            set_context(scans, split)
         t0 = time.perf_counter()
         m.fit(train, split.train_labels.copy())
         t1 = time.perf_counter()
@@ -910,3 +913,7 @@ def _register_speed() -> None:
 
 
 _register_speed()
+
+
+# Methods defined in other modules register themselves on import.
+from . import markov as _markov  # noqa: E402, F401  isort: skip

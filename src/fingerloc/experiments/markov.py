@@ -1,0 +1,470 @@
+"""Markov localization on the CARMEN logs: filtered methods and the kidnapped-robot experiment (issue 8).
+
+* :class:`FilteredMethod` wraps any single-shot method of the real-log
+  benchmark (:mod:`fingerloc.experiments.carmen`) with the discrete Bayes
+  filter of :mod:`fingerloc.map.filter`. It is registered as
+  ``fingerprint-filtered`` (the ``fingerprint`` method, whatever its current
+  configuration) and, run only when named, ``baseline-histogram-filtered`` and
+  ``baseline-scancontext-filtered`` (the baselines' scores turned into
+  pseudo-likelihoods, to show the filter's effect on another front end).
+* :func:`kidnap_experiment`: splice two distant stretches of a log's query
+  pass and count the steps the filter needs to recover.
+
+Everything the filter needs is taken from the **mapping pass** only:
+
+* the place graph: the nearest place centre (its Voronoi cell) of every
+  mapping scan, in file order; consecutive scans count a stay (same place) or
+  a passage (:meth:`fingerloc.map.graph.PlaceGraph.from_sequence`);
+* odometry: ``L`` = metres travelled per change of place along the mapping
+  pass; each step's travelled distance is the distance between consecutive
+  scan poses (the corrected poses stand in for odometry: over one step of
+  about a metre the two differ little);
+* the likelihood scale ``beta`` (:func:`fingerloc.map.filter.fit_likelihood_scale`):
+  the base method is fit on half of the training scans and scores the other
+  half, two ways round (halves = alternate *visits* of each place, so that a
+  held-out scan was not taken a second before a training one); ``beta``
+  maximises the held-out log-probability of the right place. The fingerprint
+  program's independence assumptions make its log-likelihoods overconfident;
+  the baselines' similarities have no probabilistic scale at all.
+* the uniform mixing term: ``1 / (N + 2)``, ``N`` counted steps (Laplace's rule
+  for a jump never seen while mapping).
+
+Nothing is tuned on the query pass. The filter steps through **every**
+query-pass scan in file order; scans outside every place's radius are
+prediction-only steps (no observation), as the issue asks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidParameterError
+from ..map.filter import FilterResult, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
+from ..map.graph import PlaceGraph, nearest_place_sequence
+from ..sensors import Scan
+from .carmen import METHODS, Method, Split, make_split, register_method
+
+__all__ = [
+    "FilteredMethod",
+    "KidnapResult",
+    "TrackingData",
+    "kidnap_experiment",
+    "mapping_graph",
+    "step_distances",
+]
+
+FArray = NDArray[np.float64]
+IArray = NDArray[np.int64]
+
+#: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
+MIN_CALIBRATION_ROWS = 10
+
+
+def _positions(scans: Sequence[Scan]) -> FArray:
+    if any(s.pose is None for s in scans):
+        raise InvalidParameterError("every scan needs a pose for the place graph and odometry")
+    return np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64).reshape(-1, 2)
+
+
+def step_distances(positions: Any) -> FArray:
+    """Metres travelled from each step to the next, shape (n,) (entry 0 is 0)."""
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    d = np.zeros(pos.shape[0])
+    if pos.shape[0] > 1:
+        d[1:] = np.hypot(*np.diff(pos, axis=0).T)
+    return d
+
+
+def mapping_graph(positions: Any, split: Split) -> tuple[PlaceGraph, float]:
+    """The place graph and ``L`` (metres per place change) of a log's mapping pass.
+
+    Parameters
+    ----------
+    positions : array_like, shape (n_scans, 2)
+        Every scan's position, metres.
+    split : Split
+
+    Returns
+    -------
+    graph : PlaceGraph
+        Places ``"0" .. "P-1"``; counts from the nearest centre of each
+        consecutive pair of mapping scans.
+    metres_per_move : float
+    """
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)[: split.n_mapping]
+    near = nearest_place_sequence(pos, split.centres)
+    places = [str(j) for j in range(split.n_places)]
+    g = PlaceGraph.from_sequence(places, [str(j) for j in near.tolist()])
+    return g, metres_per_move(pos, near) if pos.shape[0] > 1 else 1.0
+
+
+def _visit_folds(train_idx: IArray, labels: IArray) -> IArray:
+    """Fold (0 / 1) of each training scan: alternate visits of its place (a visit = consecutive scans of one place)."""
+    fold = np.zeros(labels.size, dtype=np.int64)
+    visits: dict[int, int] = {}
+    prev_lab, prev_idx = -1, -10
+    for k, (i, lab) in enumerate(zip(train_idx.tolist(), labels.tolist(), strict=True)):
+        if lab != prev_lab or i != prev_idx + 1:
+            visits[lab] = visits.get(lab, -1) + 1
+        fold[k] = visits[lab] % 2
+        prev_lab, prev_idx = lab, i
+    return fold
+
+
+def _held_out_scores(
+    factory: Callable[[], Method], scans: Sequence[Scan], labels: IArray, fold: IArray, n_places: int
+) -> tuple[FArray, IArray]:
+    """Scores of each fold's scans by the base method fit on the other fold, shape (n_rows, n_places)."""
+    rows: list[FArray] = []
+    ys: list[IArray] = []
+    for f in (0, 1):
+        tr = np.flatnonzero(fold != f)
+        te = np.flatnonzero(fold == f)
+        if tr.size == 0 or te.size == 0:
+            continue
+        present = np.unique(labels[tr])
+        remap = np.full(n_places, -1, dtype=np.int64)
+        remap[present] = np.arange(present.size)
+        m = factory()
+        m.fit([scans[i] for i in tr.tolist()], remap[labels[tr]])
+        s = np.asarray(m.score([scans[i] for i in te.tolist()]), dtype=np.float64)
+        full = np.full((te.size, n_places), -np.inf)
+        full[:, present] = s
+        rows.append(full)
+        ys.append(labels[te])
+    if not rows:
+        return np.zeros((0, n_places)), np.zeros(0, np.int64)
+    return np.concatenate(rows), np.concatenate(ys)
+
+
+class FilteredMethod:
+    """A single-shot method of the benchmark followed by the Markov filter over places.
+
+    The benchmark runner calls :meth:`set_context` with the log's scans and
+    split before :meth:`fit` (the filter needs the trajectory: the mapping
+    pass for the graph, the query pass for the steps between queries).
+
+    Parameters
+    ----------
+    base : str
+        Registered name of the single-shot method.
+    odometry : bool, default True
+        Use the travelled distance of each step (``K = expm(d / L (M - I))``);
+        False uses the per-step stay / move counts.
+    calibrate : bool, default True
+        Fit the likelihood scale ``beta`` on the mapping pass (module
+        docstring); False uses the base scores as log-likelihoods (``beta = 1``).
+    alpha : float, default 1.0
+        Additive smoothing of the transition counts.
+
+    Attributes
+    ----------
+    base_ : Method
+    graph_ : PlaceGraph
+    transition_ : TransitionModel
+    scale_ : float
+        ``beta``.
+    result_ : FilterResult
+        The filter's output over the whole query pass after :meth:`score`.
+    """
+
+    name = "filtered"
+
+    def __init__(self, base: str, *, odometry: bool = True, calibrate: bool = True, alpha: float = 1.0) -> None:
+        self.base = base
+        self.odometry = odometry
+        self.calibrate = calibrate
+        self.alpha = alpha
+        self._context: tuple[list[Scan], Split] | None = None
+
+    def _factory(self) -> Callable[[], Method]:
+        if self.base not in METHODS:
+            raise InvalidParameterError(f"unknown base method {self.base!r} (known: {', '.join(METHODS)})")
+        return METHODS[self.base]
+
+    def set_context(self, scans: Sequence[Scan], split: Split) -> None:
+        """The whole log (file order) and its split; called by the runner before :meth:`fit`."""
+        self._context = (list(scans), split)
+
+    def _need_context(self) -> tuple[list[Scan], Split]:
+        if self._context is None:
+            raise InvalidParameterError(
+                f"{self.name} needs the log's trajectory: call set_context(scans, split) before fit (run_log does)"
+            )
+        return self._context
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> FilteredMethod:
+        """Fit the base method, build the graph and transition model, calibrate the likelihood scale."""
+        all_scans, split = self._need_context()
+        y = np.asarray(labels, dtype=np.int64).reshape(-1)
+        factory = self._factory()
+        self.base_ = factory()
+        self.base_.fit(scans, y)
+        pos = _positions(all_scans)
+        self.graph_, metres = mapping_graph(pos, split)
+        self.transition_ = TransitionModel.from_graph(
+            self.graph_, alpha=self.alpha, metres_per_move=metres if self.odometry else None
+        )
+        self.scale_ = 1.0
+        self.calibration_rows_ = 0
+        if self.calibrate:
+            fold = _visit_folds(split.train_idx, y) if len(scans) == split.n_train else np.arange(y.size) % 2
+            s, yy = _held_out_scores(factory, scans, y, fold, split.n_places)
+            usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+            if usable < MIN_CALIBRATION_ROWS:
+                s, yy = _held_out_scores(factory, scans, y, np.arange(y.size) % 2, split.n_places)
+                usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+            if usable:
+                self.scale_ = fit_likelihood_scale(s, yy)
+            self.calibration_rows_ = usable
+        return self
+
+    def step_log_likelihoods(self, query_scores: Any) -> tuple[FArray, FArray]:
+        """Per-step log-likelihood rows of the query pass (NaN = prediction only) and the steps' distances.
+
+        Parameters
+        ----------
+        query_scores : array_like, shape (n_queries, P)
+            The base method's scores of the split's queries.
+
+        Returns
+        -------
+        log_likelihood : ndarray, shape (n_scans - n_mapping, P)
+        distances : ndarray, shape (n_scans - n_mapping,)
+        """
+        all_scans, split = self._need_context()
+        s = np.asarray(query_scores, dtype=np.float64)
+        ll = np.full((split.n_scans - split.n_mapping, split.n_places), np.nan)
+        ll[split.query_idx - split.n_mapping] = self.scale_ * np.where(np.isnan(s), -np.inf, s)
+        return ll, step_distances(_positions(all_scans[split.n_mapping :]))
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """The filtered log-posterior at each query, shape (n_queries, P); the filter runs over the whole query pass."""
+        _, split = self._need_context()
+        if len(scans) != split.n_queries:
+            raise InvalidParameterError(
+                f"{self.name} scores the split's {split.n_queries} queries, got {len(scans)} scans"
+            )
+        self.query_scores_ = np.asarray(self.base_.score(scans), dtype=np.float64)
+        ll, dist = self.step_log_likelihoods(self.query_scores_)
+        self.result_: FilterResult = run_filter(ll, self.transition_, distances=dist)
+        return self.result_.log_posterior[split.query_idx - split.n_mapping]
+
+
+@register_method("fingerprint-filtered")
+def _fingerprint_filtered() -> Method:
+    return FilteredMethod("fingerprint")
+
+
+@register_method("baseline-histogram-filtered", default=False)
+def _histogram_filtered() -> Method:
+    return FilteredMethod("baseline-histogram")
+
+
+@register_method("baseline-scancontext-filtered", default=False)
+def _scancontext_filtered() -> Method:
+    return FilteredMethod("baseline-scancontext")
+
+
+# ---------------------------------------------------------------------------------------------------
+# Kidnapped robot
+# ---------------------------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class TrackingData:
+    """A fitted filtered method on one log, with the query pass's per-step inputs.
+
+    Attributes
+    ----------
+    method : FilteredMethod
+    log_likelihood : ndarray, shape (n_steps, P)
+        Scaled base scores at the queries, NaN elsewhere (query pass, file order).
+    distances : ndarray, shape (n_steps,)
+    truth : ndarray of int, shape (n_steps,)
+        True place of each query-pass step (``-1`` outside every place's radius).
+    positions : ndarray, shape (n_steps, 2)
+    """
+
+    method: FilteredMethod
+    log_likelihood: FArray
+    distances: FArray
+    truth: IArray
+    positions: FArray
+
+
+def prepare_tracking(scans: Sequence[Scan], base: str = "fingerprint", **options: Any) -> TrackingData:
+    """Split a log (benchmark protocol), fit ``FilteredMethod(base)`` and score its queries."""
+    pos = _positions(scans)
+    split = make_split(pos)
+    if split.n_queries == 0:
+        raise InvalidParameterError("the log's query pass has no scan within a place's radius")
+    m = FilteredMethod(base, **options)
+    m.set_context(scans, split)
+    m.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
+    qs = np.asarray(m.base_.score([scans[i] for i in split.query_idx.tolist()]), dtype=np.float64)
+    ll, dist = m.step_log_likelihoods(qs)
+    truth = np.full(split.n_scans - split.n_mapping, -1, dtype=np.int64)
+    truth[split.query_idx - split.n_mapping] = split.query_labels
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :])
+
+
+@dataclass(slots=True)
+class KidnapResult:
+    """Kidnapped-robot trials on one log.
+
+    Attributes
+    ----------
+    trials : list of dict
+        Per trial: ``a_start``, ``b_start`` (query-pass step indices),
+        ``jump_m`` (metres between the two stretches), ``recover_steps`` (steps
+        after the jump until the kidnapped filter's best place agrees with the
+        best place of the filter that was never kidnapped, and keeps agreeing
+        to the end of the stretch; ``None`` if it never does),
+        ``first_right_steps`` (steps after the jump until the best place is
+        the true place at a query step; ``None`` if never) and the same for
+        the never-kidnapped filter (``reference_first_right_steps``).
+    """
+
+    name: str
+    trials: list[dict[str, Any]]
+
+    def summary(self, within: int = 10) -> dict[str, Any]:
+        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
+        rec = [t["recover_steps"] for t in self.trials]
+        done = [r for r in rec if r is not None]
+        first = [t["first_right_steps"] for t in self.trials if t["first_right_steps"] is not None]
+        ref = [t["reference_first_right_steps"] for t in self.trials if t["reference_first_right_steps"] is not None]
+        return {
+            "trials": len(rec),
+            "recovered": len(done),
+            "median_recover_steps": float(np.median(done)) if done else None,
+            "max_recover_steps": int(max(done)) if done else None,
+            f"within_{within}": float(np.mean([r is not None and r <= within for r in rec])) if rec else None,
+            "median_first_right_steps": float(np.median(first)) if first else None,
+            "median_reference_first_right_steps": float(np.median(ref)) if ref else None,
+        }
+
+
+def kidnap_experiment(
+    data: TrackingData,
+    *,
+    name: str = "",
+    n_trials: int = 20,
+    stretch: int = 40,
+    min_jump_m: float = 10.0,
+    min_queries: int = 5,
+    random_state: int | np.random.Generator | None = 0,
+) -> KidnapResult:
+    """Splice two distant stretches of the query pass and measure recovery.
+
+    A trial runs the filter on stretch A (``stretch`` steps from ``a``),
+    then, without telling it, on stretch B (``stretch`` steps from ``b``),
+    where the robot's position at ``b`` is at least ``min_jump_m`` from its
+    position at the end of A and B holds at least ``min_queries`` query steps.
+    The never-kidnapped reference is the filter run on the query pass from
+    its start through B. The odometry distance of the jump step is B's own
+    (the kidnapping is unobserved).
+
+    Parameters
+    ----------
+    data : TrackingData
+        From :func:`prepare_tracking`.
+    n_trials : int, default 20
+    stretch : int, default 40
+        Steps in each stretch.
+    min_jump_m : float, default 10.0
+    min_queries : int, default 5
+    random_state : int or Generator, optional
+
+    Returns
+    -------
+    KidnapResult
+    """
+    if n_trials < 1 or stretch < 2:
+        raise InvalidParameterError(f"n_trials >= 1 and stretch >= 2 are needed, got {n_trials}, {stretch}")
+    rng = random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
+    n = data.truth.size
+    t = data.method.transition_
+    full = run_filter(data.log_likelihood, t, distances=data.distances)
+    has_q = data.truth >= 0
+    b_ok = [
+        b for b in range(1, n - stretch + 1) if int(has_q[b : b + stretch].sum()) >= min_queries
+    ]  # B starts after step 0 so the reference has a history
+    pairs = [
+        (a, b)
+        for a in range(0, n - stretch + 1)
+        for b in b_ok
+        if abs(b - (a + stretch)) > stretch
+        and math.hypot(*(data.positions[b] - data.positions[a + stretch - 1])) >= min_jump_m
+    ]
+    trials: list[dict[str, Any]] = []
+    if not pairs:
+        return KidnapResult(name, trials)
+    chosen = rng.choice(len(pairs), size=min(n_trials, len(pairs)), replace=False)
+    for k in sorted(chosen.tolist()):
+        a, b = pairs[k]
+        idx = np.r_[a : a + stretch, b : b + stretch]
+        dist = data.distances[idx].copy()
+        dist[0] = 0.0
+        res = run_filter(data.log_likelihood[idx], t, distances=dist)
+        kid = res.best[stretch:]
+        ref = full.best[b : b + stretch]
+        truth = data.truth[b : b + stretch]
+        agree = kid == ref
+        recover = next((j for j in range(stretch) if np.all(agree[j:])), None)
+
+        def first_right(best: IArray, truth: IArray = truth) -> int | None:
+            hit = np.flatnonzero((truth >= 0) & (best == truth))
+            return int(hit[0]) if hit.size else None
+
+        trials.append(
+            {
+                "a_start": int(a),
+                "b_start": int(b),
+                "jump_m": float(math.hypot(*(data.positions[b] - data.positions[a + stretch - 1]))),
+                "recover_steps": recover,
+                "first_right_steps": first_right(kid),
+                "reference_first_right_steps": first_right(ref),
+            }
+        )
+    return KidnapResult(name, trials)
+
+
+def run_kidnap(
+    paths: Sequence[str | Path],
+    *,
+    base: str = "fingerprint",
+    n_trials: int = 20,
+    stretch: int = 40,
+    min_jump_m: float = 10.0,
+    seed: int = 0,
+    on_progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary)."""
+    from .carmen import load_log_scans, log_name
+
+    out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
+                                                  "min_jump_m": min_jump_m, "seed": seed}}  # fmt: skip
+    all_trials: list[dict[str, Any]] = []
+    for path in paths:
+        name = log_name(path)
+        if on_progress is not None:
+            on_progress(f"{name}: fitting")
+        t0 = time.perf_counter()
+        scans, _ = load_log_scans(path)
+        data = prepare_tracking(scans, base)
+        res = kidnap_experiment(data, name=name, n_trials=n_trials, stretch=stretch, min_jump_m=min_jump_m,
+                                random_state=seed)  # fmt: skip
+        all_trials += res.trials
+        out["logs"][name] = {"summary": res.summary(), "trials": res.trials, "seconds": time.perf_counter() - t0}
+    out["pooled"] = KidnapResult("pooled", all_trials).summary()
+    return out
