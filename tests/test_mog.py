@@ -365,3 +365,20 @@ def test_no_warning_on_normal_fit():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         AngularMixture(1, random_state=0).fit(x)
+
+
+def test_get_set_params():
+    gm = AngularMixture(4, tol=1e-4, random_state=3)
+    params = gm.get_params()
+    assert params == {
+        "n_components": 4,
+        "tol": 1e-4,
+        "max_iter": 500,
+        "n_init": gm.n_init,
+        "min_sigma_deg": gm.min_sigma_deg,
+        "random_state": 3,
+    }
+    assert AngularMixture(**params).get_params() == params
+    assert gm.set_params(n_components=2) is gm and gm.n_components == 2
+    with pytest.raises(InvalidParameterError, match="no parameter 'k'"):
+        gm.set_params(k=2)

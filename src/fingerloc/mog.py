@@ -475,6 +475,22 @@ class AngularMixture:
             f"n_init={self.n_init!r}, min_sigma_deg={self.min_sigma_deg!r}, random_state={self.random_state!r})"
         )
 
+    _PARAMS = ("n_components", "tol", "max_iter", "n_init", "min_sigma_deg", "random_state")
+
+    def get_params(self, deep: bool = True) -> dict[str, object]:
+        """The constructor arguments, by name (scikit-learn's protocol)."""
+        return {name: getattr(self, name) for name in self._PARAMS}
+
+    def set_params(self, **params: object) -> AngularMixture:
+        """Set constructor arguments by name; returns ``self``. Validated at :meth:`fit`."""
+        for name, value in params.items():
+            if name not in self._PARAMS:
+                raise InvalidParameterError(
+                    f"AngularMixture has no parameter {name!r} (known: {', '.join(self._PARAMS)})"
+                )
+            setattr(self, name, value)
+        return self
+
     def fit(self, X: ArrayLike, y: object = None) -> AngularMixture:
         """Fit by EM on bearings ``X`` (radians, shape (n,) or (n, 1), n >= 1); returns ``self``."""
         xa = _as_bearings(X, "X")
