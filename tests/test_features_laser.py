@@ -179,3 +179,21 @@ def test_real_carmen_scans_give_plausible_features(name):
     c = np.array(counts)
     assert c[:, 2].mean() >= 2  # real walls become lines
     assert c[:, 0].mean() < 10 and c[:, 1].mean() < 15  # and clutter does not explode
+
+
+def test_surface_seen_edge_on_joins_two_lines_by_corners():
+    # a cabinet 0.5 m deep against the far wall, its side seen nearly edge-on from the robot:
+    # the side gets only a couple of returns, yet it joins the cabinet front to the wall
+    front_x, wall_x = 2.5, 3.0
+    y = 0.32
+    walls = [((wall_x, -3.0), (wall_x, y)), ((front_x, y), (front_x, 1.5)), ((front_x, y), (wall_x, y))]
+    scan = make_scan(walls, n=720, fov_deg=360.0, max_range=8.0)
+    f = extract_laser_features(scan)
+    exp = [bearing_deg(front_x, y), bearing_deg(wall_x, y)]
+    # two corners where the side meets front and wall, and no extremity at the jump between them
+    near = [c for c in f.corners if abs(np.rad2deg(c) - 6.7) < 3]
+    assert_bearings(near, exp, tol=np.deg2rad(0.8))
+    assert not np.any(np.abs(np.rad2deg(f.extremities) - 6.7) < 3)
+    # without the bridge rule the near end is (wrongly) an extremity and the corners are lost
+    g = extract_laser_features(scan, bridge_min_points=100)
+    assert np.any(np.abs(np.rad2deg(g.extremities) - 6.7) < 3)

@@ -15,7 +15,8 @@ counting when its bearings differ by at most ``tol_deg``.
 Reported per feature type: true and extracted features per measurement,
 precision ``TP / extracted``, recall ``TP / true``, the mean absolute bearing
 error of the matched pairs (degrees) and, for colour patches, the part of
-matched patches with the right hue letter.
+matched patches with the right hue letter and their mean absolute hue error
+(degrees; the truth is the poster's albedo hue).
 """
 
 from __future__ import annotations
@@ -69,6 +70,7 @@ class ExtractorCounts:
     tp: int = 0
     err_sum_deg: float = 0.0
     hue_right: int = 0
+    hue_err_sum_deg: float = 0.0
     measurements: int = 0
     per_measurement: list[tuple[int, int]] = field(default_factory=list)
     with_hue: bool = False
@@ -91,6 +93,8 @@ class ExtractorCounts:
             self.err_sum_deg += float(np.rad2deg(np.abs(dist_as(found[i], truth[j]))).sum())
             if found_hue is not None and true_hue is not None:
                 self.with_hue = True
+                herr = np.abs((found_hue[i] - true_hue[j] + 180.0) % 360.0 - 180.0)
+                self.hue_err_sum_deg += float(herr.sum())
                 self.hue_right += sum(
                     hue_letter(float(a)) == hue_letter(float(b)) for a, b in zip(found_hue[i], true_hue[j], strict=True)
                 )
@@ -109,6 +113,7 @@ class ExtractorCounts:
         }
         if self.with_hue:
             out["hue_letter_right"] = self.hue_right / self.tp if self.tp else None
+            out["mean_abs_hue_error_deg"] = self.hue_err_sum_deg / self.tp if self.tp else None
         return out
 
 

@@ -95,6 +95,13 @@ class LaserParams:
     corner_max_dist : float, default 0.3
         Largest distance, metres, between the lines' intersection and the
         lines' facing end points for a corner.
+    bridge_min_points : int, default 2
+        Returns needed on a surface seen edge-on between two segments to join
+        them by two corners instead of ending them at a jump...
+    bridge_max_length : float, default 1.0
+        ...when that surface is at most this long (metres)...
+    bridge_max_gap : float, default 0.6
+        ...and no stretch of it longer than this part of its length lacks a return.
     min_segment_points : int, default 3
         Segments with fewer beams are clutter: they give no feature (but
         still occlude their neighbours).
@@ -133,6 +140,9 @@ class LaserParams:
     merge_angle_deg: float = 6.0
     corner_min_angle_deg: float = 35.0
     corner_max_dist: float = 0.3
+    bridge_min_points: int = 2
+    bridge_max_length: float = 1.0
+    bridge_max_gap: float = 0.6
     min_segment_points: int = 3
     min_extremity_extent: float = 0.1
     extremity_max_tail: float = 0.3
@@ -151,6 +161,8 @@ class LaserParams:
             "corner_max_dist",
             "beacon_ratio",
             "beacon_global_ratio",
+            "bridge_max_length",
+            "bridge_max_gap",
             "beacon_max_width",
             "beacon_max_fraction",
         )
@@ -176,6 +188,7 @@ class LaserParams:
             ("max_bridge_beams", 0),
             ("min_line_points", 2),
             ("min_segment_points", 1),
+            ("bridge_min_points", 1),
             ("beacon_window", 2),
         ):
             v = getattr(self, name)
@@ -535,6 +548,68 @@ def _corner(a: _Line, b: _Line, p: LaserParams) -> FArray | None:
     return x
 
 
+def _bridge_pairs(prep: _Prepared, seg_lines: list[list[_Line]], p: LaserParams) -> list[tuple[int, int]]:
+    """Pairs ``(i, j)`` of segments with lines separated only by jumps and clutter segments."""
+    segs = prep.segments
+    nseg = len(segs)
+    out: list[tuple[int, int]] = []
+    for i in range(nseg):
+        if not seg_lines[i] or segs[i].after != _JUMP:
+            continue
+        k = i + 1
+        while True:
+            if k >= nseg:
+                if not prep.circular:
+                    break
+                k -= nseg
+            if k == i:
+                break
+            if seg_lines[k]:
+                out.append((i, k))
+                break
+            if segs[k].stop - segs[k].start >= p.min_segment_points or segs[k].after != _JUMP:
+                break
+            k += 1
+    return out
+
+
+def _bridge(a: _Line, b: _Line, prep: _Prepared, p: LaserParams) -> list[FArray] | None:
+    """Two corners where a surface seen nearly edge-on joins line ``a`` to line ``b`` across a jump.
+
+    At grazing incidence a short surface (the side of a cabinet, a wall recess)
+    gets only a couple of returns, too far apart to stay one segment. When at
+    least ``bridge_min_points`` returns between the end of ``a`` and the start
+    of ``b`` lie on the straight line from ``a``'s end to ``b``'s start, and
+    that line is long enough and meets both at a real angle, the two meeting
+    points are corners and neither end is an extremity.
+    """
+    n = prep.r.size
+    stop = b.start if b.start >= a.stop else b.start + n  # across the roll point of a closed scan
+    idx = np.arange(a.stop, stop) % n
+    idx = idx[np.isfinite(prep.r[idx])]
+    if idx.size < p.bridge_min_points:
+        return None
+    pq = b.p0 - a.p1
+    length = float(np.linalg.norm(pq))
+    if not p.min_line_length <= length <= p.bridge_max_length:
+        return None
+    d = pq / length
+    cos_min = np.cos(np.deg2rad(p.corner_min_angle_deg))
+    if abs(float(np.dot(d, a.direction))) > cos_min or abs(float(np.dot(d, b.direction))) > cos_min:
+        return None
+    normal = np.array([-d[1], d[0]])
+    off = np.abs((prep.pts[idx] - a.p1) @ normal)
+    along = (prep.pts[idx] - a.p1) @ d
+    tol = 2.0 * _tol(prep.r[idx], p)
+    if np.any(off > tol) or np.any(along < -tol) or np.any(along > length + tol):
+        return None
+    # the returns must spread along the bridge, not bunch at one end (a door jamb before a far wall)
+    stops = np.sort(np.r_[0.0, along, length])
+    if float(np.max(np.diff(stops))) > p.bridge_max_gap * length:
+        return None
+    return [np.array(a.p1), np.array(b.p0)]
+
+
 def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
     if scan.intensities is None:
         return np.empty(0)
@@ -624,9 +699,18 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
     pairs = [(i, i + 1) for i in range(nseg - 1)]
     if prep.circular and nseg >= 1 and prep.segments[0].before in (_SEAM, _JUMP):
         pairs.append((nseg - 1, 0))
+    bridged: set[tuple[int, int]] = set()  # (segment, end) pairs that are not extremities (end 0 first, 1 last)
+    for i, j in _bridge_pairs(prep, seg_lines, p):
+        si, sj = prep.segments[i], prep.segments[j]
+        bridge = _bridge(seg_lines[i][-1], seg_lines[j][0], prep, p)
+        if bridge is not None:
+            corners.extend(bridge)
+            bridged.update({(i, 1), (j, 0)})
     for i, j in pairs:
         si, sj = prep.segments[i], prep.segments[j]
         if si.after not in (_JUMP, _SEAM) or not seg_lines[i] or not seg_lines[j]:
+            continue
+        if (i, 1) in bridged:
             continue
         a, b = seg_lines[i][-1], seg_lines[j][0]
         if a.stop != si.stop or b.start != sj.start:
@@ -634,7 +718,14 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
         if i == j and len(seg_lines[i]) < 2:
             continue
         x = _corner(a, b, p)
-        if x is not None:
+        if x is None:
+            continue
+        # the apex must fall between the two boundary beams; beyond them it is the extension of
+        # an occluding surface meeting a wall behind it, not a corner
+        ox, oy, oth = scan.sensor_offset
+        apex = float(np.arctan2(x[1] - oy, x[0] - ox)) - oth
+        lo, hi = prep.phi[si.stop - 1], prep.phi[sj.start]
+        if si.after == _SEAM or (float(wrap(apex - lo)) >= -half and float(wrap(hi - apex)) >= -half):
             corners.append(x)
 
     extremities: list[float] = []
@@ -654,6 +745,8 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
             (*ends[0], lines[0]),
             (*ends[1], lines[-1]),
         ):
+            if (k, 0 if sign < 0 else 1) in bridged:
+                continue  # a surface seen edge-on joins this end to the next segment
             if kind in (_EDGE, _SEAM) or not on_line:
                 continue  # the scan's border, or a ragged (non-line) end
             # the nearest return across the boundary must be farther (this end occludes it)

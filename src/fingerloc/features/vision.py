@@ -252,11 +252,13 @@ class EdgeParams:
     slant_deg : float, default 0.5
         An edge pixel counts for columns up to this far in bearing (slightly
         slanted or aliased edges); at least one column.
-    nms_deg : float, default 2
+    nms_deg : float, default 1.25
         Two edges closer than this keep only the stronger one.
     relative_min : float, default 0.25
         In each row, a gradient maximum weaker than this part of the strongest
-        gradient within twice ``nms_deg`` is ignored (ringing, JPEG blocks).
+        gradient within ``relative_deg`` is ignored (ringing, JPEG blocks).
+    relative_deg : float, default 4
+        Reach of that comparison, degrees.
     """
 
     min_extent: float = 0.12
@@ -267,11 +269,12 @@ class EdgeParams:
     chroma_weight: float = 2.0
     smooth_px: float = 1.0
     slant_deg: float = 0.5
-    nms_deg: float = 2.0
+    nms_deg: float = 1.25
     relative_min: float = 0.25
+    relative_deg: float = 4.0
 
     def __post_init__(self) -> None:
-        _check_positive(self, ("min_extent", "min_support", "min_contrast", "nms_deg"))
+        _check_positive(self, ("min_extent", "min_support", "min_contrast", "nms_deg", "relative_deg"))
         _check_positive(self, ("vertical_smooth",), allow_zero=True)
         if self.min_extent > 1:
             raise InvalidParameterError(f"min_extent must be in (0, 1], got {self.min_extent!r}")
@@ -332,7 +335,7 @@ def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
     thr = np.maximum(p.min_contrast, med + p.noise_k * mad)
     peak = (g >= np.roll(g, 1, axis=1)) & (g >= np.roll(g, -1, axis=1)) & (g > thr)
     # ringing and block artefacts beside a strong edge (JPEG) are much weaker than that edge
-    near = max(2, round(2.0 * p.nms_deg / 360.0 * w))
+    near = max(2, round(p.relative_deg / 360.0 * w))
     peak &= g >= p.relative_min * ndimage.maximum_filter1d(g, 2 * near + 1, axis=1, mode="wrap")
     slant = _slant_cols(p, w)
     peak = ndimage.maximum_filter1d(peak, 2 * slant + 1, axis=1, mode="wrap")
