@@ -382,3 +382,15 @@ def test_get_set_params():
     assert gm.set_params(n_components=2) is gm and gm.n_components == 2
     with pytest.raises(InvalidParameterError, match="no parameter 'k'"):
         gm.set_params(k=2)
+
+
+def test_fit_from_several_threads():
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(8)
+    samples = [rng.uniform(-3, 3, 40) for _ in range(3 * PARALLEL_MIN_MIXTURES)]
+    ref = fit_mixtures(samples, 3, random_state=1)
+    with ThreadPoolExecutor(4) as pool:
+        outs = list(pool.map(lambda _: fit_mixtures(samples, 3, random_state=1), range(8)))
+    for o in outs:
+        np.testing.assert_array_equal(o.means, ref.means)

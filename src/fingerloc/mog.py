@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import threading
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -87,6 +88,7 @@ DEFAULT_MIN_SIGMA_DEG = 1.0
 #: From this many mixtures on, :func:`fit_mixtures` spreads them over numba's
 #: threads (``NUMBA_NUM_THREADS``); the results are the same either way.
 PARALLEL_MIN_MIXTURES = 16
+_PARALLEL_LOCK = threading.Lock()
 
 Float64Array = NDArray[np.float64]
 
@@ -310,8 +312,13 @@ def _fit(
     conv = np.zeros(m, dtype=np.bool_)
     n_iter = np.zeros(m, dtype=np.int64)
     ll = np.empty(m)
-    if trace is None and m >= PARALLEL_MIN_MIXTURES:
-        _k.fit_batch_parallel(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll)
+    # numba's default threading layer must not be entered by two Python threads at once:
+    # a caller that finds it busy runs the serial kernel instead (same results).
+    if trace is None and m >= PARALLEL_MIN_MIXTURES and _PARALLEL_LOCK.acquire(blocking=False):
+        try:
+            _k.fit_batch_parallel(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll)
+        finally:
+            _PARALLEL_LOCK.release()
     else:
         tr = np.empty((0, 0, 0)) if trace is None else trace
         _k.fit_batch(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll, tr)
