@@ -39,10 +39,10 @@ from ..angles import TWO_PI, rad_to_deg360
 from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
 from ._costs import CostModel
-from ._cyclic import cyclic_all_rotations, cyclic_batch_unit, cyclic_batch_weighted
+from ._cyclic import cyclic_all_rotations, cyclic_batch_unit
 from ._encode import FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._energy import EnergyParams, energy_batch, energy_pair
-from ._kernels import nw_batch, nw_cost, nw_matrix, pack_lanes, traceback
+from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
 
 __all__ = [
     "CostModel",
@@ -291,10 +291,9 @@ def alignment_costs(
     distance (bit-parallel, multi-threaded). Weighted, plain: a numba kernel
     running 32 references side by side (AVX2) in each thread. Cyclic, unit
     costs: a bit-parallel kernel (Myers/Hyyrö) that runs every rotation at
-    once in AVX2 lanes; cyclic, weighted: exact DP per rotation, skipping the
-    rotations whose lower bound cannot beat the best found (see
-    :mod:`fingerloc.align._cyclic`). Both equal the brute-force minimum over
-    rotations (the weighted one up to 1e-9 of floating-point slack).
+    once in AVX2 lanes; cyclic, weighted: the weighted block kernel for
+    every rotation (see :mod:`fingerloc.align._cyclic`). Both are exact: they
+    equal the brute-force minimum over rotations.
     """
     cm = _costs_or_unit(costs)
     nw = _n_workers(workers)
@@ -308,12 +307,12 @@ def alignment_costs(
         return np.asarray(res, dtype=np.float64)
     qcodes, qoff = encode_many(qs)
     rcodes, roff = encode_many(rs)
-    if not cyclic:
-        blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
-        packed = _run(nw, nw_batch, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)
-        return np.ascontiguousarray(packed[:, slot])
-    kernel = cyclic_batch_unit if cm.is_unit else cyclic_batch_weighted
-    return _run(nw, kernel, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
+    if cyclic and cm.is_unit:
+        return _run(nw, cyclic_batch_unit, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
+    blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
+    kernel = nw_batch_cyclic if cyclic else nw_batch
+    packed = _run(nw, kernel, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)
+    return np.ascontiguousarray(packed[:, slot])
 
 
 # -- minimum energy (Lamon et al. 2001) --------------------------------------------------

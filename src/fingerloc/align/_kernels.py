@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-__all__ = ["LANES", "nw_batch", "nw_cost", "nw_matrix", "pack_lanes", "traceback"]
+__all__ = ["LANES", "nw_batch", "nw_batch_cyclic", "nw_cost", "nw_matrix", "pack_lanes", "traceback"]
 
 #: References aligned side by side in the batch kernel.
 LANES = 32
@@ -155,6 +155,60 @@ def _fill_blocks(
             blocks[k, j, lane] = codes[off[s] + j]
 
 
+@njit(cache=True, inline="always")
+def _block_costs(
+    qcodes: NDArray[np.uint8],
+    qoff: NDArray[np.int64],
+    bc: NDArray[np.uint8],
+    big: int,
+    lens: NDArray[np.int64],
+    sub: NDArray[np.float64],
+    indel: NDArray[np.float64],
+    prof: NDArray[np.float64],
+    indb: NDArray[np.float64],
+    row: NDArray[np.float64],
+    diag: NDArray[np.float64],
+    res: NDArray[np.float64],
+) -> None:  # pragma: no cover - compiled
+    """Costs of every query against the ``LANES`` references of one block: ``res[q, lane]``.
+
+    ``bc[j, lane]`` is letter ``j`` of the lane's reference, ``lens[lane]`` its
+    length and ``big`` the longest; the other arrays are work buffers.
+    """
+    # prof[c, j, k] = sub[c, letter j of reference k]: contiguous in the lanes
+    for c in range(sub.shape[0]):
+        for j in range(big):
+            for k in range(LANES):
+                prof[c, j, k] = sub[c, bc[j, k]]
+    for j in range(big):
+        for k in range(LANES):
+            indb[j, k] = indel[bc[j, k]]
+    for q in range(qoff.shape[0] - 1):
+        for k in range(LANES):
+            row[0, k] = 0.0
+        for j in range(1, big + 1):
+            for k in range(LANES):
+                row[j, k] = row[j - 1, k] + indb[j - 1, k]
+        for i in range(qoff[q], qoff[q + 1]):
+            ca = qcodes[i]
+            da = indel[ca]
+            pr = prof[ca]
+            for k in range(LANES):
+                diag[k] = row[0, k]
+                row[0, k] = diag[k] + da
+            for j in range(1, big + 1):
+                for k in range(LANES):  # vectorised over the references
+                    # D[i,j] = min(D[i-1,j-1] + s(a_i, b_j), D[i-1,j] + g(a_i), D[i,j-1] + g(b_j))
+                    v = diag[k] + pr[j - 1, k]
+                    up = row[j, k]
+                    v = min(v, up + da)
+                    v = min(v, row[j - 1, k] + indb[j - 1, k])
+                    diag[k] = up
+                    row[j, k] = v
+        for k in range(LANES):
+            res[q, k] = row[lens[k], k]
+
+
 @njit(parallel=True, cache=True)
 def nw_batch(
     qcodes: NDArray[np.uint8],
@@ -171,41 +225,61 @@ def nw_batch(
     maxlen = blocks.shape[1]
     out = np.empty((nq, nb * LANES))
     for blk in prange(nb):
-        bc = blocks[blk]
-        big = block_len[blk]
-        # prof[c, j, k] = sub[c, letter j of reference k]
         prof = np.empty((sub.shape[0], maxlen, LANES))
-        for c in range(sub.shape[0]):
-            for j in range(big):
-                for k in range(LANES):
-                    prof[c, j, k] = sub[c, bc[j, k]]
         indb = np.empty((maxlen + 1, LANES))
-        for j in range(big):
-            for k in range(LANES):
-                indb[j, k] = indel[bc[j, k]]
         row = np.empty((maxlen + 1, LANES))
         diag = np.empty(LANES)
-        for q in range(nq):
+        res = np.empty((nq, LANES))
+        _block_costs(qcodes, qoff, blocks[blk], block_len[blk], blens[blk], sub, indel, prof, indb, row, diag, res)
+        out[:, blk * LANES : (blk + 1) * LANES] = res
+    return out
+
+
+@njit(parallel=True, cache=True)
+def nw_batch_cyclic(
+    qcodes: NDArray[np.uint8],
+    qoff: NDArray[np.int64],
+    blocks: NDArray[np.uint8],
+    blens: NDArray[np.int64],
+    block_len: NDArray[np.int64],
+    sub: NDArray[np.float64],
+    indel: NDArray[np.float64],
+) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """Cyclic costs (minimum over every rotation of each reference), shape ``(n_queries, n_blocks * LANES)``.
+
+    Every rotation ``r`` of the longest reference of a block is aligned with
+    the block kernel; a shorter reference of length ``m`` reads rotation
+    ``r mod m`` (repeats are harmless for a minimum).
+    """
+    nq = qoff.shape[0] - 1
+    nb = blocks.shape[0]
+    maxlen = blocks.shape[1]
+    out = np.empty((nq, nb * LANES))
+    for blk in prange(nb):
+        bc = blocks[blk]
+        lens = blens[blk]
+        big = block_len[blk]
+        prof = np.empty((sub.shape[0], maxlen, LANES))
+        indb = np.empty((maxlen + 1, LANES))
+        row = np.empty((maxlen + 1, LANES))
+        diag = np.empty(LANES)
+        res = np.empty((nq, LANES))
+        best = np.full((nq, LANES), np.inf)
+        rot = np.zeros((maxlen, LANES), dtype=np.uint8)
+        for r in range(max(big, 1)):
             for k in range(LANES):
-                row[0, k] = 0.0
-            for j in range(1, big + 1):
+                m = lens[k]
+                if m == 0:
+                    continue
+                jj = r % m
+                for j in range(m):
+                    rot[j, k] = bc[jj, k]
+                    jj += 1
+                    if jj == m:
+                        jj = 0
+            _block_costs(qcodes, qoff, rot, big, lens, sub, indel, prof, indb, row, diag, res)
+            for q in range(nq):
                 for k in range(LANES):
-                    row[j, k] = row[j - 1, k] + indb[j - 1, k]
-            for i in range(qoff[q], qoff[q + 1]):
-                ca = qcodes[i]
-                da = indel[ca]
-                pr = prof[ca]
-                for k in range(LANES):
-                    diag[k] = row[0, k]
-                    row[0, k] = diag[k] + da
-                for j in range(1, big + 1):
-                    for k in range(LANES):
-                        v = diag[k] + pr[j - 1, k]
-                        up = row[j, k]
-                        v = min(v, up + da)
-                        v = min(v, row[j - 1, k] + indb[j - 1, k])
-                        diag[k] = up
-                        row[j, k] = v
-            for k in range(LANES):
-                out[q, blk * LANES + k] = row[blens[blk, k], k]
+                    best[q, k] = min(best[q, k], res[q, k])
+        out[:, blk * LANES : (blk + 1) * LANES] = best
     return out
