@@ -145,3 +145,11 @@ def test_cli_reproduce_table1(tmp_path, capsys):
 def test_cli_reproduce_table1_bad_input(capsys):
     code, _, _ = run(capsys, "reproduce", "table1", "--trials", "0")
     assert code == 2
+
+
+def test_cli_defaults_match_the_experiment():
+    from fingerloc.cli import mog as cli_mog
+    from fingerloc.experiments import table1
+
+    assert cli_mog.PLACE_SPREAD_DEG == table1.DEFAULT_PLACE_SPREAD_DEG
+    assert cli_mog.N_EDGES == table1.DEFAULT_N_EDGES

@@ -11,20 +11,25 @@ from rich.table import Table
 from .app import console, err_console, reproduce_app
 from .bench import write_json
 
+# The defaults of fingerloc.experiments.table1 (DEFAULT_PLACE_SPREAD_DEG, DEFAULT_N_EDGES), repeated here so
+# that the CLI starts without importing numba; tests/test_table1.py checks they agree.
+PLACE_SPREAD_DEG = 10.0
+N_EDGES = 6
+
 
 @reproduce_app.command("table1")
 def table1_cmd(
     trials: int = typer.Option(20, "--trials", min=1, help="Independent trials to average (new places each)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the places, noise and EM seeding."),
     json_out: Path | None = typer.Option(None, "--json", help="Write k, N, accuracy, stderr and paper as JSON."),
-    place_spread_deg: float | None = typer.Option(
-        None,
+    place_spread_deg: float = typer.Option(
+        PLACE_SPREAD_DEG,
         "--place-spread-deg",
         min=0.0,
         help="How alike the places are: std (deg) of each place's offset of the shared layout's edges "
-        "(smaller = more alike). Default: fingerloc.experiments.table1.DEFAULT_PLACE_SPREAD_DEG.",
+        "(smaller = more alike).",
     ),
-    n_edges: int | None = typer.Option(None, "--edges", min=1, help="Edges of the shared office layout."),
+    n_edges: int = typer.Option(N_EDGES, "--edges", min=1, help="Edges of the shared office layout."),
     noise_deg: float = typer.Option(5.0, "--noise-deg", min=0.0, help="Bearing noise of an observation (deg std)."),
     held_out: bool = typer.Option(
         False,
@@ -39,10 +44,9 @@ def table1_cmd(
     ),
 ) -> None:
     """Classify 10 alike simulated places by MOG likelihood, k in {3,4,5}, N in {5..35}; print beside the paper."""
-    from ..experiments.table1 import DEFAULT_N_EDGES, DEFAULT_PLACE_SPREAD_DEG, run_table1
+    from ..experiments.table1 import run_table1
 
-    spread = DEFAULT_PLACE_SPREAD_DEG if place_spread_deg is None else place_spread_deg
-    edges = DEFAULT_N_EDGES if n_edges is None else n_edges
+    spread, edges = place_spread_deg, n_edges
     with Progress(
         TextColumn("Table I"),
         BarColumn(),
