@@ -394,3 +394,12 @@ def test_fit_from_several_threads():
         outs = list(pool.map(lambda _: fit_mixtures(samples, 3, random_state=1), range(8)))
     for o in outs:
         np.testing.assert_array_equal(o.means, ref.means)
+
+
+def test_docstring_examples():
+    import doctest
+
+    import fingerloc.mog
+
+    res = doctest.testmod(fingerloc.mog)
+    assert res.attempted > 0 and res.failed == 0

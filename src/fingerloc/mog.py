@@ -452,6 +452,17 @@ class AngularMixture:
     n_components_ : int
         Components with weight > 0.
 
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> x = np.deg2rad(np.r_[rng.normal(179, 5, 300), rng.normal(60, 10, 300)])
+    >>> gm = AngularMixture(2, random_state=0).fit(x)
+    >>> sorted(np.round(np.rad2deg(gm.means_)).tolist())
+    [60.0, 179.0]
+    >>> gm.score_samples(np.deg2rad([180.0, 0.0])).round(1).tolist()
+    [0.8, -18.7]
+
     Notes
     -----
     ``AngularMixture(...).fit(x)`` gives exactly ``fit_mixtures([x], ...)`` with
