@@ -403,3 +403,14 @@ def test_docstring_examples():
 
     res = doctest.testmod(fingerloc.mog)
     assert res.attempted > 0 and res.failed == 0
+
+
+def test_bic_aic_choose_the_true_number_of_components():
+    rng = np.random.default_rng(6)
+    x = mixture_sample(rng, 600, [1, 1, 1], [0, 120, -120], [8, 8, 8])
+    bics = {k: AngularMixture(k, n_init=3, random_state=0).fit(x).bic(x) for k in (1, 2, 3, 4, 5)}
+    assert min(bics, key=bics.__getitem__) == 3
+    gm = AngularMixture(3, random_state=0).fit(x)
+    n_params = 3 * 3 - 1
+    assert gm.aic(x) == pytest.approx(-2 * gm.score_samples(x).sum() + 2 * n_params)
+    assert gm.bic(x) == pytest.approx(-2 * gm.score_samples(x).sum() + n_params * math.log(x.size))

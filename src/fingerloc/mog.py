@@ -554,6 +554,28 @@ class AngularMixture:
             raise InvalidParameterError("X is empty: cannot average over no bearings")
         return float(s.mean())
 
+    def _n_parameters(self) -> int:
+        # per used component a weight, a mean and a sigma; the weights sum to 1
+        return 3 * int(np.count_nonzero(self.weights_ > 0)) - 1
+
+    def bic(self, X: ArrayLike) -> float:
+        """Bayesian information criterion on ``X``: ``-2 log L + p log n`` (lower is better).
+
+        ``p = 3 k_used - 1`` counts the weight, mean and sigma of each component
+        with weight > 0, less one for the weights summing to 1.
+        """
+        s = self.score_samples(X)
+        if s.size == 0:
+            raise InvalidParameterError("X is empty")
+        return float(-2.0 * s.sum() + self._n_parameters() * math.log(s.size))
+
+    def aic(self, X: ArrayLike) -> float:
+        """Akaike information criterion on ``X``: ``-2 log L + 2 p`` (lower is better)."""
+        s = self.score_samples(X)
+        if s.size == 0:
+            raise InvalidParameterError("X is empty")
+        return float(-2.0 * s.sum() + 2.0 * self._n_parameters())
+
     def _log_joint(self, X: ArrayLike) -> Float64Array:
         xa = _as_bearings(X, "X")
         out = np.full((xa.size, self.weights_.size), -np.inf)
