@@ -11,6 +11,12 @@ substitution costs of each block are laid out once per block as a profile
 ``prof[letter, j, lane]``, so the inner loop reads them contiguously instead
 of gathering. With 8 or 16 lanes LLVM kept the loop scalar (about 1e9 cells/s
 per core); from 24 lanes on it vectorises (about 3.5e9 cells/s per core).
+The block body :func:`_block_costs` must stay inlined into the parallel
+kernels: called as a function its work arrays may alias for all LLVM knows,
+and the loop falls back to scalar code (measured: 2.5 times slower).
+
+:func:`nw_batch_cyclic` runs the same block body for every rotation of the
+references: the exact weighted cyclic cost.
 """
 
 from __future__ import annotations
@@ -115,6 +121,8 @@ def pack_lanes(
     codes: NDArray[np.uint8], off: NDArray[np.int64], lanes: int = LANES
 ) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """Pack strings into blocks of ``lanes`` strings of similar length, side by side.
+
+    The batch kernels need ``lanes == LANES``; other values are for tests.
 
     Returns
     -------
