@@ -164,3 +164,18 @@ def test_extract_and_observation_from_views():
         observation_from_views(panorama=pano, bogus=1)
     with pytest.raises(InvalidParameterError, match="min_support"):
         vertical_edges(pano, min_support=2.0)
+
+
+def test_colour_cast_is_white_balanced():
+    # a warm colour cast makes the beige walls look saturated; the patches must still come out alone
+    img, _, centres, hues = paint_panorama(seed=4)
+    cast = np.clip(img * np.array([1.0, 0.78, 0.62]), 0, 1)
+    pano = Panorama(cast.astype(np.float32))
+    b, h = colour_patches(pano)
+    assert b.size == centres.size
+    assert np.all(np.abs(dist_as(np.sort(b), np.sort(pano.column_bearing(centres)))) < np.deg2rad(1.0))
+    # hue letters survive the cast for these clearly separated hues
+    order = np.argsort(pano.column_bearing(centres))
+    exp = np.asarray(hues)[order]
+    got = h[np.argsort(b)]
+    assert np.all(np.abs((got - exp + 180) % 360 - 180) < 15)

@@ -407,7 +407,7 @@ class PatchParams:
 
     Parameters
     ----------
-    min_saturation : float, default 0.4
+    min_saturation : float, default 0.35
         Pixels below this HSV saturation are not colour (walls, floor).
     min_value, max_value : float, default 0.12, 0.99
         Dark pixels (unreliable hue) and blown-out pixels are ignored.
@@ -423,7 +423,7 @@ class PatchParams:
         Apply a robust grey-world white balance first.
     """
 
-    min_saturation: float = 0.4
+    min_saturation: float = 0.35
     min_value: float = 0.12
     max_value: float = 0.99
     hue_tol_deg: float = 20.0
