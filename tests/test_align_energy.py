@@ -104,3 +104,16 @@ def test_bad_parameters():
         minimum_energy("c", "v", mismatch=float("nan"))
     with pytest.raises(UnknownLetterError):
         minimum_energy_costs(["c"], ["x"])
+
+
+@settings(max_examples=30, deadline=None)
+@given(fingerprints(max_size=20), st.integers(0, 5), st.floats(-30, 30), st.data())
+def test_oracle_on_similar_fingerprints(a, n_edits, turn_deg, data):
+    # b: a turned a little, with a few letters dropped (the realistic case)
+    b = a.turned(np.deg2rad(turn_deg))
+    for _ in range(min(n_edits, len(b))):
+        k = data.draw(st.integers(0, len(b) - 1))
+        b = Fingerprint(b.letters[:k] + b.letters[k + 1 :], np.delete(b.bearings, k))
+    for mismatch in (math.inf, 0.6):
+        e = minimum_energy(a, b, mismatch=mismatch)
+        assert e == pytest.approx(textbook_energy(a, b, mismatch=mismatch), rel=1e-9, abs=1e-9)
