@@ -348,28 +348,35 @@ def fit_batch_parallel(
 
 @njit(cache=True)
 def log_density_batch(x, w, mu, sg, out):  # pragma: no cover
-    """out[m, i] = log sum_k w[m, k] p(x_i | mu[m, k], sg[m, k]); zero-weight components skipped."""
+    """out[m, i] = log sum_k w[m, k] p(x_i | mu[m, k], sg[m, k]); zero-weight components skipped.
+
+    Component-major like :func:`_e_step`, so all but the exponentials vectorise.
+    """
     m_count, kmax = w.shape
     n = x.shape[0]
-    c = np.empty(kmax)
-    inv = np.empty(kmax)
-    a = np.empty(kmax)
+    a = np.empty((kmax, n))
+    mx = np.empty(n)
+    ssum = np.empty(n)
     for m in range(m_count):
+        for i in range(n):
+            mx[i] = -np.inf
+            ssum[i] = 0.0
         for j in range(kmax):
             if w[m, j] > 0.0:
-                c[j] = math.log(w[m, j]) + _log_norm(sg[m, j])
-                inv[j] = 0.5 / (sg[m, j] * sg[m, j])
+                cj = math.log(w[m, j]) + _log_norm(sg[m, j])
+                invj = 0.5 / (sg[m, j] * sg[m, j])
+                muj = mu[m, j]
+                for i in range(n):
+                    dj = x[i] - muj
+                    dj = dj - _TWO_PI if dj > _PI else dj
+                    dj = dj + _TWO_PI if dj <= -_PI else dj
+                    t = cj - dj * dj * invj
+                    a[j, i] = t
+                    mx[i] = t if t > mx[i] else mx[i]
+        for j in range(kmax):
+            if w[m, j] > 0.0:
+                for i in range(n):
+                    t = a[j, i] - mx[i]
+                    ssum[i] += math.exp(t) if t > -_SKIP else 0.0
         for i in range(n):
-            xi = x[i]
-            mx = -np.inf
-            for j in range(kmax):
-                if w[m, j] > 0.0:
-                    dj = _dist(mu[m, j], xi)
-                    a[j] = c[j] - dj * dj * inv[j]
-                    if a[j] > mx:
-                        mx = a[j]
-            ssum = 0.0
-            for j in range(kmax):
-                if w[m, j] > 0.0:
-                    ssum += math.exp(a[j] - mx)
-            out[m, i] = mx + math.log(ssum)
+            out[m, i] = mx[i] + math.log(ssum[i])
