@@ -191,8 +191,8 @@ def rgb_to_hsv(img: ArrayLike) -> tuple[FArray, FArray, FArray]:
     """
     a = np.asarray(img, dtype=np.float64)
     r, g, b = a[..., 0], a[..., 1], a[..., 2]
-    mx = a.max(axis=-1)
-    mn = a.min(axis=-1)
+    mx = np.maximum(np.maximum(r, g), b)  # faster than a reduction over a length-3 axis
+    mn = np.minimum(np.minimum(r, g), b)
     c = mx - mn
     safe = np.where(c > 0, c, 1.0)
     h = np.where(
@@ -208,7 +208,8 @@ def rgb_to_hsv(img: ArrayLike) -> tuple[FArray, FArray, FArray]:
 
 def _white_balance(img: FArray) -> FArray:
     """Robust grey-world white balance: scale channels so the median of the duller half is grey."""
-    _, s, v = rgb_to_hsv(img)
+    v = np.maximum(np.maximum(img[..., 0], img[..., 1]), img[..., 2])
+    s = (v - np.minimum(np.minimum(img[..., 0], img[..., 1]), img[..., 2])) / np.maximum(v, 1e-12)
     dull = (s <= np.median(s)) & (v > 0.1) & (v < 0.98)
     if np.count_nonzero(dull) < 100:
         return img
@@ -493,9 +494,10 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         return np.empty(0), np.empty(0)
     modes = _hue_modes(hue[mask], p.hue_tol_deg)
     # nearest mode of every coloured pixel, within tolerance
-    d = np.abs(((hue[..., None] - modes[None, None, :]) + 180.0) % 360.0 - 180.0)
-    which = np.argmin(d, axis=2)
-    ok = mask & (np.min(d, axis=2) <= p.hue_tol_deg)
+    d = np.abs(((hue[mask][:, None] - modes[None, :]) + 180.0) % 360.0 - 180.0)
+    which = np.full(mask.shape, -1, dtype=np.int64)
+    which[mask] = np.where(d.min(axis=1) <= p.hue_tol_deg, np.argmin(d, axis=1), -1)
+    ok = which >= 0
     min_rows = p.min_height * h
     min_cols = np.deg2rad(p.min_width_deg) / TWO_PI * w
     found_b: list[float] = []
@@ -529,8 +531,16 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         lab = roots[lab]
         # regions with their circular bearing extent (centre, half width)
         regions: list[list[Any]] = []
-        for r in np.unique(lab[lab > 0]):
-            rows, cols = np.nonzero(lab == r)
+        flat = lab.ravel()
+        counts = np.bincount(flat)
+        order = np.argsort(flat, kind="stable")
+        starts = np.r_[0, np.cumsum(counts)]
+        min_pixels = p.min_fill * min_rows * min_cols
+        for r in np.flatnonzero(counts):
+            if r == 0 or counts[r] < 0.5 * min_pixels:  # specks (noise); halves may still merge
+                continue
+            pix = order[starts[r] : starts[r + 1]]
+            rows, cols = np.divmod(pix, w)
             cb = pano.column_bearing(cols.astype(np.float64) + 0.5)
             centre = float(np.arctan2(np.sin(cb).sum(), np.cos(cb).sum()))
             half = float(np.abs(wrap(cb - centre)).max()) + np.pi / w
