@@ -32,6 +32,7 @@ from scipy.optimize import linear_sum_assignment
 from ..angles import dist_as
 from ..errors import InvalidParameterError
 from ..fingerprint import hue_letter
+from .speed import best_time, section
 
 __all__ = ["ExtractorCounts", "match_bearings", "run_extractor_bench"]
 
@@ -229,4 +230,34 @@ def run_extractor_bench(
             "measurements": done,
         },
         "types": types,
+    }
+
+
+# ---------------------------------------------------------------------------
+# speed section of ``fingerloc bench speed``
+
+
+@section("features")
+def _speed_features(quick: bool) -> dict[str, Any]:
+    """Milliseconds per call of each extractor on simulated raw data (720-beam scan, 720x120 panorama, 640x480 omni)."""
+    from .. import sim
+    from ..features.laser import extract_laser_features
+    from ..features.vision import colour_patches, unwarp_omni, vertical_edges
+
+    world = sim.make_offices(1, random_state=0)[0]
+    pose = (world.anchor[0], world.anchor[1], 0.3)
+    scan = sim.simulate_scan(world, pose, random_state=1)
+    pano = sim.render_panorama(world, pose, random_state=1)
+    omni = sim.render_omni(world, pose, random_state=1)
+    offset = omni.forward_angle if omni.clockwise else -omni.forward_angle
+    repeat = 2 if quick else 5
+
+    def unwarp() -> object:
+        return unwarp_omni(omni.image, omni.center, *omni.radii, bearing_offset=offset, mirror=omni.clockwise)
+
+    return {
+        "laser_ms_720_beams": 1000 * best_time(lambda: extract_laser_features(scan), repeat=repeat, number=3),
+        "vertical_edges_ms_720x120": 1000 * best_time(lambda: vertical_edges(pano), repeat=repeat, number=3),
+        "colour_patches_ms_720x120": 1000 * best_time(lambda: colour_patches(pano), repeat=repeat, number=3),
+        "unwarp_omni_ms_640x480": 1000 * best_time(unwarp, repeat=repeat, number=3),
     }

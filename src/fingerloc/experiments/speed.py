@@ -75,4 +75,5 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.speed_model",
     "fingerloc.experiments.speed_sim",
     "fingerloc.experiments.carmen",
+    "fingerloc.experiments.extractors",
 ]
