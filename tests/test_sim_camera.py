@@ -26,7 +26,7 @@ from fingerloc.sim import (
 WALL = Material((0.8, 0.8, 0.8), reflectivity=0.5)
 RED = Material((0.9, 0.1, 0.1), patch=True)
 BEACON = Material((0.75, 0.75, 0.75), reflectivity=1.5, beacon=True)
-CLEAN = {"lighting": 0.0, "sun": False, "vignetting": 0.0, "noise": 0.0}
+CLEAN = {"lighting": 0.0, "sun": False, "vignetting": 0.0, "noise": 0.0, "blur": 0.0}
 
 
 def room(
@@ -207,6 +207,7 @@ def test_omni_determinism_center_and_rims() -> None:
         (render_panorama, {"elevation_deg": (10, -10)}, "elevation_deg"),
         (render_omni, {"radii": (100, 50)}, "radii"),
         (render_omni, {"vignetting": 1.5}, "vignetting"),
+        (render_omni, {"blur": -1.0}, "blur"),
     ],
 )
 def test_camera_bad_parameters(fn: object, kw: dict[str, object], match: str) -> None:

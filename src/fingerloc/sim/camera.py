@@ -177,9 +177,21 @@ def _lighting(rng: np.random.Generator, amount: float, bearings: FArray, theta: 
 
 
 def _finish(
-    img: NDArray[np.floating[Any]], rng: np.random.Generator, noise: float, jpeg_quality: int | None
+    img: NDArray[np.floating[Any]],
+    rng: np.random.Generator,
+    noise: float,
+    jpeg_quality: int | None,
+    blur: float = 0.0,
+    wrap_columns: bool = False,
 ) -> NDArray[np.uint8]:
     img32 = np.asarray(img, dtype=np.float32) * np.float32(255.0)
+    if blur > 0:
+        from scipy.ndimage import gaussian_filter
+
+        # Defocus: a Gaussian of ``blur`` pixels; a panorama's columns wrap around.
+        img32 = gaussian_filter(
+            img32, sigma=(blur, blur, 0.0), mode=("nearest", "wrap" if wrap_columns else "nearest", "nearest")
+        )
     if noise > 0:
         img32 = img32 + np.float32(255.0 * noise) * rng.standard_normal(img32.shape, dtype=np.float32)
     out = np.clip(np.rint(img32), 0, 255).astype(np.uint8)
@@ -225,6 +237,7 @@ def render_panorama(
     vignetting: float = 0.25,
     noise: float = 0.015,
     jpeg_quality: int | None = None,
+    blur: float = 0.5,
     supersample: int = 2,
     random_state: int | np.random.Generator | None = None,
 ) -> Panorama:
@@ -251,6 +264,8 @@ def render_panorama(
         Standard deviation of the Gaussian pixel noise (image values in [0, 1]).
     jpeg_quality : int, optional
         Round-trip the image through JPEG at this quality (1-100) to add compression artefacts.
+    blur : float, default 0.5
+        Standard deviation (pixels) of a Gaussian defocus applied before the noise; 0 for none.
     supersample : int, default 2
         Rays per column (averaged), for anti-aliased vertical edges.
     random_state : int or numpy.random.Generator, optional
@@ -266,6 +281,8 @@ def render_panorama(
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < lo:
             raise InvalidParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
     e_lo, e_hi = _check_common(lighting, noise, vignetting, jpeg_quality, elevation_deg)
+    if not (np.isfinite(blur) and 0 <= blur <= 10):
+        raise InvalidParameterError(f"blur must be in [0, 10] pixels, got {blur!r}")
     rng = _rng(random_state)
     ss = int(supersample)
     sub = (np.arange(width * ss) + 0.5) / ss  # fractional column coordinates
@@ -279,7 +296,7 @@ def render_panorama(
     img = r.albedo * lum[..., None] * cast
     if ss > 1:
         img = img.reshape(height, width, ss, 3).mean(axis=2)
-    out = _finish(img, rng, noise, jpeg_quality)
+    out = _finish(img, rng, noise, jpeg_quality, blur, wrap_columns=True)
     meta: dict[str, object] = {
         "elevation_deg": (float(elevation_deg[0]), float(elevation_deg[1])),
         "camera_height": float(camera_height),
@@ -434,6 +451,7 @@ def render_omni(
     vignetting: float = 0.3,
     noise: float = 0.015,
     jpeg_quality: int | None = None,
+    blur: float = 0.7,
     random_state: int | np.random.Generator | None = None,
 ) -> OmniImage:
     """Render the raw donut image of an omnidirectional camera (equiangular mirror).
@@ -453,6 +471,8 @@ def render_omni(
         Orientation of the bearings in the image, see :class:`OmniImage`.
     lighting, sun, vignetting, noise, jpeg_quality, random_state
         As in :func:`render_panorama`; vignetting darkens towards both rims.
+    blur : float, default 0.7
+        Defocus of the mirror image, pixels (Gaussian standard deviation).
 
     Returns
     -------
@@ -466,6 +486,8 @@ def render_omni(
     if not (0 <= r_in < r_out):
         raise InvalidParameterError(f"radii must satisfy 0 <= r_in < r_out, got {radii!r}")
     e_lo, e_hi = _check_common(lighting, noise, vignetting, jpeg_quality, elevation_deg)
+    if not (np.isfinite(blur) and 0 <= blur <= 10):
+        raise InvalidParameterError(f"blur must be in [0, 10] pixels, got {blur!r}")
     rng = _rng(random_state)
 
     # Render an internal (bearing x elevation) grid at the ring's resolution (mid radius), then resample.
@@ -478,6 +500,13 @@ def render_omni(
     lum = rr.shade * (rr.sun if sun else 1.0) * gain * colgain[None, :]
     # Colour planes, each (n_e * n_b,): one contiguous gather per plane and neighbour is fastest.
     planes = np.ascontiguousarray(np.moveaxis(rr.albedo * lum[..., None] * cast, 2, 0).reshape(3, -1), dtype=np.float32)
+    if blur > 0:
+        from scipy.ndimage import gaussian_filter
+
+        # Defocus on the (elevation x bearing) grid, whose cells are about one image pixel; bearings wrap.
+        planes = gaussian_filter(
+            planes.reshape(3, n_e, n_b), sigma=(0.0, blur, blur), mode=("nearest", "nearest", "wrap")
+        ).reshape(3, -1)
 
     lut = _omni_lookup(
         w_px, h_px, cx, cy, r_in, r_out, float(forward_angle), bool(clockwise), n_b, n_e, float(vignetting)
