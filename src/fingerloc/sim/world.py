@@ -283,7 +283,7 @@ def _intersections(
     wx, wy = px - origin[0], py - origin[1]
     # o + u d = p + t e  =>  u = (w x e) / (d x e),  t = (w x d) / (d x e)
     den = dx * ey - dy * ex
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         inv = 1.0 / den
         u = (wx * ey - wy * ex) * inv
         t = (wx * dy - wy * dx) * inv
