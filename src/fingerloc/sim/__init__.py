@@ -6,8 +6,15 @@
 - :func:`simulate_scan`: a 360 deg laser of two 180 deg heads, with intensities.
 - :func:`render_panorama` and :func:`render_omni`: the camera, as a cylindrical
   panorama or as the raw donut image of an equiangular mirror (:class:`OmniImage`).
-- :func:`true_features`: ground truth bearings for evaluation only; feature
-  extractors never see it.
+- :func:`true_features` / :func:`true_observation`: ground truth bearings for
+  evaluation only; feature extractors never see it.
+- :func:`protocol_poses`: the paper's measurement poses (8 on a 40-70 cm
+  circle around the office's anchor, 2 inside it).
+
+Conventions: metres and radians; a pose is ``(x, y, theta)`` in the world
+frame; bearings are relative to the heading, counter-clockwise. Panoramas use
+``clockwise=True, bearing_offset=pi`` (heading at the centre column); an
+:class:`OmniImage` says how its pixels map to bearing and elevation.
 
 The simulator does not depend on :mod:`fingerloc.features`.
 """
