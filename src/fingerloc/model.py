@@ -57,7 +57,7 @@ from scipy.special import logsumexp
 from .angles import TWO_PI, wrap
 from .errors import InvalidParameterError, NotFittedError
 from .fingerprint import Fingerprint, make_fingerprint
-from .observation import Observation
+from .observation import FULL_FOV, Observation
 
 __all__ = ["MOG_TERMS", "TERMS", "PlaceData", "PlaceModel"]
 
@@ -620,12 +620,16 @@ class PlaceModel:
         out[idx] = np.where(np.isfinite(per), per, worst)
         return out
 
-    def _references_for(self, fov: tuple[tuple[float, float], ...]) -> list[Fingerprint]:
+    def _references_for(self, fov: tuple[tuple[float, float], ...]) -> Any:
+        """The stored fingerprints as a validated batch, cropped to a partial query ``fov`` (cached)."""
+        from .align import FingerprintBatch
+
         if self.cyclic or any(width >= TWO_PI - 1e-12 for _, width in fov):
-            return self._ref_fps
-        cache: dict[Any, list[Fingerprint]] = self.__dict__.setdefault("_crop_cache", {})
+            fov = FULL_FOV
+        cache: dict[Any, Any] = self.__dict__.setdefault("_crop_cache", {})
         if fov not in cache:
-            cache[fov] = [_crop(fp, fov) for fp in self._ref_fps]
+            refs = self._ref_fps if fov == FULL_FOV else [_crop(fp, fov) for fp in self._ref_fps]
+            cache[fov] = FingerprintBatch(refs)
         return cache[fov]
 
     def _fp_log_likelihood(self, obs: list[Observation]) -> FArray:

@@ -40,13 +40,14 @@ from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
 from ._costs import CostModel
 from ._cyclic import cyclic_all_rotations, cyclic_batch_unit
-from ._encode import FingerprintLike, as_letters, encode, encode_many, letters_many
-from ._energy import EnergyParams, energy_batch, energy_pair
+from ._encode import FingerprintBatch, FingerprintLike, as_letters, encode, encode_many, letters_many
+from ._energy import EnergyParams, energy_batch_lanes, energy_pair, pack_energy_lanes
 from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
 
 __all__ = [
     "CostModel",
     "CyclicAlignment",
+    "FingerprintBatch",
     "alignment_costs",
     "cyclic_alignment",
     "global_alignment",
@@ -303,7 +304,8 @@ def alignment_costs(
     if nq == 0 or nr == 0:
         return np.zeros((nq, nr))
     if not cyclic and cm.is_unit:
-        res = rf_process.cdist(qs, rs, scorer=Levenshtein.distance, workers=nw, dtype=np.int32)
+        # rapidfuzz splits the work by query rows: extra threads for a handful of queries only cost start-up
+        res = rf_process.cdist(qs, rs, scorer=Levenshtein.distance, workers=min(nw, nq), dtype=np.int32)
         return np.asarray(res, dtype=np.float64)
     qcodes, qoff = encode_many(qs)
     rcodes, roff = encode_many(rs)
@@ -415,6 +417,19 @@ def minimum_energy_costs(
     rc, rb, ro = _many_with_bearings(references, "references")
     if qo.shape[0] == 1 or ro.shape[0] == 1:
         return np.zeros((qo.shape[0] - 1, ro.shape[0] - 1))
-    return _run(
-        nw, energy_batch, qc, qb, qo, rc, rb, ro, p.type_table(), float(occlusion), bearing_scale_deg**-2.0, bool(wrap)
+    letters, bearings, lens, slot = pack_energy_lanes(rc, rb, ro)
+    packed = _run(
+        nw,
+        energy_batch_lanes,
+        qc,
+        qb,
+        qo,
+        letters,
+        bearings,
+        lens,
+        p.type_table(),
+        float(occlusion),
+        bearing_scale_deg**-2.0,
+        bool(wrap),
     )
+    return np.ascontiguousarray(packed[:, slot])
