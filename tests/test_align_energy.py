@@ -117,3 +117,16 @@ def test_oracle_on_similar_fingerprints(a, n_edits, turn_deg, data):
     for mismatch in (math.inf, 0.6):
         e = minimum_energy(a, b, mismatch=mismatch)
         assert e == pytest.approx(textbook_energy(a, b, mismatch=mismatch), rel=1e-9, abs=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.lists(fingerprints(max_size=10), min_size=1, max_size=3),
+    st.lists(fingerprints(max_size=10), min_size=1, max_size=40),
+    st.booleans(),
+    st.sampled_from([math.inf, 0.3]),
+)
+def test_batch_kernel_equals_pair_kernel(qs, rs, wrap, mismatch):
+    out = minimum_energy_costs(qs, rs, wrap=wrap, mismatch=mismatch)
+    expect = [[minimum_energy(q, r, wrap=wrap, mismatch=mismatch) for r in rs] for q in qs]
+    np.testing.assert_allclose(out, expect, rtol=1e-12, atol=1e-12)

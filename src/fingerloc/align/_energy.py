@@ -55,8 +55,9 @@ from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
 from ._costs import N_LETTERS
+from ._kernels import LANES
 
-__all__ = ["EnergyParams", "energy_batch", "energy_pair"]
+__all__ = ["EnergyParams", "energy_batch_lanes", "energy_pair", "pack_energy_lanes"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,28 +157,131 @@ def energy_pair(
     return best
 
 
+@njit(cache=True)
+def _fill_lanes(
+    codes: NDArray[np.uint8],
+    bear: NDArray[np.float64],
+    off: NDArray[np.int64],
+    order: NDArray[np.int64],
+    letters: NDArray[np.uint8],
+    bearings: NDArray[np.float64],
+    lens: NDArray[np.int64],
+) -> None:  # pragma: no cover - compiled
+    """Scatter strings ``order[pos]`` into lane ``pos % LANES`` of block ``pos // LANES``."""
+    lanes = letters.shape[2]
+    for pos in range(order.shape[0]):
+        s = order[pos]
+        k = pos // lanes
+        lane = pos - k * lanes
+        m = off[s + 1] - off[s]
+        lens[k, lane] = m
+        for j in range(m):
+            letters[k, j, lane] = codes[off[s] + j]
+            bearings[k, j, lane] = bear[off[s] + j]
+
+
+def pack_energy_lanes(
+    codes: NDArray[np.uint8], bear: NDArray[np.float64], off: NDArray[np.int64]
+) -> tuple[NDArray[np.uint8], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Pack references (letters and bearings) into blocks of ``LANES``, sorted by length.
+
+    Returns ``letters (n_blocks, max_len, LANES)``, ``bearings`` (same shape),
+    ``lens (n_blocks, LANES)`` and ``slot (n_strings,)``, the packed position
+    of each input string.
+    """
+    n = off.shape[0] - 1
+    lens = np.diff(off)
+    order = np.argsort(lens, kind="stable")
+    nb = max(1, -(-n // LANES))
+    maxlen = max(int(lens.max()) if n else 0, 1)
+    letters = np.zeros((nb, maxlen, LANES), dtype=np.uint8)
+    bearings = np.zeros((nb, maxlen, LANES))
+    blens = np.zeros((nb, LANES), dtype=np.int64)
+    _fill_lanes(codes, bear, off, order, letters, bearings, blens)
+    slot = np.empty(n, dtype=np.int64)
+    slot[order] = np.arange(n)
+    return letters, bearings, blens, slot
+
+
 @njit(parallel=True, cache=True)
-def energy_batch(
+def energy_batch_lanes(
     qcodes: NDArray[np.uint8],
     qbear: NDArray[np.float64],
     qoff: NDArray[np.int64],
-    rcodes: NDArray[np.uint8],
-    rbear: NDArray[np.float64],
-    roff: NDArray[np.int64],
+    letters: NDArray[np.uint8],
+    bearings: NDArray[np.float64],
+    blens: NDArray[np.int64],
     typ: NDArray[np.float64],
     occ: float,
     inv_scale2: float,
     wrap: bool,
 ) -> NDArray[np.float64]:  # pragma: no cover - compiled
-    """Minimum energy of every query against every reference, shape ``(n_queries, n_references)``."""
+    """Minimum energies against ``LANES`` references side by side, shape ``(n_queries, n_blocks * LANES)``.
+
+    The same DP as :func:`energy_pair`, vectorised over the lanes: for every
+    rotation ``r`` of the block's longest reference (each reference of length
+    ``m`` reads rotation ``r mod m``), the letters and bearings are rotated
+    into a work block, the type energies laid out as a profile
+    ``prof[letter, j, lane]``, and every query aligned against all lanes at once.
+    """
     nq = qoff.shape[0] - 1
-    nr = roff.shape[0] - 1
-    out = np.empty((nq, nr))
-    for r in prange(nr):
-        b = rcodes[roff[r] : roff[r + 1]]
-        bb = rbear[roff[r] : roff[r + 1]]
-        for q in range(nq):
-            out[q, r] = energy_pair(
-                qcodes[qoff[q] : qoff[q + 1]], qbear[qoff[q] : qoff[q + 1]], b, bb, typ, occ, inv_scale2, wrap
-            )
+    nb = letters.shape[0]
+    maxlen = letters.shape[1]
+    n_letters = typ.shape[0]
+    two_pi = 2.0 * np.pi
+    inv_two_pi = 1.0 / two_pi
+    rad2deg = 180.0 / np.pi
+    out = np.empty((nq, nb * LANES))
+    for blk in prange(nb):
+        lens = blens[blk]
+        big = 0
+        for k in range(LANES):
+            big = max(big, lens[k])
+        rl = np.zeros((maxlen, LANES), dtype=np.uint8)
+        rb = np.zeros((maxlen, LANES))
+        prof = np.empty((n_letters, maxlen, LANES))
+        row = np.empty((maxlen + 1, LANES))
+        diag = np.empty(LANES)
+        best = np.full((nq, LANES), np.inf)
+        n_rot = max(big, 1) if wrap else 1
+        for r in range(n_rot):
+            for k in range(LANES):
+                m = lens[k]
+                if m == 0:
+                    continue
+                jj = r % m
+                for j in range(m):
+                    rl[j, k] = letters[blk, jj, k]
+                    rb[j, k] = bearings[blk, jj, k]
+                    jj += 1
+                    if jj == m:
+                        jj = 0
+            for c in range(n_letters):
+                for j in range(big):
+                    for k in range(LANES):
+                        prof[c, j, k] = typ[c, rl[j, k]]
+            for q in range(nq):
+                for j in range(big + 1):
+                    for k in range(LANES):
+                        row[j, k] = j * occ
+                for i in range(qoff[q], qoff[q + 1]):
+                    ca = qcodes[i]
+                    bai = qbear[i]
+                    pr = prof[ca]
+                    for k in range(LANES):
+                        diag[k] = row[0, k]
+                        row[0, k] = diag[k] + occ
+                    for j in range(1, big + 1):
+                        for k in range(LANES):  # vectorised over the references
+                            d = rb[j - 1, k] - bai
+                            d = (d - two_pi * np.floor((d + np.pi) * inv_two_pi)) * rad2deg
+                            v = diag[k] + pr[j - 1, k] + d * d * inv_scale2
+                            up = row[j, k]
+                            v = min(v, up + occ)
+                            v = min(v, row[j - 1, k] + occ)
+                            diag[k] = up
+                            row[j, k] = v
+                for k in range(LANES):
+                    best[q, k] = min(best[q, k], row[lens[k], k])
+        out[:, blk * LANES : (blk + 1) * LANES] = best
     return out
