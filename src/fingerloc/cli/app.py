@@ -23,7 +23,7 @@ app.add_typer(reproduce_app, name="reproduce")
 #: Normal output.
 console = Console(highlight=False)
 #: Progress bars and notes, on stderr so stdout stays clean for pipes.
-err_console = Console(stderr=True, highlight=False)
+err_console = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 def _version(value: bool) -> None:

@@ -41,7 +41,12 @@ def learn_cmd(
     data: Path = typer.Argument(..., help="Labelled observations, JSON Lines ('place' on every line)."),
     db: Path = typer.Option(..., "--db", help="Place database (SQLite); created, or extended if it exists."),
     components: int | None = typer.Option(None, "-k", "--components", help="Mixture components per place and feature type [5]."),
-    terms: str | None = typer.Option(None, help="Terms, comma-separated among VE,CP,Ex,B,Fp [all]."),
+    terms: str | None = typer.Option(
+        None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [VE,CP,Ex,B,Fp]."
+    ),
+    laser_letters: bool | None = typer.Option(
+        None, "--laser-letters/--no-laser-letters", help="Write wall segments and line ends into the fingerprint."
+    ),
     fp_likelihood: str | None = typer.Option(None, help="'paper' (1/(cost+1)) or 'exp' (exp(-lambda cost)) [paper]."),
     fp_reference: str | None = typer.Option(None, help="'all', 'medoid' or 'consensus' [all]."),
     cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Align over all rotations (unknown heading)."),
@@ -63,6 +68,7 @@ def learn_cmd(
         "fp_likelihood": fp_likelihood,
         "fp_reference": fp_reference,
         "cyclic": cyclic,
+        "laser_letters": laser_letters,
         "costs": None if costs is None else _costs(costs),
         "unknown_prior": unknown_prior,
         "random_state": seed,
@@ -78,7 +84,13 @@ def learn_cmd(
         stored = model.get_params()
         for k, v in given.items():
             sv = stored[k]
-            same = (tuple(sv) == tuple(v)) if k == "terms" else (sv == v)
+            if k == "costs":
+                same = (sv is None and v is None) or (
+                    sv is not None and v is not None and np.array_equal(sv.substitution, v.substitution)
+                    and np.array_equal(sv.indel, v.indel)
+                )
+            else:
+                same = (tuple(sv) == tuple(v)) if k == "terms" else (sv == v)
             if not same:
                 raise InvalidParameterError(f"{db} was learned with {k}={sv!r}; got {v!r} (use a new --db)")
         before = set(model.places_)
