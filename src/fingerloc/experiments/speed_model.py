@@ -60,6 +60,8 @@ def bench_model(quick: bool) -> dict[str, Any]:
     top1 = model.score(test, ql)
     with tempfile.TemporaryDirectory() as d:
         size = save_model(model, Path(d) / "p.sqlite")
+    fps = [fp for p in model.places_.values() for fp in p.fingerprints]
+    letters = sum(len(fp) for fp in fps)
     return {
         "places": n_places,
         "train_views_per_place": 8,
@@ -69,5 +71,7 @@ def bench_model(quick: bool) -> dict[str, Any]:
         "top1_synthetic": top1,
         "db_bytes": size,
         "db_bytes_per_place": size / n_places,
+        "fingerprint_letters_bytes_per_place": letters / n_places,
+        "fingerprint_with_bearings_bytes_per_place": letters * 9 / n_places,
         "terms": "VE,CP,Ex,B,Fp; cyclic off; unit costs",
     }
