@@ -72,7 +72,7 @@ class LaserParams:
     ----------
     range_sigma : float, default 0.015
         Standard deviation of the range noise, metres.
-    breakpoint_angle_deg : float, default 10
+    breakpoint_angle_deg : float, default 7
         Smallest incidence angle (between beam and surface) at which a
         surface stays one segment; grazing views break it. Degrees.
     max_bridge_beams : int, default 2
@@ -131,7 +131,7 @@ class LaserParams:
     """
 
     range_sigma: float = 0.015
-    breakpoint_angle_deg: float = 10.0
+    breakpoint_angle_deg: float = 7.0
     max_bridge_beams: int = 2
     split_tol: float = 0.04
     split_tol_rel: float = 0.01
