@@ -227,3 +227,34 @@ def test_cast_rays_matches_slow_oracle(segs: np.ndarray, angles: np.ndarray) -> 
             assert np.isinf(d)
         else:
             assert d == pytest.approx(ref, rel=1e-7, abs=1e-7)
+
+
+def _proper_crossings(w: World) -> int:
+    """Pairs of segments crossing in both interiors (the generator must never make them)."""
+    s = w.segments
+    p, r = s[:, :2], s[:, 2:] - s[:, :2]
+    den = r[:, None, 0] * r[None, :, 1] - r[:, None, 1] * r[None, :, 0]
+    q = p[None, :, :] - p[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (q[..., 0] * r[None, :, 1] - q[..., 1] * r[None, :, 0]) / den
+        u = (q[..., 0] * r[:, None, 1] - q[..., 1] * r[:, None, 0]) / den
+    eps = 1e-6
+    cross = (np.abs(den) > 1e-12) & (t > eps) & (t < 1 - eps) & (u > eps) & (u < 1 - eps)
+    return int(cross.sum())
+
+
+def test_generated_geometry_is_consistent() -> None:
+    from fingerloc.sim import PARTS
+
+    inside_parts = [PARTS.index(k) for k in ("furniture", "pillar", "door_leaf")]
+    n_leaves = 0
+    for seed in (0, 8):
+        for w in make_offices(10, random_state=seed):
+            assert _proper_crossings(w) == 0, w.name
+            mids = (w.segments[:, :2] + w.segments[:, 2:]) / 2
+            sel = np.isin(w.part, inside_parts)
+            assert np.all(w.contains(mids[sel])), w.name
+            corridor = w.part == PARTS.index("corridor")
+            assert not np.any(w.contains(mids[corridor])), w.name
+            n_leaves += int((w.part == PARTS.index("door_leaf")).sum())
+    assert n_leaves > 0

@@ -340,6 +340,22 @@ def _inside(poly: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.asarray((cond & (x < xi)).sum(axis=-1) % 2 == 1)
 
 
+def _crosses_polygon(p0: np.ndarray, p1: np.ndarray, poly: np.ndarray) -> bool:
+    """True when segment p0-p1 touches or crosses an edge of the polygon, or lies inside it."""
+    r = p1 - p0
+    for k in range(poly.shape[0]):
+        q, s2 = poly[k], poly[(k + 1) % poly.shape[0]] - poly[k]
+        den = r[0] * s2[1] - r[1] * s2[0]
+        if abs(den) < 1e-12:
+            continue
+        w = q - p0
+        t = (w[0] * s2[1] - w[1] * s2[0]) / den
+        u = (w[0] * r[1] - w[1] * r[0]) / den
+        if -1e-9 <= t <= 1 + 1e-9 and -1e-9 <= u <= 1 + 1e-9:
+            return True
+    return bool(_inside(poly, ((p0 + p1) / 2)[None, :])[0])
+
+
 def _polygon(spec: _Spec) -> np.ndarray:
     w, d = spec.width, spec.depth
     if spec.notch is None:
@@ -508,7 +524,12 @@ def _build(spec: _Spec, name: str) -> World:
             for s in (a, c):
                 b.add(at(s), at(s, -_WALL_THICKNESS), (0.0, _DOOR_TOP), frame_m, "door_frame")
             # Frame head and the corridor wall seen through the door.
-            b.add(at(a - 1.5, -cd), at(c + 1.5, -cd), (0.0, H), corr_m, "corridor")
+            # The corridor must stay outside the room (an L-shaped room wraps around its notch).
+            for dist, ext in ((cd, 1.5), (cd, 0.5), (min(cd, 0.9), 0.3)):
+                q0, q1 = at(a - ext, -dist), at(c + ext, -dist)
+                if not _crosses_polygon(q0, q1, poly):
+                    b.add(q0, q1, (0.0, H), corr_m, "corridor")
+                    break
         for wi, a, c, angle, hinge, lm in leaves:
             if wi != i:
                 continue
