@@ -1,0 +1,264 @@
+"""``fingerloc track`` (Markov localization along a trajectory) and ``fingerloc bench kidnap`` (issue 8)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import typer
+
+from ..errors import InvalidParameterError
+from .app import app, bench_app, console, err_console
+from .bench import write_json
+
+
+def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
+    from ..experiments.carmen import rank_metrics, true_place_ranks
+
+    known = truth >= 0
+    if not np.any(known):
+        return {"labelled": 0}
+    ranks = true_place_ranks(log_post[known], truth[known])
+    return {"labelled": int(known.sum()), **rank_metrics(ranks)}
+
+
+@app.command("track")
+def track_cmd(
+    data: Path = typer.Argument(..., help="Observations in order: JSON Lines, or a CARMEN log (its query pass)."),
+    db: Path = typer.Option(..., "--db", help="Place database (with the place graph); for a CARMEN log see --map."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write every step's posterior summary as JSON here."),
+    map_log: bool = typer.Option(
+        False,
+        "--map",
+        help="CARMEN log: learn the places and the graph from its mapping pass (benchmark protocol) into --db first.",
+    ),
+    observe: str = typer.Option(
+        "queries",
+        help="CARMEN log: 'queries' (scans within a place's radius observe, the others only predict, as in "
+        "'bench carmen') or 'all'.",
+    ),
+    scale: float | None = typer.Option(
+        None, help="Likelihood scale beta [JSON Lines: 1; CARMEN with --map: fit on the mapping pass]."
+    ),
+    metres_per_move: float | None = typer.Option(
+        None,
+        "--metres-per-move",
+        help="Odometry: mean metres per place change [CARMEN: from the mapping pass; JSON Lines: off].",
+    ),
+    uniform_mix: float | None = typer.Option(None, help="Uniform mixing per step [1 / (counted steps + 2)]."),
+    alpha: float = typer.Option(1.0, help="Additive smoothing of the transition counts."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
+) -> None:
+    """Filter the posterior over places along a sequence of observations (a discrete Bayes filter).
+
+    Per step: the best place, its probability and the posterior's entropy
+    (bits); with known places, the filtered and single-shot top-1 and mean
+    rank of the true place.
+    """
+    from ..map.filter import TransitionModel, run_filter
+
+    if observe not in ("queries", "all"):
+        raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise InvalidParameterError(f"--scale must be a positive number, got {scale!r}")
+    from .logs import detect_kind
+
+    kind = detect_kind(data)
+    if kind == "bag":
+        raise InvalidParameterError(f"{data}: track reads JSON Lines or CARMEN logs, not ROS bags")
+    names: list[str]
+    if kind == "carmen":
+        ll, truth, dist, graph, classes, beta, metres, names = _carmen_steps(
+            data, db, map_log=map_log, observe=observe, scale=scale
+        )
+        if metres_per_move is not None:
+            metres = metres_per_move
+    else:
+        if map_log:
+            raise InvalidParameterError("--map needs a CARMEN log (learn JSON Lines places with 'fingerloc learn')")
+        ll, truth, dist, graph, classes, beta, metres, names = _jsonl_steps(data, db, scale=scale)
+        metres = metres_per_move
+    if graph.graph.number_of_edges() == 0:
+        err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
+        transition = TransitionModel.uniform(len(classes))
+    else:
+        transition = TransitionModel.from_graph(
+            graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres
+        )
+    res = run_filter(beta * ll, transition, distances=dist)
+    single = np.where(np.isnan(ll), 0.0, ll)
+    steps: list[dict[str, Any]] = []
+    for t in range(ll.shape[0]):
+        b = int(res.best[t])
+        rec: dict[str, Any] = {
+            "step": t,
+            "name": names[t],
+            "observed": bool(not np.all(np.isnan(ll[t]))),
+            "best": classes[b],
+            "probability": float(res.best_probability[t]),
+            "entropy_bits": float(res.entropy_bits[t]),
+            "true": None if truth[t] < 0 else classes[int(truth[t])],
+        }
+        steps.append(rec)
+        if not quiet:
+            mark = (
+                "" if rec["true"] is None else ("  right" if rec["true"] == rec["best"] else f"  (true {rec['true']})")
+            )
+            obs = "obs " if rec["observed"] else "pred"
+            console.print(
+                f"{t:5d} {obs} {names[t]:<28} best {rec['best']:<10} p {rec['probability']:.3f}  "
+                f"H {rec['entropy_bits']:.2f} bits{mark}",
+                soft_wrap=True,
+                markup=False,
+            )
+    observed = ~np.all(np.isnan(ll), axis=1)
+    summary = {
+        "steps": int(ll.shape[0]),
+        "observed_steps": int(observed.sum()),
+        "places": len(classes),
+        "likelihood_scale": beta,
+        "metres_per_move": metres,
+        "uniform_mix": transition.uniform_mix,
+        "filtered": _summary(res.best, res.log_posterior, np.where(observed, truth, -1)),
+        "single_shot": _summary(np.argmax(single, axis=1), single, np.where(observed, truth, -1)),
+    }
+    f, s = summary["filtered"], summary["single_shot"]
+    if f.get("labelled"):
+        console.print(
+            f"{f['labelled']} labelled observed steps: filtered top-1 {f['top1']:.3f}, mean rank {f['mean_rank']:.2f}; "
+            f"single-shot top-1 {s['top1']:.3f}, mean rank {s['mean_rank']:.2f}",
+            soft_wrap=True,
+        )
+    console.print(
+        f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
+        f"beta {beta:.3g}, uniform mixing {transition.uniform_mix:.3g}, "
+        f"odometry {'off' if metres is None else f'{metres:.2f} m per place change'}",
+        soft_wrap=True,
+    )
+    write_json(json_out, {"steps": steps, "summary": summary})
+
+
+def _jsonl_steps(data: Path, db: Path, *, scale: float | None) -> tuple[Any, ...]:
+    from ..experiments.markov import step_distances
+    from ..io.jsonl import read_observations
+    from ..map.database import load_model
+    from ..map.graph import load_graph
+
+    model = load_model(db)
+    classes = [str(c) for c in model.classes_]
+    graph = load_graph(db, classes)
+    obs = read_observations(data)
+    if not obs:
+        raise InvalidParameterError(f"{data}: no observation to track")
+    ll = np.asarray(model._joint_log_likelihood(model.term_log_likelihoods(obs)), dtype=np.float64)
+    col = {c: j for j, c in enumerate(classes)}
+    truth = np.array([col.get(o.label, -1) if o.label else -1 for o in obs], dtype=np.int64)
+    dist = None
+    if all(o.pose is not None for o in obs):
+        dist = step_distances([o.pose[:2] for o in obs if o.pose is not None])
+    names = [f"{data.name}:{i + 1}" for i in range(len(obs))]
+    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, None, names
+
+
+def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
+    from ..experiments.carmen import load_log_scans, make_method, make_split
+    from ..experiments.markov import FilteredMethod, mapping_graph, step_distances
+    from ..map.database import load_model, save_model
+    from ..map.graph import load_graph
+
+    scans, _ = load_log_scans(data)
+    pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
+    split = make_split(pos)
+    qscans = scans[split.n_mapping :]
+    base = make_method("fingerprint")
+    if map_log:
+        fm = FilteredMethod("fingerprint")
+        fm.set_context(scans, split)
+        with err_console.status(f"{data.name}: learning {split.n_places} places from the mapping pass..."):
+            fm.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
+        model = fm.base_.model_  # type: ignore[attr-defined]
+        size = save_model(model, db, graph_edges=fm.graph_.edges())
+        err_console.print(f"{db}: {len(model.classes_)} places and the place graph, {size} bytes", markup=False)
+        beta = fm.scale_ if scale is None else scale
+        base = fm.base_
+        metres = fm.transition_.metres_per_move
+    else:
+        model = load_model(db)
+        base.model_ = model  # type: ignore[attr-defined]
+        base.n_places_ = len(model.classes_)  # type: ignore[attr-defined]
+        beta = 1.0 if scale is None else scale
+        metres = mapping_graph(pos, split)[1]
+    classes = [str(c) for c in model.classes_]
+    graph = load_graph(db, classes)
+    observed = (
+        np.ones(len(qscans), dtype=bool)
+        if observe == "all"
+        else np.isin(np.arange(len(qscans)), split.query_idx - split.n_mapping)
+    )
+    idx = np.flatnonzero(observed)
+    ll = np.full((len(qscans), len(classes)), np.nan)
+    with err_console.status(f"{data.name}: scoring {idx.size} scans..."):
+        s = np.asarray(base.score([qscans[i] for i in idx.tolist()]), dtype=np.float64)
+    # the method's columns are places 0..P-1; the database's classes are their labels
+    order = [int(c) if c.isdigit() else -1 for c in classes]
+    if sorted(order) != list(range(len(classes))) or s.shape[1] != len(classes):
+        raise InvalidParameterError(f"{db}: its places are not the log's places (learn them with --map)")
+    ll[idx] = s[:, order]
+    truth = np.full(len(qscans), -1, dtype=np.int64)
+    if len(classes) == split.n_places:
+        inv = {p: j for j, p in enumerate(order)}
+        truth[split.query_idx - split.n_mapping] = [inv[int(q)] for q in split.query_labels.tolist()]
+    dist = step_distances(pos[split.n_mapping :])
+    names = [f"{data.name}#{split.n_mapping + i}" for i in range(len(qscans))]
+    return ll, truth, dist, graph, classes, beta, metres, names
+
+
+@bench_app.command("kidnap")
+def kidnap_cmd(
+    logs: list[Path] = typer.Argument(..., help="CARMEN logs (.log, .log.gz)."),
+    base: str = typer.Option("fingerprint", help="Single-shot method under the filter (a 'bench carmen' name)."),
+    trials: int = typer.Option(20, help="Kidnappings per log."),
+    stretch: int = typer.Option(40, help="Steps before and after the kidnapping."),
+    min_jump: float = typer.Option(10.0, "--min-jump", help="Metres between the two spliced stretches, at least."),
+    synthetic: float | None = typer.Option(
+        None, help="Replace the method's scores by a synthetic sensor: true place + this many sigma."
+    ),
+    seed: int = typer.Option(0, help="Seed of the trials' choice (and of the synthetic sensor)."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures and trials as JSON here."),
+) -> None:
+    """Kidnapped robot: splice two distant stretches of each log's query pass; steps until the filter recovers.
+
+    Recovery = steps after the jump until the kidnapped filter's best place
+    agrees with that of the filter that was never kidnapped, for good.
+    """
+    from ..experiments.markov import run_kidnap
+
+    with err_console.status("kidnapping...") as status:
+        res = run_kidnap(
+            logs,
+            base=base,
+            n_trials=trials,
+            stretch=stretch,
+            min_jump_m=min_jump,
+            seed=seed,
+            synthetic=synthetic,
+            on_progress=lambda s: status.update(s),
+        )
+    rows = [*((n, lg["summary"]) for n, lg in res["logs"].items()), ("pooled", res["pooled"])]
+    head = f"{'log':<14} {'trials':>6} {'recovered':>9} {'median':>7} {'max':>5} {'<=10':>6} {'1st right':>9} {'ref 1st':>8}"
+    console.print(head, soft_wrap=True)
+    console.print("-" * len(head), soft_wrap=True)
+
+    def f(v: Any, fmt: str) -> str:
+        return "-" if v is None else format(v, fmt)
+
+    for name, s in rows:
+        console.print(
+            f"{name:<14} {s['trials']:>6} {s['recovered']:>9} {f(s['median_recover_steps'], '.1f'):>7} "
+            f"{f(s['max_recover_steps'], 'd'):>5} {f(s['within_10'], '.2f'):>6} "
+            f"{f(s['median_first_right_steps'], '.1f'):>9} {f(s['median_reference_first_right_steps'], '.1f'):>8}",
+            soft_wrap=True,
+        )
+    write_json(json_out, res)
