@@ -206,13 +206,20 @@ def rgb_to_hsv(img: ArrayLike) -> tuple[FArray, FArray, FArray]:
     return h, s, mx
 
 
-def _white_balance(img: FArray) -> FArray:
-    """Robust grey-world white balance: scale channels so the median of the duller half is grey."""
+def _white_balance(img: FArray, mode: str = "bright") -> FArray:
+    """Robust white balance: scale the channels so that a presumably grey reference becomes grey.
+
+    ``mode="bright"``: the reference is the median colour of the brightest
+    unclipped, duller-than-median pixels (white ceilings and paint show the
+    illuminant best); ``"grey"``: of all duller-than-median pixels (grey world).
+    """
     v = np.maximum(np.maximum(img[..., 0], img[..., 1]), img[..., 2])
     s = (v - np.minimum(np.minimum(img[..., 0], img[..., 1]), img[..., 2])) / np.maximum(v, 1e-12)
     dull = (s <= np.median(s)) & (v > 0.1) & (v < 0.98)
     if np.count_nonzero(dull) < 100:
         return img
+    if mode == "bright":
+        dull &= v >= np.quantile(v[dull], 0.8)
     med = np.median(img[dull], axis=0)
     if np.any(med <= 1e-3):
         return img
@@ -414,7 +421,7 @@ class PatchParams:
         Dark pixels (unreliable hue) and blown-out pixels are ignored.
     hue_tol_deg : float, default 20
         Largest hue distance of a pixel from its region's hue mode, degrees.
-    min_height : float, default 0.08
+    min_height : float, default 0.04
         Smallest height of a patch, as a part of the panorama's rows.
     min_width_deg : float, default 1.5
         Narrowest patch, degrees of bearing.
@@ -428,7 +435,7 @@ class PatchParams:
     min_value: float = 0.12
     max_value: float = 0.99
     hue_tol_deg: float = 20.0
-    min_height: float = 0.08
+    min_height: float = 0.04
     min_width_deg: float = 1.5
     min_fill: float = 0.3
     white_balance: bool = True
