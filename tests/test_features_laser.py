@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fingerloc.angles import dist_as, wrap
 from fingerloc.errors import InvalidParameterError
@@ -198,3 +200,16 @@ def test_surface_seen_edge_on_joins_two_lines_by_corners():
     # without the bridge rule the near end is (wrongly) an extremity and the corners are lost
     g = extract_laser_features(scan, breakpoint_angle_deg=10.0, bridge_min_points=100)
     assert np.any(np.abs(np.rad2deg(g.extremities) - 6.7) < 3)
+
+
+@settings(max_examples=25, deadline=None)
+@given(scale=st.floats(min_value=1e-3, max_value=1e5), seed=st.integers(0, 10_000))
+def test_beacons_invariant_to_intensity_scale(scale, seed):
+    walls = [*ROOM, ((2.49, 0.9), (2.49, 1.0))]
+    scan = make_scan(walls, reflect=[100.0] * 4 + [2500.0], noise=0.005, seed=seed)
+    inten = np.asarray(scan.intensities) * np.random.default_rng(seed).normal(1.0, 0.1, scan.ranges.size)
+    a = Scan(scan.ranges, scan.bearings, max_range=scan.max_range, intensities=inten)
+    b = Scan(scan.ranges, scan.bearings, max_range=scan.max_range, intensities=inten * scale)
+    fa, fb = extract_laser_features(a), extract_laser_features(b)
+    assert np.allclose(fa.beacons, fb.beacons)
+    assert fa.beacons.size == 1
