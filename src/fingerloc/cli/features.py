@@ -175,13 +175,15 @@ def format_observation(name: str, obs: Observation) -> str:
     """Readable lines: bearings in degrees of each feature type present, patches with hue letters."""
 
     def degs(a: np.ndarray) -> str:
-        return " ".join(f"{x:.1f}" for x in rad_to_deg360(a)) if a.size else "-"
+        return " ".join(f"{x:.1f}" for x in np.sort(rad_to_deg360(a))) if a.size else "-"
 
     lines = [f"{name}" + (f"  [{obs.label}]" if obs.label else "")]
     if obs.full_fov or obs.ve.size or obs.cp.size:
         lines.append(f"  vertical edges ({obs.ve.size}): {degs(obs.ve)}")
+        cp_deg = rad_to_deg360(obs.cp)
+        order = np.argsort(cp_deg)
         pats = " ".join(
-            f"{b:.1f}:{hue_letter(h)}({h:.0f})" for b, h in zip(rad_to_deg360(obs.cp), obs.cp_hue, strict=True)
+            f"{b:.1f}:{hue_letter(h)}({h:.0f})" for b, h in zip(cp_deg[order], obs.cp_hue[order], strict=True)
         )
         lines.append(f"  colour patches ({obs.cp.size}): {pats or '-'}")
     if obs.c.size or obs.ex.size or obs.b.size or not obs.full_fov:
