@@ -420,7 +420,7 @@ def kidnap_experiment(
     full = run_filter(data.log_likelihood, t, distances=data.distances)
     has_q = data.truth >= 0
     b_ok = [
-        b for b in range(1, n - stretch + 1) if int(has_q[b : b + stretch].sum()) >= min_queries
+        b for b in range(1, n - stretch + 1) if int(has_q[b : b + stretch].sum()) >= min(min_queries, stretch)
     ]  # B starts after step 0 so the reference has a history
     pairs = [
         (a, b)

@@ -1,0 +1,161 @@
+import json
+
+import numpy as np
+import pytest
+
+from fingerloc.errors import InvalidParameterError
+from fingerloc.experiments.carmen import make_method, make_split, run_benchmark
+from fingerloc.experiments.markov import (
+    FilteredMethod,
+    TrackingData,
+    _visit_folds,
+    kidnap_experiment,
+    mapping_graph,
+    step_distances,
+    with_synthetic_likelihood,
+)
+from fingerloc.map.filter import TransitionModel
+from fingerloc.map.graph import PlaceGraph
+from tests.test_bench_carmen import ROOMS, _run_cli, _write_log
+
+
+def _path():
+    """Two loops through the three rooms; in rooms 1 and 2 a step 1.4 m off centre (outside R: prediction only)."""
+    out = []
+    for _ in range(2):
+        for j, (w, h) in enumerate(ROOMS):
+            for dx in (-0.3, 0.0, 0.3) + ((1.4,) if j else ()):
+                out.append((w, h, w / 2 + dx, h / 2, 0.3 * dx))
+    return out
+
+
+@pytest.fixture(scope="module")
+def rooms_log(tmp_path_factory):
+    return _write_log(tmp_path_factory.mktemp("markov") / "rooms-corrected.log", _path())
+
+
+def test_step_distances():
+    assert step_distances([[0, 0], [3, 4], [3, 4]]).tolist() == [0.0, 5.0, 0.0]
+
+
+def test_visit_folds_alternate_per_place():
+    idx = np.array([0, 1, 2, 5, 6, 9, 10, 11])
+    lab = np.array([0, 0, 1, 0, 0, 1, 0, 0])
+    # visits: place 0 at 0-1 (0), place 1 at 2 (0), place 0 at 5-6 (1), place 1 at 9 (1), place 0 at 10-11 (0)
+    assert _visit_folds(idx, lab).tolist() == [0, 0, 0, 1, 1, 1, 0, 0]
+
+
+def test_mapping_graph_counts_consecutive_cells():
+    pos = np.array([[0, 0], [0.5, 0], [3, 0], [3.2, 0], [6, 0], [0, 0], [3, 0], [6, 0]], dtype=float)
+    sp = make_split(pos)
+    g, metres = mapping_graph(pos, sp)
+    assert sp.n_mapping == 4 and sp.n_places == 2
+    assert g.edges() == {("0", "0"): 1, ("0", "1"): 1, ("1", "1"): 1}
+    assert metres == pytest.approx(3.2)  # 3.2 m travelled, one change of place
+
+
+def test_filtered_method_needs_the_trajectory():
+    m = FilteredMethod("baseline-histogram")
+    with pytest.raises(InvalidParameterError, match="set_context"):
+        m.fit([], np.zeros(0))
+    with pytest.raises(InvalidParameterError, match="unknown base method"):
+        FilteredMethod("nope")._factory()
+
+
+def test_filtered_benchmark_end_to_end(rooms_log):
+    run = run_benchmark([rooms_log], ["baseline-histogram", "baseline-histogram-filtered"])
+    js = json.loads(json.dumps(run.to_json()))
+    lg = js["logs"]["rooms"]
+    assert lg["queries"] == 9 and lg["scans"] == 22
+    assert lg["methods"]["baseline-histogram-filtered"]["top1"] == 1.0
+
+
+def test_filtered_method_steps_every_query_pass_scan(rooms_log):
+    from fingerloc.experiments.carmen import load_log_scans
+
+    scans, _ = load_log_scans(rooms_log)
+    sp = make_split(np.array([s.pose[:2] for s in scans]))
+    m = make_method("baseline-histogram-filtered")
+    assert isinstance(m, FilteredMethod)
+    m.set_context(scans, sp)
+    m.fit([scans[i] for i in sp.train_idx], sp.train_labels)
+    out = m.score([scans[i] for i in sp.query_idx])
+    assert out.shape == (sp.n_queries, sp.n_places)
+    assert m.result_.log_posterior.shape == (sp.n_scans - sp.n_mapping, sp.n_places)
+    assert m.scale_ > 0 and m.calibration_rows_ > 0
+    with pytest.raises(InvalidParameterError, match="queries"):
+        m.score(scans[:2])
+
+
+def _chain_data(p=30, per_place=3, seed=0):
+    """A robot walking a 30-place corridor three steps per place, one metre a step, with a synthetic sensor."""
+    truth = np.repeat(np.arange(p), per_place)
+    pos = np.column_stack([np.arange(truth.size) * 1.0, np.zeros(truth.size)])
+    g = PlaceGraph.from_sequence([str(i) for i in range(p)], [str(i) for i in truth])
+
+    class Fitted:
+        transition_ = TransitionModel.from_graph(g, metres_per_move=3.0)
+
+    data = TrackingData(Fitted(), np.zeros((truth.size, p)), step_distances(pos), truth, pos)  # type: ignore[arg-type]
+    return with_synthetic_likelihood(data, 2.5, random_state=seed)
+
+
+def test_synthetic_likelihood_marks_the_true_place():
+    d = _chain_data()
+    assert np.mean(np.argmax(d.log_likelihood, axis=1) == d.truth) > 0.5
+    with pytest.raises(InvalidParameterError, match="separation"):
+        with_synthetic_likelihood(d, -1.0)
+
+
+def test_kidnap_recovers_on_a_synthetic_corridor():
+    res = kidnap_experiment(_chain_data(), name="chain", n_trials=10, stretch=20, min_jump_m=20.0)
+    s = res.summary()
+    assert s["trials"] == 10 and s["recovered"] == 10
+    assert s["max_recover_steps"] <= 10 and s["within_10"] == 1.0
+    for t in res.trials:
+        assert t["jump_m"] >= 20.0
+
+
+def test_cli_track_carmen_and_jsonl(rooms_log, tmp_path, capsys):
+    db = tmp_path / "rooms.sqlite"
+    out = tmp_path / "t.json"
+    code, text, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--map", "--json", str(out), "-q")
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    assert js["summary"]["steps"] == 11 and js["summary"]["observed_steps"] == 9
+    assert js["summary"]["filtered"]["labelled"] == 9
+    assert {"best", "probability", "entropy_bits", "true", "observed"} <= set(js["steps"][0])
+    from fingerloc.map.graph import load_graph
+
+    assert load_graph(db).graph.number_of_edges() > 0
+    # the same database again, without --map, every scan observing
+    code, text, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--observe", "all", "-q")
+    assert code == 0, err
+    assert "11 steps (11 observed)" in text
+    # JSON Lines through the same database
+    from fingerloc.io.jsonl import write_observations
+    from fingerloc.map.database import load_model
+
+    model = load_model(db)
+    obs = [o for p in model.places_.values() for o in p.observations]
+    jl = tmp_path / "o.jsonl"
+    write_observations(jl, obs)
+    code, text, err = _run_cli(capsys, "track", str(jl), "--db", str(db), "--json", str(out))
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    assert js["summary"]["steps"] == len(obs)
+    assert js["summary"]["filtered"]["top1"] >= 0.5
+    code, _, err = _run_cli(capsys, "track", str(jl), "--db", str(db), "--map")
+    assert code == 2 and err.startswith("error:") and "--map" in err
+
+
+def test_cli_bench_kidnap(rooms_log, tmp_path, capsys):
+    out = tmp_path / "k.json"
+    code, text, err = _run_cli(
+        capsys, "bench", "kidnap", str(rooms_log), "--base", "baseline-histogram", "--stretch", "3",
+        "--min-jump", "5", "--trials", "2", "--json", str(out),
+    )  # fmt: skip
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    assert "rooms" in js["logs"] and "pooled" in js and js["params"]["stretch"] == 3
+    assert "pooled" in text
