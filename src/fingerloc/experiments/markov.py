@@ -67,6 +67,8 @@ __all__ = [
 FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
 
+#: Total-variation distance below which two posteriors count as merged (kidnapping forgotten).
+MERGED_TV = 0.1
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10
 
@@ -351,7 +353,9 @@ class KidnapResult:
         ``jump_m`` (metres between the two stretches), ``recover_steps`` (steps
         after the jump until the kidnapped filter's best place agrees with the
         best place of the filter that was never kidnapped, and keeps agreeing
-        to the end of the stretch; ``None`` if it never does),
+        to the end of the stretch; ``None`` if it never does), ``merge_steps``
+        (the same for the two posteriors' total-variation distance falling
+        below :data:`MERGED_TV` for good),
         ``first_right_steps`` (steps after the jump until the best place is
         the true place at a query step; ``None`` if never) and the same for
         the never-kidnapped filter (``reference_first_right_steps``).
@@ -363,6 +367,7 @@ class KidnapResult:
     def summary(self, within: int = 10) -> dict[str, Any]:
         """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
         rec = [t["recover_steps"] for t in self.trials]
+        merged = [t["merge_steps"] for t in self.trials if t["merge_steps"] is not None]
         done = [r for r in rec if r is not None]
         first = [t["first_right_steps"] for t in self.trials if t["first_right_steps"] is not None]
         ref = [t["reference_first_right_steps"] for t in self.trials if t["reference_first_right_steps"] is not None]
@@ -372,6 +377,8 @@ class KidnapResult:
             "median_recover_steps": float(np.median(done)) if done else None,
             "max_recover_steps": int(max(done)) if done else None,
             f"within_{within}": float(np.mean([r is not None and r <= within for r in rec])) if rec else None,
+            "merged": len(merged),
+            "median_merge_steps": float(np.median(merged)) if merged else None,
             "median_first_right_steps": float(np.median(first)) if first else None,
             "median_reference_first_right_steps": float(np.median(ref)) if ref else None,
         }
@@ -444,6 +451,8 @@ def kidnap_experiment(
         truth = data.truth[b : b + stretch]
         agree = kid == ref
         recover = next((j for j in range(stretch) if np.all(agree[j:])), None)
+        tv = 0.5 * np.abs(np.exp(res.log_posterior[stretch:]) - np.exp(full.log_posterior[b : b + stretch])).sum(axis=1)
+        merged = next((j for j in range(stretch) if np.all(tv[j:] < MERGED_TV)), None)
 
         def first_right(best: IArray, truth: IArray = truth) -> int | None:
             hit = np.flatnonzero((truth >= 0) & (best == truth))
@@ -455,6 +464,7 @@ def kidnap_experiment(
                 "b_start": int(b),
                 "jump_m": float(math.hypot(*(data.positions[b] - data.positions[a + stretch - 1]))),
                 "recover_steps": recover,
+                "merge_steps": merged,
                 "first_right_steps": first_right(kid),
                 "reference_first_right_steps": first_right(ref),
             }
