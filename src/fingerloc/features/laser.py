@@ -15,10 +15,16 @@ The pipeline, after Arras and Siegwart (the paper's reference [1]):
    by total least squares (orthogonal regression).
 3. **Corners** where two fitted lines of one segment meet at a real angle, or
    where the last line of a segment and the first line of the next one meet
-   near both their ends (a corner whose apex fell between two beams).
-4. **Extremities**: segment ends next to a depth jump on the near (occluding)
-   side, or next to beams without a return: the ends of walls at door frames,
-   of furniture, of pillars.
+   near both their ends with the apex between the two boundary beams (a
+   corner whose apex fell between two beams). A short surface seen almost
+   edge-on gets too few, too sparse returns to stay one segment: when at
+   least two returns between two lines lie on the straight line joining
+   their ends, that "bridge" gives two corners and no extremity.
+4. **Extremities**: line ends at segment ends next to a depth jump on the
+   near (occluding) side, or next to beams without a return: the ends of
+   walls at door frames, of furniture, of pillars. Not at the scan's border,
+   not where the next return continues the same line (a grazing wall thinning
+   out), not at ragged clutter that no fitted line reaches.
 5. **Beacons** from the intensity (remission) channel: narrow runs of beams
    brighter by a factor than their neighbours (the local median, which
    follows the smooth fall of intensity with range and incidence) and than
