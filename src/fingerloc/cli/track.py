@@ -247,7 +247,12 @@ def kidnap_cmd(
             on_progress=lambda s: status.update(s),
         )
     rows = [*((n, lg["summary"]) for n, lg in res["logs"].items()), ("pooled", res["pooled"])]
-    head = f"{'log':<14} {'trials':>6} {'recovered':>9} {'median':>7} {'max':>5} {'<=10':>6} {'1st right':>9} {'ref 1st':>8} {'merged':>6} {'median':>7}"
+    head = (
+        f"{'log':<14} {'trials':>6} | {'agree':>5} {'steps':>6} {'obs':>5} {'<=10':>5} | "
+        f"{'merged':>6} {'steps':>6} {'obs':>5} | {'1st right':>9} {'ref':>5}"
+    )
+    console.print("recovery after a kidnapping (medians; agree = best place as the never-kidnapped filter's, "
+                  "merged = posteriors within 0.1 total variation)", soft_wrap=True)  # fmt: skip
     console.print(head, soft_wrap=True)
     console.print("-" * len(head), soft_wrap=True)
 
@@ -256,10 +261,10 @@ def kidnap_cmd(
 
     for name, s in rows:
         console.print(
-            f"{name:<14} {s['trials']:>6} {s['recovered']:>9} {f(s['median_recover_steps'], '.1f'):>7} "
-            f"{f(s['max_recover_steps'], 'd'):>5} {f(s['within_10'], '.2f'):>6} "
-            f"{f(s['median_first_right_steps'], '.1f'):>9} {f(s['median_reference_first_right_steps'], '.1f'):>8} "
-            f"{s['merged']:>6} {f(s['median_merge_steps'], '.1f'):>7}",
+            f"{name:<14} {s['trials']:>6} | {s['recovered']:>5} {f(s['median_recover_steps'], '.1f'):>6} "
+            f"{f(s['median_recover_observations'], '.1f'):>5} {f(s['within_10'], '.2f'):>5} | "
+            f"{s['merged']:>6} {f(s['median_merge_steps'], '.1f'):>6} {f(s['median_merge_observations'], '.1f'):>5} | "
+            f"{f(s['median_first_right_steps'], '.1f'):>9} {f(s['median_reference_first_right_steps'], '.1f'):>5}",
             soft_wrap=True,
         )
     write_json(json_out, res)

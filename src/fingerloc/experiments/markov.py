@@ -377,11 +377,18 @@ class KidnapResult:
             "median_recover_steps": float(np.median(done)) if done else None,
             "max_recover_steps": int(max(done)) if done else None,
             f"within_{within}": float(np.mean([r is not None and r <= within for r in rec])) if rec else None,
+            "median_recover_observations": _median([t["recover_observations"] for t in self.trials]),
             "merged": len(merged),
             "median_merge_steps": float(np.median(merged)) if merged else None,
+            "median_merge_observations": _median([t["merge_observations"] for t in self.trials]),
             "median_first_right_steps": float(np.median(first)) if first else None,
             "median_reference_first_right_steps": float(np.median(ref)) if ref else None,
         }
+
+
+def _median(values: Sequence[int | None]) -> float | None:
+    done = [v for v in values if v is not None]
+    return float(np.median(done)) if done else None
 
 
 def kidnap_experiment(
@@ -399,7 +406,12 @@ def kidnap_experiment(
     A trial runs the filter on stretch A (``stretch`` steps from ``a``),
     then, without telling it, on stretch B (``stretch`` steps from ``b``),
     where the robot's position at ``b`` is at least ``min_jump_m`` from its
-    position at the end of A and B holds at least ``min_queries`` query steps.
+    position at the end of A, step ``b`` is observed (a query: the robot is
+    carried off between two observations) and B holds at least
+    ``min_queries`` query steps. Between queries the filter only predicts, so
+    recovery is counted both in steps and in observations
+    (``*_observations``: query steps of B up to and including the recovery
+    step).
     The never-kidnapped reference is the filter run on the query pass from
     its start through B. The odometry distance of the jump step is B's own
     (the kidnapping is unobserved).
@@ -427,8 +439,10 @@ def kidnap_experiment(
     full = run_filter(data.log_likelihood, t, distances=data.distances)
     has_q = data.truth >= 0
     b_ok = [
-        b for b in range(1, n - stretch + 1) if int(has_q[b : b + stretch].sum()) >= min(min_queries, stretch)
-    ]  # B starts after step 0 so the reference has a history
+        b
+        for b in range(1, n - stretch + 1)
+        if has_q[b] and int(has_q[b : b + stretch].sum()) >= min(min_queries, stretch)
+    ]  # B starts at an observed step after step 0 (so the reference has a history)
     pairs = [
         (a, b)
         for a in range(0, n - stretch + 1)
@@ -465,6 +479,8 @@ def kidnap_experiment(
                 "jump_m": float(math.hypot(*(data.positions[b] - data.positions[a + stretch - 1]))),
                 "recover_steps": recover,
                 "merge_steps": merged,
+                "recover_observations": None if recover is None else int(has_q[b : b + recover + 1].sum()),
+                "merge_observations": None if merged is None else int(has_q[b : b + merged + 1].sum()),
                 "first_right_steps": first_right(kid),
                 "reference_first_right_steps": first_right(ref),
             }
