@@ -5,17 +5,23 @@
   :class:`~fingerloc.sensors.Panorama` (columns = bearing, rows = elevation).
 - :func:`vertical_edges` finds bearings where the image changes across the
   columns consistently over a large part of the elevation range: wall
-  corners, door frames, furniture sides. It works on log luminance plus
-  chromaticity, so that smooth lens shading and soft lighting give no
-  gradient and an edge between two equally bright colours still counts; the
-  gradient threshold adapts to the image's own noise (JPEG blocks, sensor
-  noise); a column must carry row-wise gradient maxima over at least
-  ``min_support`` of the rows, which short or slanted edges (sun patches,
-  shadows, text) do not; non-maximum suppression keeps one bearing per edge.
+  corners, door frames, furniture and poster sides. It works on log
+  luminance plus chromaticity (smooth lens shading and soft lighting give no
+  gradient; an edge between two equally bright colours still counts),
+  smoothed along the elevation (vertical edges stay sharp, noise and JPEG
+  blocks average out). A pixel is an edge pixel when its column gradient is
+  a row-wise maximum above a threshold that adapts to each row's noise (dark
+  floors are noisier in log units), not much weaker than a nearby stronger
+  gradient (ringing), and of the column's dominant polarity. A column is an
+  edge when such pixels form an unbroken vertical run over ``min_extent`` of
+  the rows, or cover ``min_support`` of them in all; slanted edges of sun
+  patches and shadows, text and noise do not. Non-maximum suppression keeps
+  one bearing per edge.
 - :func:`colour_patches` segments saturated regions by hue (after a robust
-  grey-world white balance) and reports each region's bearing and hue.
-  Low-saturation walls, dark pixels (unreliable hue) and blown-out pixels are
-  ignored.
+  white balance on the brightest dull pixels) and reports each region's
+  bearing and hue. Low-saturation walls, dark pixels (unreliable hue) and
+  blown-out pixels are ignored; regions of one hue overlapping in bearing
+  merge; regions join across the panorama's seam.
 
 Every bearing is in radians, robot frame, wrapped to ``[-pi, pi)``; hues are
 in degrees, ``[0, 360)``.
