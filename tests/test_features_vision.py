@@ -179,3 +179,20 @@ def test_colour_cast_is_white_balanced():
     exp = np.asarray(hues)[order]
     got = h[np.argsort(b)]
     assert np.all(np.abs((got - exp + 180) % 360 - 180) < 15)
+
+
+def test_textures_give_no_false_edges():
+    # a speckled carpet and a wood-grain panel (horizontal streaks): only the panel's two sides are edges
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    img, edge_cols, _, _ = paint_panorama(seed=3)
+    h, w, _ = img.shape
+    floor = int(0.8 * h)
+    tex = ndimage.gaussian_filter(rng.normal(0, 1, (h - floor, w)), 0.8)
+    img[floor:] *= (1 + 0.25 * tex / tex.std())[:, :, None]
+    grain = ndimage.gaussian_filter1d(rng.normal(0, 1, h), 1.0)[int(0.2 * h) : int(0.8 * h)]
+    img[int(0.2 * h) : int(0.8 * h), 160:240] = np.array([0.55, 0.40, 0.25]) * (1 + 0.15 * grain[:, None, None])
+    pano = Panorama(np.clip(img, 0, 1).astype(np.float32))
+    _, miss, extra = match(vertical_edges(pano), pano.column_bearing(np.r_[edge_cols, 160, 240]), np.deg2rad(1.0))
+    assert miss == 0 and extra == 0
