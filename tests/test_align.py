@@ -8,7 +8,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rapidfuzz.distance import Levenshtein
 
-from fingerloc.align import CostModel, alignment_costs, cyclic_alignment, global_alignment
+from fingerloc.align import (
+    CostModel,
+    FingerprintBatch,
+    alignment_costs,
+    cyclic_alignment,
+    global_alignment,
+    minimum_energy_costs,
+)
 from fingerloc.errors import InvalidParameterError, UnknownLetterError
 from fingerloc.fingerprint import ALPHABET, parse_fingerprint
 
@@ -126,6 +133,10 @@ def test_feature_aware_preset():
     assert FEATURE.cost("v", "c") == 1.0
     assert FEATURE.indel_cost("n") == 0.5
     assert FEATURE.indel_cost("v") == 1.0
+    # wall letters (laser extension): h i j / k l m / o p q / r s t = range class x length class
+    assert FEATURE.cost("h", "i") == FEATURE.cost("h", "k") == 0.5
+    assert FEATURE.cost("h", "l") == FEATURE.cost("h", "j") == 1.0
+    assert FEATURE.cost("e", "v") == 1.0
     assert global_alignment("cfG", "cvH", costs=FEATURE) == 0.75
 
 
@@ -275,3 +286,16 @@ def test_cyclic_unit_kernel_full_alphabet(qs, rs):
     expect = np.array([[brute_cyclic(q, r) for r in rs] for q in qs])
     np.testing.assert_array_equal(out, expect)
     np.testing.assert_array_equal(alignment_costs(rs, qs, cyclic=True, workers=1), expect.T)
+
+
+def test_fingerprint_batch_is_validated_once_and_reusable():
+    fps = [parse_fingerprint("cvb", [10, 100, 200]), "ncv", ""]
+    batch = FingerprintBatch(fps)
+    assert len(batch) == 3 and batch.letters == ["cvb", "ncv", ""]
+    np.testing.assert_array_equal(alignment_costs(["cv"], batch), alignment_costs(["cv"], fps))
+    np.testing.assert_array_equal(
+        alignment_costs(batch, batch, cyclic=True, costs=FEATURE), alignment_costs(fps, fps, cyclic=True, costs=FEATURE)
+    )
+    np.testing.assert_array_equal(minimum_energy_costs(batch, batch), minimum_energy_costs(fps, fps))
+    with pytest.raises(UnknownLetterError):
+        FingerprintBatch(["cx"])

@@ -330,12 +330,16 @@ def _with_bearings(x: Any, name: str) -> tuple[str, NDArray[np.float64]]:
 
 
 def _many_with_bearings(xs: Any, name: str) -> tuple[NDArray[np.uint8], NDArray[np.float64], NDArray[np.int64]]:
-    items = [xs] if isinstance(xs, (str, Fingerprint)) else list(xs) if isinstance(xs, Iterable) else xs
-    strs = letters_many(items, name)  # validates (and rejects a non-sequence)
+    if isinstance(xs, FingerprintBatch):
+        strs, given = xs.letters, xs.bearings
+    else:
+        items = [xs] if isinstance(xs, (str, Fingerprint)) else list(xs) if isinstance(xs, Iterable) else xs
+        strs = letters_many(items, name)  # validates (and rejects a non-sequence)
+        given = [x.bearings if isinstance(x, Fingerprint) else None for x in items]
     codes, off = encode_many(strs)
     bear = np.empty(codes.shape[0], dtype=np.float64)
-    for k, (x, s) in enumerate(zip(items, strs, strict=True)):
-        bear[off[k] : off[k + 1]] = x.bearings if isinstance(x, Fingerprint) else _even_bearings(len(s))
+    for k, (b, s) in enumerate(zip(given, strs, strict=True)):
+        bear[off[k] : off[k + 1]] = _even_bearings(len(s)) if b is None else b
     return codes, bear, off
 
 

@@ -67,12 +67,24 @@ class FingerprintBatch:
     Parameters
     ----------
     items : sequence of (str or Fingerprint)
+
+    Attributes
+    ----------
+    letters : list of str
+        The validated letters of each item.
+    bearings : list of (ndarray of float64 or None)
+        Each item's bearings in radians (``None`` for a plain string), for
+        the minimum-energy matcher.
     """
 
-    __slots__ = ("letters",)
+    __slots__ = ("bearings", "letters")
 
     def __init__(self, items: object) -> None:
-        self.letters: list[str] = letters_many(items, "items")
+        seq = list(items) if isinstance(items, Iterable) and not isinstance(items, (str, Fingerprint)) else [items]
+        self.letters: list[str] = letters_many(seq, "items")
+        self.bearings: list[NDArray[np.float64] | None] = [
+            x.bearings if isinstance(x, Fingerprint) else None for x in seq
+        ]
 
     def __len__(self) -> int:
         return len(self.letters)
