@@ -213,3 +213,14 @@ def test_beacons_invariant_to_intensity_scale(scale, seed):
     fa, fb = extract_laser_features(a), extract_laser_features(b)
     assert np.allclose(fa.beacons, fb.beacons)
     assert fa.beacons.size == 1
+
+
+def test_blind_sectors_between_two_heads_are_borders():
+    # two 170 deg heads with 10 deg blind sectors around +-90 deg: walls cut by a blind sector end
+    # there without an extremity, and the room's corners are still found
+    full = make_scan(DOOR, n=1440)
+    keep = np.abs(np.abs(np.rad2deg(full.bearings)) - 90.0) > 5.0
+    scan = Scan(full.ranges[keep], full.bearings[keep], max_range=full.max_range)
+    f = extract_laser_features(scan)
+    assert_bearings(f.corners, ROOM_CORNERS)
+    assert_bearings(f.extremities, DOOR_EX)

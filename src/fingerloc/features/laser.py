@@ -63,6 +63,9 @@ __all__ = [
 
 FArray = NDArray[np.float64]
 
+#: Consecutive beams further apart than this many median steps border a blind sector.
+_MAX_STEP_RATIO = 3.0
+
 # Boundary kinds between two consecutive segments.
 _EDGE = 0  # first or last beam of a scan that does not close the circle
 _JUMP = 1  # a depth discontinuity between two returns
@@ -334,7 +337,7 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
         dphi = np.diff(phi)
         thr = _break_threshold(np.minimum(rr[:-1], rr[1:]), dphi, p)
         with np.errstate(invalid="ignore"):
-            return np.asarray(d <= thr)
+            return np.asarray((d <= thr) & (dphi <= _MAX_STEP_RATIO * step))
 
     shift = 0
     if circular:
@@ -374,7 +377,7 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
                 k = j + 1
                 while k < n and not valid[k] and k - j - 1 < p.max_bridge_beams:
                     k += 1
-                if k < n and valid[k]:
+                if k < n and valid[k] and b[k] - b[j] <= _MAX_STEP_RATIO * step * (k - j):
                     d = float(np.linalg.norm(pts[k] - pts[j]))
                     thr = float(_break_threshold(np.array([min(r[j], r[k])]), np.array([b[k] - b[j]]), p)[0])
                     if d <= thr:
@@ -382,8 +385,11 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
                         continue
             break
         stop = j + 1
-        before = _EDGE if start == 0 else (_GAP if not valid[start - 1] else _JUMP)
-        after = _EDGE if stop == n else (_GAP if not valid[stop] else _JUMP)
+        # a hole in the bearings (two heads with a blind sector between them) is a border, not a jump
+        blind_before = start > 0 and b[start] - b[start - 1] > _MAX_STEP_RATIO * step
+        blind_after = stop < n and b[stop] - b[stop - 1] > _MAX_STEP_RATIO * step
+        before = _EDGE if start == 0 or blind_before else (_GAP if not valid[start - 1] else _JUMP)
+        after = _EDGE if stop == n or blind_after else (_GAP if not valid[stop] else _JUMP)
         segments.append(_Segment(start, stop, before, after))
         i = stop
 
