@@ -267,4 +267,12 @@ def kidnap_cmd(
             f"{f(s['median_first_right_steps'], '.1f'):>9} {f(s['median_reference_first_right_steps'], '.1f'):>5}",
             soft_wrap=True,
         )
+    console.print("query steps along the query pass (top-1 / mean rank of the true place)", soft_wrap=True)
+    tr = [*((n, lg["tracking"]) for n, lg in res["logs"].items()), ("pooled", res["pooled_tracking"])]
+    for name, t in tr:
+        a, b = t["single_shot"], t["filtered"]
+        console.print(
+            f"{name:<14} single-shot {a['top1']:.3f} / {a['mean_rank']:.2f}   filtered {b['top1']:.3f} / {b['mean_rank']:.2f}",
+            soft_wrap=True,
+        )
     write_json(json_out, res)

@@ -50,7 +50,7 @@ from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
 from ..map.graph import PlaceGraph, nearest_place_sequence
 from ..sensors import Scan
-from .carmen import METHODS, Method, Split, make_split, register_method
+from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_method, true_place_ranks
 
 __all__ = [
     "FilteredMethod",
@@ -61,6 +61,7 @@ __all__ = [
     "prepare_tracking",
     "run_kidnap",
     "step_distances",
+    "tracking_ranks",
     "with_synthetic_likelihood",
 ]
 
@@ -509,6 +510,8 @@ def run_kidnap(
     out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
+    ranks_single: list[IArray] = []
+    ranks_filtered: list[IArray] = []
     for path in paths:
         name = log_name(path)
         if on_progress is not None:
@@ -521,6 +524,28 @@ def run_kidnap(
         res = kidnap_experiment(data, name=name, n_trials=n_trials, stretch=stretch, min_jump_m=min_jump_m,
                                 random_state=seed)  # fmt: skip
         all_trials += res.trials
-        out["logs"][name] = {"summary": res.summary(), "trials": res.trials, "seconds": time.perf_counter() - t0}
+        single, filtered = tracking_ranks(data)
+        ranks_single.append(single)
+        ranks_filtered.append(filtered)
+        out["logs"][name] = {
+            "summary": res.summary(),
+            "tracking": {"single_shot": rank_metrics(single), "filtered": rank_metrics(filtered)},
+            "trials": res.trials,
+            "seconds": time.perf_counter() - t0,
+        }
     out["pooled"] = KidnapResult("pooled", all_trials).summary()
+    out["pooled_tracking"] = {
+        "single_shot": rank_metrics(np.concatenate(ranks_single)),
+        "filtered": rank_metrics(np.concatenate(ranks_filtered)),
+    }
     return out
+
+
+def tracking_ranks(data: TrackingData) -> tuple[IArray, IArray]:
+    """True-place ranks at the query steps: single-shot (the rows alone) and filtered along the query pass."""
+    q = data.truth >= 0
+    res = run_filter(data.log_likelihood, data.method.transition_, distances=data.distances)
+    single = true_place_ranks(
+        np.where(np.isnan(data.log_likelihood[q]), -np.inf, data.log_likelihood[q]), data.truth[q]
+    )
+    return single, true_place_ranks(res.log_posterior[q], data.truth[q])
