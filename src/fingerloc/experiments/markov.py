@@ -270,6 +270,18 @@ def _fingerprint_filtered() -> Method:
     return FilteredMethod("fingerprint")
 
 
+@register_method("fingerprint-filtered-no-odometry", default=False)
+def _fingerprint_filtered_no_odometry() -> Method:
+    # Ablation: per-step stay / move counts instead of the travelled distance.
+    return FilteredMethod("fingerprint", odometry=False)
+
+
+@register_method("fingerprint-filtered-unscaled", default=False)
+def _fingerprint_filtered_unscaled() -> Method:
+    # Ablation: the model's log-posterior as the log-likelihood (beta = 1, no calibration).
+    return FilteredMethod("fingerprint", calibrate=False)
+
+
 @register_method("baseline-histogram-filtered", default=False)
 def _histogram_filtered() -> Method:
     return FilteredMethod("baseline-histogram")
