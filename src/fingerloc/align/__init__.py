@@ -13,7 +13,8 @@ Strings are validated against :data:`fingerloc.fingerprint.ALPHABET`; a
 :class:`~fingerloc.fingerprint.Fingerprint` also brings the bearing of each
 letter, used for the heading estimate and by the minimum-energy matcher.
 Empty strings are valid: aligning against nothing costs the indels of the
-other string.
+other string. A :class:`FingerprintBatch` holds a collection validated once
+(a place database), to pass to the batch functions again and again.
 
 Kernels: unit costs go to RapidFuzz's bit-parallel Levenshtein
 (``rapidfuzz.process.cdist``); weighted costs to a numba kernel that runs
@@ -269,9 +270,9 @@ def alignment_costs(
 
     Parameters
     ----------
-    queries, references : sequence of (str or Fingerprint), or one of them
+    queries, references : sequence of (str or Fingerprint), FingerprintBatch, or one fingerprint
         The fingerprints; a single string or Fingerprint counts as a
-        sequence of one.
+        sequence of one; a :class:`FingerprintBatch` skips re-validation.
     cyclic : bool, default False
         Cyclic cost (minimum over every rotation of the reference, see
         :func:`cyclic_alignment`) instead of the plain global alignment.
@@ -405,7 +406,7 @@ def minimum_energy_costs(
 
     Parameters
     ----------
-    queries, references : sequence of (str or Fingerprint), or one of them
+    queries, references : sequence of (str or Fingerprint), FingerprintBatch, or one fingerprint
     occlusion, mismatch, bearing_scale_deg, wrap
         As in :func:`minimum_energy`.
     workers : int, optional
