@@ -194,3 +194,14 @@ def test_recovers_from_a_kidnapping_on_a_chain():
     right = res.best[30:] == truth[30:]
     recovered = next(k for k in range(30) if np.mean(right[k:]) >= 0.8)
     assert recovered <= 10, (recovered, res.best[30:], truth[30:])
+
+
+def test_cached_odometry_matrix_equals_expm():
+    g = PlaceGraph.from_sequence([str(i) for i in range(6)], list("0011223344553322110"))
+    t = TransitionModel.from_graph(g, metres_per_move=2.0)
+    f = MarkovFilter(t)
+    for d in (0.0, 0.3, 1.0, 7.5):
+        assert np.allclose(f.transition_matrix(d), t.matrix(d), atol=1e-10)
+    assert np.allclose(f.transition_matrix(None), t.matrix())
+    with pytest.raises(InvalidParameterError, match="distance"):
+        f.transition_matrix(-1.0)

@@ -57,6 +57,9 @@ __all__ = [
 
 FArray = NDArray[np.float64]
 
+#: Largest condition number of the move matrix's eigenvectors for the fast odometry path.
+EIG_MAX_COND = 1e6
+
 
 def _ro(a: Any) -> FArray:
     arr = np.array(a, dtype=np.float64)
@@ -321,6 +324,7 @@ class MarkovFilter:
         self.transition = transition
         self.prior = prior
         self._fixed: FArray | None = None
+        self._eig: tuple[Any, ...] | None = None
         self.reset()
 
     def reset(self) -> MarkovFilter:
@@ -338,16 +342,41 @@ class MarkovFilter:
         self.n_steps_ = 0
         return self
 
-    def _matrix(self, distance: float | None) -> FArray:
-        if distance is None or self.transition.metres_per_move is None:
+    def transition_matrix(self, distance: float | None = None) -> FArray:
+        """:meth:`TransitionModel.matrix`, cached; with odometry through one eigendecomposition.
+
+        ``expm(r (M - I)) = V diag(exp(r w)) V^-1`` with ``M - I = V diag(w) V^-1``,
+        computed once per filter (a move matrix from symmetric counts is similar
+        to a symmetric one, so ``V`` is well conditioned); falls back to
+        :func:`scipy.linalg.expm` when it is not.
+        """
+        t = self.transition
+        if distance is None or t.metres_per_move is None:
             if self._fixed is None:
-                self._fixed = self.transition.matrix()
+                self._fixed = t.matrix()
             return self._fixed
-        return self.transition.matrix(distance)
+        d = float(distance)
+        if not (math.isfinite(d) and d >= 0):
+            raise InvalidParameterError(
+                f"a travelled distance must be a finite number of metres >= 0, got {distance!r}"
+            )
+        if self._eig is None:
+            a = t.move - np.eye(t.n_places)
+            w, v = np.linalg.eig(a)
+            ok = np.linalg.cond(v) < EIG_MAX_COND
+            self._eig = (w, v, np.linalg.inv(v)) if ok else ()
+        if not self._eig:
+            return t.matrix(d)
+        w, v, vinv = self._eig
+        k = np.real((v * np.exp(d / t.metres_per_move * w)) @ vinv)
+        k = np.clip(k, 0.0, None)
+        k /= k.sum(axis=1, keepdims=True)
+        eps = t.uniform_mix
+        return (1.0 - eps) * k + eps / t.n_places
 
     def predict(self, distance: float | None = None) -> FArray:
         """Apply the transition model: ``b^-(j) = sum_i b(i) T[i, j]`` (log space); returns the log-prediction."""
-        t = self._matrix(distance)
+        t = self.transition_matrix(distance)
         b = self.log_belief_
         m = float(np.max(b))
         with np.errstate(divide="ignore"):
