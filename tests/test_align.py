@@ -299,3 +299,14 @@ def test_fingerprint_batch_is_validated_once_and_reusable():
     np.testing.assert_array_equal(minimum_energy_costs(batch, batch), minimum_energy_costs(fps, fps))
     with pytest.raises(UnknownLetterError):
         FingerprintBatch(["cx"])
+
+
+def test_heading_on_periodic_strings_picks_the_consistent_rotation():
+    # "cncncn": rotations 0, 2 and 4 all cost 0; only one pairs letters at one offset
+    bearings = [5.0, 40.0, 100.0, 160.0, 250.0, 300.0]
+    b = parse_fingerprint("cncncn", bearings)
+    for turn_deg in (30.0, 130.0, 250.0):
+        a = b.turned(np.deg2rad(turn_deg))
+        res = cyclic_alignment(a, b)
+        assert res.cost == 0.0
+        assert abs((res.heading_deg - turn_deg + 180.0) % 360.0 - 180.0) < 1e-6

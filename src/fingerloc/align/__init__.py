@@ -148,7 +148,9 @@ class CyclicAlignment:
         Minimal global alignment cost of ``a`` against every rotation of ``b``.
     rotation : int
         Number of letters ``b`` was rotated by: ``b[rotation:] + b[:rotation]``
-        is the best rotation (the smallest such index on ties).
+        is the best rotation. On ties (periodic strings such as ``nnnn`` or
+        ``cncncn``) the tied rotation whose paired letters agree best on one
+        bearing offset when both inputs have bearings, else the smallest.
     heading_deg : float or None
         Angle in degrees, ``[0, 360)``, to add to ``b``'s bearings to bring
         them onto ``a``'s: the circular mean of ``bearing(a_i) - bearing(b_j)``
@@ -174,20 +176,27 @@ def _heading(
     sb: str,
     bb: NDArray[np.float64],
     pairs: list[tuple[int, int]],
-) -> float | None:
-    """Circular mean of ``ba[i] - bb[j]`` (degrees in [0, 360)) over the most trustworthy pairs."""
+) -> tuple[float, float] | None:
+    """Circular mean of ``ba[i] - bb[j]`` over the most trustworthy pairs.
+
+    Returns the mean in degrees, ``[0, 360)``, and the tier-ranked agreement
+    of the pairs (``3 - tier + R``, ``R`` the mean resultant length in
+    [0, 1]): a higher value means more trustworthy pairs agreeing better.
+    ``None`` when nothing is paired.
+    """
     tiers = (
         [(i, j) for i, j in pairs if sa[i] == sb[j] and sa[i] != "n"],
         [(i, j) for i, j in pairs if sa[i] == sb[j]],
         pairs,
     )
-    for chosen in tiers:
+    for tier, chosen in enumerate(tiers):
         if chosen:
             ii = np.fromiter((p[0] for p in chosen), dtype=np.int64)
             jj = np.fromiter((p[1] for p in chosen), dtype=np.int64)
             diff = ba[ii] - bb[jj]
-            ang = math.atan2(float(np.sin(diff).sum()), float(np.cos(diff).sum()))
-            return float(rad_to_deg360(ang))
+            sn, cs = float(np.sin(diff).sum()), float(np.cos(diff).sum())
+            resultant = math.hypot(sn, cs) / len(chosen)
+            return float(rad_to_deg360(math.atan2(sn, cs))), 3.0 - tier + resultant
     return None
 
 
@@ -218,17 +227,29 @@ def cyclic_alignment(a: FingerprintLike, b: FingerprintLike, *, costs: CostModel
     sb, bear_b = as_letters(b, "b")
     ca, cb = encode(sa), encode(sb)
     per_rot = cyclic_all_rotations(ca, cb, cm.substitution, cm.indel)
-    rot = int(np.argmin(per_rot))
-    cost = float(per_rot[rot])
-    cbr = np.roll(cb, -rot)
-    d = nw_matrix(ca, cbr, cm.substitution, cm.indel)
-    alignment = traceback(d, ca, cbr, cm.substitution, cm.indel)
-    heading = None
-    if bear_a is not None and bear_b is not None and len(sb) > 0:
-        m = len(sb)
-        pairs = [(i, (j + rot) % m) for i, j in alignment if i is not None and j is not None]
-        heading = _heading(sa, bear_a, sb, bear_b, pairs)
-    return CyclicAlignment(cost=cost, rotation=rot, heading_deg=heading, alignment=alignment)
+    cost = float(per_rot.min())
+    with_bearings = bear_a is not None and bear_b is not None and len(sb) > 0
+    # Periodic strings (all n, "cncncn") tie over several rotations; with
+    # bearings, keep the tied rotation whose pairs agree best on one heading.
+    candidates = np.flatnonzero(per_rot == cost) if with_bearings else np.argmin(per_rot).reshape(1)
+    best: tuple[float, int, float | None, list[tuple[int | None, int | None]]] | None = None
+    m = len(sb)
+    for rot in candidates.tolist():
+        cbr = np.roll(cb, -rot)
+        d = nw_matrix(ca, cbr, cm.substitution, cm.indel)
+        alignment = traceback(d, ca, cbr, cm.substitution, cm.indel)
+        heading, score = None, -1.0
+        if with_bearings:
+            assert bear_a is not None and bear_b is not None  # for mypy
+            pairs = [(i, (j + rot) % m) for i, j in alignment if i is not None and j is not None]
+            h = _heading(sa, bear_a, sb, bear_b, pairs)
+            if h is not None:
+                heading, score = h
+        if best is None or score > best[0]:
+            best = (score, rot, heading, alignment)
+    assert best is not None  # at least one candidate
+    _, rot, heading, alignment = best
+    return CyclicAlignment(cost=cost, rotation=int(rot), heading_deg=heading, alignment=alignment)
 
 
 # -- batch ---------------------------------------------------------------------
