@@ -43,7 +43,7 @@ References
 .. [2] Y. Ohta, T. Kanade, "Stereo by intra- and inter-scanline search using
    dynamic programming", IEEE TPAMI 7(2), 1985.
 .. [3] R. Siegwart, I. Nourbakhsh, "Introduction to Autonomous Mobile Robots",
-   MIT Press, 2004, section 4.3 (fingerprint string differencing: the minimum
+   MIT Press, 2004, chapter 4, p. 180 (fingerprint string differencing: the minimum
    energy to transform one sequence into the other, insensitive to single
    added or missing features). Where [1] could not be read in full, [2] and
    this summary fixed the structure; the constants are ours.
