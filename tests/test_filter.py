@@ -205,3 +205,20 @@ def test_cached_odometry_matrix_equals_expm():
     assert np.allclose(f.transition_matrix(None), t.matrix())
     with pytest.raises(InvalidParameterError, match="distance"):
         f.transition_matrix(-1.0)
+
+
+def test_large_map_vector_prediction_equals_matrix():
+    p = 130  # above EIG_VECTOR_MIN_PLACES: the belief vector is propagated directly
+    g = PlaceGraph.from_sequence([str(i) for i in range(p)], [str(i) for i in np.repeat(np.arange(p), 2)])
+    t = TransitionModel.from_graph(g, metres_per_move=1.5)
+    rng = np.random.default_rng(5)
+    ll = rng.normal(size=(6, p)) * 3
+    dist = [0.0, 0.5, 2.0, 0.0, 4.0, 1.0]
+    fast = run_filter(ll, t, distances=dist).log_posterior
+    slow = MarkovFilter(t)
+    for k in range(6):
+        if k:
+            b = slow.log_belief_
+            slow.log_belief_ = np.log(np.exp(b) @ t.matrix(dist[k]))
+        slow.update(ll[k])
+        assert np.allclose(fast[k], slow.log_belief_, atol=1e-8)

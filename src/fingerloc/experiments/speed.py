@@ -76,4 +76,5 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.speed_sim",
     "fingerloc.experiments.carmen",
     "fingerloc.experiments.extractors",
+    "fingerloc.experiments.speed_markov",
 ]

@@ -59,6 +59,21 @@ FArray = NDArray[np.float64]
 
 #: Largest condition number of the move matrix's eigenvectors for the fast odometry path.
 EIG_MAX_COND = 1e6
+#: Above this many places, odometry predictions propagate the belief vector instead of forming the matrix.
+EIG_VECTOR_MIN_PLACES = 100
+
+
+def _check_distance(distance: Any) -> float:
+    d = float(distance)
+    if not (math.isfinite(d) and d >= 0):
+        raise InvalidParameterError(f"a travelled distance must be a finite number of metres >= 0, got {distance!r}")
+    return d
+
+
+def _lse(x: FArray) -> float:
+    """``log sum exp x`` of one row with a finite maximum (faster than scipy's for small rows)."""
+    m = float(np.max(x))
+    return m + math.log(float(np.sum(np.exp(x - m))))
 
 
 def _ro(a: Any) -> FArray:
@@ -203,11 +218,7 @@ class TransitionModel:
         """
         p = self.n_places
         if distance is not None and self.metres_per_move is not None:
-            d = float(distance)
-            if not (math.isfinite(d) and d >= 0):
-                raise InvalidParameterError(
-                    f"a travelled distance must be a finite number of metres >= 0, got {distance!r}"
-                )
+            d = _check_distance(distance)
             rate = d / self.metres_per_move
             k = expm(rate * (self.move - np.eye(p))) if rate > 0 else np.eye(p)
             k = np.clip(k, 0.0, None)
@@ -342,6 +353,15 @@ class MarkovFilter:
         self.n_steps_ = 0
         return self
 
+    def _eigen(self) -> bool:
+        """Build (once) ``M - I = V diag(w) V^-1``; False when ``V`` is too ill-conditioned to use."""
+        if self._eig is None:
+            t = self.transition
+            w, v = np.linalg.eig(t.move - np.eye(t.n_places))
+            ok = np.linalg.cond(v) < EIG_MAX_COND
+            self._eig = (w, v, np.linalg.inv(v)) if ok else ()
+        return bool(self._eig)
+
     def transition_matrix(self, distance: float | None = None) -> FArray:
         """:meth:`TransitionModel.matrix`, cached; with odometry through one eigendecomposition.
 
@@ -355,19 +375,10 @@ class MarkovFilter:
             if self._fixed is None:
                 self._fixed = t.matrix()
             return self._fixed
-        d = float(distance)
-        if not (math.isfinite(d) and d >= 0):
-            raise InvalidParameterError(
-                f"a travelled distance must be a finite number of metres >= 0, got {distance!r}"
-            )
-        if self._eig is None:
-            a = t.move - np.eye(t.n_places)
-            w, v = np.linalg.eig(a)
-            ok = np.linalg.cond(v) < EIG_MAX_COND
-            self._eig = (w, v, np.linalg.inv(v)) if ok else ()
-        if not self._eig:
+        d = _check_distance(distance)
+        if not self._eigen():
             return t.matrix(d)
-        w, v, vinv = self._eig
+        w, v, vinv = self._eig  # type: ignore[misc]
         k = np.real((v * np.exp(d / t.metres_per_move * w)) @ vinv)
         k = np.clip(k, 0.0, None)
         k /= k.sum(axis=1, keepdims=True)
@@ -376,12 +387,27 @@ class MarkovFilter:
 
     def predict(self, distance: float | None = None) -> FArray:
         """Apply the transition model: ``b^-(j) = sum_i b(i) T[i, j]`` (log space); returns the log-prediction."""
-        t = self.transition_matrix(distance)
         b = self.log_belief_
         m = float(np.max(b))
+        p = np.exp(b - m)  # belief scaled by exp(-max b)
+        tm = self.transition
+        if (
+            distance is not None
+            and tm.metres_per_move is not None
+            and tm.n_places > EIG_VECTOR_MIN_PLACES
+            and _check_distance(distance) >= 0
+            and self._eigen()
+        ):
+            # b K = ((b V) exp(r w)) V^-1: O(P^2) instead of forming K
+            w, v, vinv = self._eig  # type: ignore[misc]
+            q = np.clip(np.real(((p @ v) * np.exp(float(distance) / tm.metres_per_move * w)) @ vinv), 0.0, None)
+            q *= p.sum() / q.sum()
+            q = (1.0 - tm.uniform_mix) * q + tm.uniform_mix * p.sum() / tm.n_places
+        else:
+            q = p @ self.transition_matrix(distance)  # sum_i b_i T_ij
         with np.errstate(divide="ignore"):
-            pred = np.log(np.exp(b - m) @ t) + m  # log sum_i exp(b_i) T_ij, shifted by max b
-        self.log_belief_ = pred - logsumexp(pred)
+            pred = np.log(q) + m
+        self.log_belief_ = pred - _lse(pred)
         return self.log_belief_.copy()
 
     def update(self, log_likelihood: Any) -> FArray:
@@ -414,7 +440,7 @@ class MarkovFilter:
         post = self.log_belief_ + ll
         if not np.any(np.isfinite(post)):
             return self.log_belief_.copy()
-        self.log_belief_ = post - logsumexp(post)
+        self.log_belief_ = post - _lse(post)
         return self.log_belief_.copy()
 
     def step(self, log_likelihood: Any = None, distance: float | None = None) -> FArray:
