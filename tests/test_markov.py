@@ -159,3 +159,38 @@ def test_cli_bench_kidnap(rooms_log, tmp_path, capsys):
     js = json.loads(out.read_text())
     assert "rooms" in js["logs"] and "pooled" in js and js["params"]["stretch"] == 3
     assert "pooled" in text
+
+
+def test_cli_track_jsonl_graph_from(tmp_path, capsys):
+    from fingerloc.io.jsonl import write_observations
+    from fingerloc.map.database import save_model
+    from fingerloc.map.graph import load_graph
+    from fingerloc.model import PlaceModel
+    from fingerloc.observation import Observation
+
+    rng = np.random.default_rng(0)
+    centres = {"a": [10, 100, 200], "b": [40, 150, 300], "c": [70, 220, 330]}
+
+    def obs(lab, x):
+        return Observation.from_degrees(
+            {"VE": (np.array(centres[lab]) + rng.normal(0, 3, 3)).tolist()}, label=lab, pose=[x, 0.0, 0.0]
+        )
+
+    walk = ["a", "a", "b", "b", "c", "c", "b", "a"]
+    train = [obs(lab, float(i)) for i, lab in enumerate(walk)]
+    db = tmp_path / "p.sqlite"
+    save_model(PlaceModel(n_components=2, terms=("VE",)).fit(train), db)
+    tr = tmp_path / "train.jsonl"
+    write_observations(tr, train)
+    q = tmp_path / "q.jsonl"
+    write_observations(q, [obs(lab, float(i)) for i, lab in enumerate(["a", "b", "c"])])
+    out = tmp_path / "t.json"
+    code, text, err = _run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--json", str(out))
+    assert code == 0, err
+    assert load_graph(db).edges()[("a", "b")] == 1
+    js = json.loads(out.read_text())
+    assert js["summary"]["steps"] == 3 and js["summary"]["metres_per_move"] == pytest.approx(7 / 4)
+    assert "odometry 1.75 m per place change" in text
+    write_observations(tr, [*train, Observation.from_degrees({"VE": [1.0]}, label="zz")])
+    code, _, err = _run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr))
+    assert code == 2 and "'zz'" in err

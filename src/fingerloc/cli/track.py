@@ -45,10 +45,16 @@ def track_cmd(
     metres_per_move: float | None = typer.Option(
         None,
         "--metres-per-move",
-        help="Odometry: mean metres per place change [CARMEN: from the mapping pass; JSON Lines: off].",
+        help="Odometry: mean metres per place change [CARMEN: from the mapping pass; JSON Lines: from --graph-from poses, else off].",
     ),
     uniform_mix: float | None = typer.Option(None, help="Uniform mixing per step [1 / (counted steps + 2)]."),
     alpha: float = typer.Option(1.0, help="Additive smoothing of the transition counts."),
+    graph_from: Path | None = typer.Option(
+        None,
+        "--graph-from",
+        help="JSON Lines: labelled observations in the order the robot passed them (e.g. the file given to "
+        "'learn'); their consecutive places give the graph, stored into --db (and odometry when they have poses).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
 ) -> None:
     """Filter the posterior over places along a sequence of observations (a discrete Bayes filter).
@@ -70,6 +76,8 @@ def track_cmd(
         raise InvalidParameterError(f"{data}: track reads JSON Lines or CARMEN logs, not ROS bags")
     names: list[str]
     if kind == "carmen":
+        if graph_from is not None:
+            raise InvalidParameterError("--graph-from is for JSON Lines; a CARMEN log's graph comes from --map")
         ll, truth, dist, graph, classes, beta, metres, names = _carmen_steps(
             data, db, map_log=map_log, observe=observe, scale=scale
         )
@@ -78,8 +86,11 @@ def track_cmd(
     else:
         if map_log:
             raise InvalidParameterError("--map needs a CARMEN log (learn JSON Lines places with 'fingerloc learn')")
-        ll, truth, dist, graph, classes, beta, metres, names = _jsonl_steps(data, db, scale=scale)
-        metres = metres_per_move
+        ll, truth, dist, graph, classes, beta, metres, names = _jsonl_steps(
+            data, db, scale=scale, graph_from=graph_from
+        )
+        if metres_per_move is not None:
+            metres = metres_per_move
     if graph.graph.number_of_edges() == 0:
         err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
         transition = TransitionModel.uniform(len(classes))
@@ -140,14 +151,30 @@ def track_cmd(
     write_json(json_out, {"steps": steps, "summary": summary})
 
 
-def _jsonl_steps(data: Path, db: Path, *, scale: float | None) -> tuple[Any, ...]:
+def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
     from ..experiments.markov import step_distances
     from ..io.jsonl import read_observations
-    from ..map.database import load_model
-    from ..map.graph import load_graph
+    from ..map.database import load_model, save_model
+    from ..map.filter import metres_per_move
+    from ..map.graph import PlaceGraph, load_graph
 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
+    metres = None
+    if graph_from is not None:
+        train = read_observations(graph_from)
+        seq = [o.label for o in train]
+        bad = next((i for i, lab in enumerate(seq) if lab not in set(classes)), None)
+        if bad is not None:
+            raise InvalidParameterError(
+                f"{graph_from}:{bad + 1}: place {seq[bad]!r} is not in {db} (every line needs a learned 'place')"
+            )
+        g = PlaceGraph.from_sequence(classes, [str(lab) for lab in seq])
+        save_model(model, db, graph_edges=g.edges())
+        err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
+        if len(train) > 1 and all(o.pose is not None for o in train):
+            col = {c: j for j, c in enumerate(classes)}
+            metres = metres_per_move([o.pose[:2] for o in train if o.pose is not None], [col[str(lab)] for lab in seq])
     graph = load_graph(db, classes)
     obs = read_observations(data)
     if not obs:
@@ -159,7 +186,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None) -> tuple[Any, ...
     if all(o.pose is not None for o in obs):
         dist = step_distances([o.pose[:2] for o in obs if o.pose is not None])
     names = [f"{data.name}:{i + 1}" for i in range(len(obs))]
-    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, None, names
+    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names
 
 
 def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
