@@ -6,7 +6,9 @@
   ``fingerprint-filtered`` (the ``fingerprint`` method, whatever its current
   configuration) and, run only when named, ``baseline-histogram-filtered`` and
   ``baseline-scancontext-filtered`` (the baselines' scores turned into
-  pseudo-likelihoods, to show the filter's effect on another front end).
+  pseudo-likelihoods, to show the filter's effect on another front end);
+  ablations ``fingerprint-filtered-no-odometry`` (per-step counts) and
+  ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover.
 
