@@ -414,3 +414,22 @@ def test_bic_aic_choose_the_true_number_of_components():
     n_params = 3 * 3 - 1
     assert gm.aic(x) == pytest.approx(-2 * gm.score_samples(x).sum() + 2 * n_params)
     assert gm.bic(x) == pytest.approx(-2 * gm.score_samples(x).sum() + n_params * math.log(x.size))
+
+
+def test_log_density_threads_equal_serial():
+    from fingerloc import _mog_kernels as k
+
+    rng = np.random.default_rng(3)
+    m, kk, n = 700, 5, 9
+    w = rng.dirichlet(np.ones(kk), size=m)
+    w[::7, 3] = 0.0
+    w /= w.sum(axis=1, keepdims=True)
+    mu = rng.uniform(-np.pi, np.pi, (m, kk))
+    sg = rng.uniform(0.02, 2.0, (m, kk))
+    x = rng.uniform(-np.pi, np.pi, n)
+    serial = np.empty((m, n))
+    k.log_density_batch(x, w, mu, sg, serial)
+    threaded = np.empty((m, n))
+    k.log_density_batch_parallel(x, w, mu, sg, threaded, 3)
+    np.testing.assert_array_equal(serial, threaded)
+    np.testing.assert_array_equal(mixture_log_density(x, w, mu, sg), serial)

@@ -352,12 +352,26 @@ def log_density_batch(x, w, mu, sg, out):  # pragma: no cover
 
     Component-major like :func:`_e_step`, so all but the exponentials vectorise.
     """
-    m_count, kmax = w.shape
+    _log_density_rows(x, w, mu, sg, out, 0, w.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def log_density_batch_parallel(x, w, mu, sg, out, n_chunks):  # pragma: no cover
+    """:func:`log_density_batch` with the mixtures split into ``n_chunks`` blocks over numba's threads."""
+    m_count = w.shape[0]
+    for c in prange(n_chunks):
+        _log_density_rows(x, w, mu, sg, out, c * m_count // n_chunks, (c + 1) * m_count // n_chunks)
+
+
+@njit(cache=True)
+def _log_density_rows(x, w, mu, sg, out, lo, hi):  # pragma: no cover
+    """Rows ``lo:hi`` of :func:`log_density_batch`."""
+    kmax = w.shape[1]
     n = x.shape[0]
     a = np.empty((kmax, n))
     mx = np.empty(n)
     ssum = np.empty(n)
-    for m in range(m_count):
+    for m in range(lo, hi):
         for i in range(n):
             mx[i] = -np.inf
             ssum[i] = 0.0

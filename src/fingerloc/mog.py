@@ -63,6 +63,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -89,6 +90,8 @@ DEFAULT_MIN_SIGMA_DEG = 1.0
 #: threads (``NUMBA_NUM_THREADS``); the results are the same either way.
 PARALLEL_MIN_MIXTURES = 16
 _PARALLEL_LOCK = threading.Lock()
+#: Fewest (mixtures x components x bearings) for which :func:`mixture_log_density` uses threads.
+PARALLEL_MIN_DENSITY_CELLS = 8192
 
 Float64Array = NDArray[np.float64]
 
@@ -396,7 +399,16 @@ def mixture_log_density(x: ArrayLike, weights: ArrayLike, means: ArrayLike, sigm
     xa = _as_bearings(x, "x")
     w, mu, sg = _as_params(weights, means, sigmas)
     out = np.empty((w.shape[0], xa.size))
-    if xa.size:
+    if not xa.size:
+        return out
+    threads = numba.get_num_threads()
+    # Threads pay off from a few thousand component-bearing pairs (a place database against one view).
+    if threads > 1 and w.size * xa.size >= PARALLEL_MIN_DENSITY_CELLS and _PARALLEL_LOCK.acquire(blocking=False):
+        try:
+            _k.log_density_batch_parallel(xa, w, mu, sg, out, threads)
+        finally:
+            _PARALLEL_LOCK.release()
+    else:
         _k.log_density_batch(xa, w, mu, sg, out)
     return out
 
