@@ -22,6 +22,8 @@ from fingerloc.experiments.carmen import (
 from fingerloc.io.carmen import flaser_bearings
 from fingerloc.sensors import Scan
 
+from ._cli import run_cli as _run_cli
+
 # ---- protocol ------------------------------------------------------------------------------------
 
 # Ten scans: 0..4 map, 5..9 query.
@@ -269,17 +271,6 @@ def test_run_benchmark_errors(tmp_path):
     with pytest.raises(InvalidParameterError, match="unknown method"):
         run_benchmark([p], ["baseline-nope"])
 
-
-def _run_cli(capsys, *args):
-    from fingerloc.cli import main
-
-    code = 0
-    try:
-        main(list(args))
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_bench_carmen(tmp_path, capsys):

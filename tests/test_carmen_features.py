@@ -4,19 +4,10 @@ import gzip
 
 import numpy as np
 
-from fingerloc.cli import main
 from fingerloc.io.carmen import flaser_bearings
 from fingerloc.io.jsonl import read_observations
 
-
-def run(capsys, *args):
-    code = 0
-    try:
-        main([str(a) for a in args])
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from ._cli import run_cli as run
 
 
 def room_ranges(n=181, w=6.0, h=4.0, px=3.0, py=1.0):

@@ -4,17 +4,7 @@ import sys
 
 import pytest
 
-from fingerloc.cli import main
-
-
-def run(capsys, *args):
-    code = 0
-    try:
-        main(list(args))
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from ._cli import run_cli as run
 
 
 def test_version_and_help(capsys):

@@ -6,20 +6,10 @@ import numpy as np
 from PIL import Image
 
 from fingerloc.angles import dist_as
-from fingerloc.cli import main
 from fingerloc.io.jsonl import read_observations
 
+from ._cli import run_cli as run
 from .features_world import make_donut, paint_panorama
-
-
-def run(capsys, *args):
-    code = 0
-    try:
-        main([str(a) for a in args])
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def save(path, img, **kw):

@@ -8,6 +8,8 @@ from fingerloc.errors import DataFormatError, InvalidParameterError
 from fingerloc.io.carmen import ReadStats
 from fingerloc.io.rosbag import bag_info, is_bag_path, iter_bag_scans, read_bag_scans, scan_topics
 
+from ._cli import run_cli as _run
+
 TFMSG = "geometry_msgs/TransformStamped[] transforms"
 
 
@@ -238,17 +240,6 @@ def test_ros2_storage_file_directly(tmp_path):
 
 # ---- fingerloc features on bags ------------------------------------------------------------------
 
-
-def _run(capsys, *args):
-    from fingerloc.cli import main
-
-    code = 0
-    try:
-        main([str(a) for a in args])
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def _box_with_beacons(n=271, fov_deg=270.0):

@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 
-from fingerloc.cli import main
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.table1 import (
     DEFAULT_N_EDGES,
@@ -20,15 +19,7 @@ from fingerloc.experiments.table1 import (
 )
 from fingerloc.mog import fit_mixtures
 
-
-def run(capsys, *args):
-    code = 0
-    try:
-        main(list(args))
-    except SystemExit as e:
-        code = int(e.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from ._cli import run_cli as run
 
 
 def test_paper_table_is_the_papers():
