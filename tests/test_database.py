@@ -107,6 +107,9 @@ def test_cli_learn_localize_places(tmp_path):
     assert set(rec["terms"]) == {"VE", "CP", "Ex", "B", "Fp"}
     r = _cli("places", "--db", str(db))
     assert r.returncode == 0 and "a" in r.stdout
+    # the file order gave the place graph: 5 stays in each place, a->b and b->c once
+    edges = read_graph_edges(db)
+    assert edges[("a", "a")] == 5 and edges[("a", "b")] == 1 and edges[("b", "c")] == 1
     # extending with a different option is an error
     r = _cli("learn", str(train), "--db", str(db), "-k", "4")
     assert r.returncode == 2 and "n_components=3" in r.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from pathlib import Path
@@ -57,10 +58,13 @@ def learn_cmd(
     """Learn places from labelled observations into a place database.
 
     When the database exists, new places are added and places named again
-    are extended; the other places are not refit. Options then default to the
+    are extended; the other places are not refit. The order of the
+    observations in the file adds transitions to the stored place graph
+    (used by ``fingerloc track``). Options then default to the
     database's own, and an option that differs from them is an error.
     """
-    from ..map.database import load_model, save_model
+    from ..map.database import load_model, read_graph_edges, save_model
+    from ..map.graph import PlaceGraph
 
     given: dict[str, Any] = {
         "n_components": components,
@@ -79,8 +83,10 @@ def learn_cmd(
     if missing:
         raise InvalidParameterError(f"{data}: observation {missing[0]} has no 'place' label; learn needs labels")
     t0 = time.perf_counter()
+    edges: dict[tuple[str, str], int] = {}
     if db.exists():
         model = load_model(db)
+        edges = read_graph_edges(db)
         stored = model.get_params()
         for k, v in given.items():
             sv = stored[k]
@@ -99,7 +105,11 @@ def learn_cmd(
     else:
         model = PlaceModel(**given).fit(obs)
         verb = f"learned {len(model.places_)} place(s)"
-    size = save_model(model, db)
+    # The place graph: transitions between consecutive observations of the file, added to the stored ones.
+    graph = PlaceGraph([str(c) for c in model.classes_], edges)
+    for a, b in itertools.pairwise(obs):
+        graph.add_transition(str(a.label), str(b.label))
+    size = save_model(model, db, graph_edges=graph.edges())
     err_console.print(
         f"{verb} from {len(obs)} observation(s) in {time.perf_counter() - t0:.2f} s; "
         f"{db}: {len(model.places_)} place(s), {size} bytes"
