@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .. import __version__
 
@@ -24,6 +28,21 @@ app.add_typer(reproduce_app, name="reproduce")
 console = Console(highlight=False)
 #: Progress bars and notes, on stderr so stdout stays clean for pipes.
 err_console = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+@contextmanager
+def trial_progress(label: str, total: int) -> Iterator[Callable[[int], None]]:
+    """A progress bar on stderr over ``total`` trials; yields ``on_trial(done)``."""
+    with Progress(
+        TextColumn(label),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("trials", total=total)
+        yield lambda done: progress.update(task, completed=done)
 
 
 def _version(value: bool) -> None:

@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .app import console, err_console, reproduce_app
+from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
 # The defaults of fingerloc.experiments.table1 (DEFAULT_PLACE_SPREAD_DEG, DEFAULT_N_EDGES), repeated here so
@@ -47,15 +46,7 @@ def table1_cmd(
     from ..experiments.table1 import run_table1
 
     spread, edges = place_spread_deg, n_edges
-    with Progress(
-        TextColumn("Table I"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-    ) as progress:
-        task = progress.add_task("trials", total=trials)
+    with trial_progress("Table I", trials) as on_trial:
         res = run_table1(
             trials=trials,
             seed=seed,
@@ -64,7 +55,7 @@ def table1_cmd(
             noise_deg=noise_deg,
             observation_model=model,
             evaluation="held-out" if held_out else "resubstitution",
-            on_trial=lambda done: progress.update(task, completed=done),
+            on_trial=on_trial,
         )
     acc, se, paper = res.accuracy * 100, res.stderr * 100, res.paper()
     table = Table(

@@ -7,10 +7,9 @@ from typing import TYPE_CHECKING
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .app import console, err_console, reproduce_app
+from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
 if TYPE_CHECKING:
@@ -144,21 +143,13 @@ def robot_cmd(
     from ..experiments.robot import RobotProtocol, run_robot, small_protocol
 
     protocol = small_protocol(similarity=similarity) if quick else RobotProtocol(similarity=similarity)
-    with Progress(
-        TextColumn("robot experiment"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-    ) as progress:
-        task = progress.add_task("trials", total=trials)
+    with trial_progress("robot experiment", trials) as on_trial:
         res = run_robot(
             trials=trials,
             seed=seed,
             protocol=protocol,
             workers=workers,
-            on_trial=lambda done: progress.update(task, completed=done),
+            on_trial=on_trial,
         )
     sim_note = "default similarity" if similarity is None else f"similarity {similarity:g}"
     print_robot_tables(res, console, title_note=f"{sim_note}, seed {seed}")
