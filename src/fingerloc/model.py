@@ -496,7 +496,7 @@ class PlaceModel:
 
             has = np.array([o.ranges is not None for o in obs])
             desc = np.zeros((len(obs), self._range_bins().size + 1))
-            desc[has] = np.stack([self._range_descriptor(o) for o in obs if o.ranges is not None])
+            desc[has] = self._range_refs  # the descriptors _index_references made, in the same order
             d = cdist(desc[rows], desc, metric="cityblock")
             d[:, ~has] = np.inf
             d[~has[rows]] = np.inf
