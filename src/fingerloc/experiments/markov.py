@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
-from ..map.filter import FilterResult, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
+from ..map.filter import FilterResult, MarkovFilter, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
 from ..map.graph import PlaceGraph, nearest_place_sequence
 from ..sensors import Scan
 from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_method, true_place_ranks
@@ -294,6 +294,154 @@ def _scancontext_filtered() -> Method:
     return FilteredMethod("baseline-scancontext")
 
 
+class PoseFilteredMethod(FilteredMethod):
+    """A single-shot method followed by the pose particle filter (:mod:`fingerloc.map.pose_filter`).
+
+    Like :class:`FilteredMethod` (same base fit and likelihood scale
+    ``beta``), but the filter tracks the robot's pose in the mapping frame
+    with the odometry *increments* (direction and turn, not only distance).
+    Set from the mapping pass only: the place centres and the protocol's
+    radius; the start positions are the mapping scans' positions; the
+    kidnapping probability per observation is ``1 / (n_train + 2)`` (Laplace's
+    rule over the mapping pass's observations, as the discrete filter's
+    mixing term); ``outlier`` and the motion noise are the filter's defaults.
+    Observations are tempered (:func:`~fingerloc.map.pose_filter.observation_weights`):
+    one counts fully after the robot has travelled the place spacing (2 m,
+    the map's own scale: views closer than that are one place) or turned by
+    the laser's field of view (a disjoint view), in proportion before.
+
+    The shared logs hold only corrected poses, so the odometry is simulated:
+    the exact increments corrupted by :class:`~fingerloc.map.pose_filter.OdometryError`
+    (``odometry="simulated"``, seeded) or left exact (``odometry="exact"``).
+
+    Parameters
+    ----------
+    base : str
+    odometry : {"simulated", "exact"}, default "simulated"
+    n_particles : int, default 3000
+    outlier : float, default 0.1
+    seed : int, default 0
+        Seeds the simulated odometry and the particle filter.
+    calibrate : bool, default True
+        Fit ``beta`` (:class:`FilteredMethod`).
+    temper : bool, default True
+        Weigh observations by the motion since the previous one.
+    odometry_error : float, default 1.0
+        Factor on every error of the simulated odometry (0 = exact).
+    """
+
+    name = "pose-filtered"
+
+    def __init__(
+        self,
+        base: str,
+        *,
+        odometry: str = "simulated",
+        n_particles: int = 3000,
+        outlier: float = 0.1,
+        seed: int = 0,
+        calibrate: bool = True,
+        temper: bool = True,
+        odometry_error: float = 1.0,
+        relocalize: bool = True,
+    ) -> None:
+        super().__init__(base, calibrate=calibrate)
+        self.temper = temper
+        self.relocalize = relocalize
+        if not (math.isfinite(odometry_error) and odometry_error >= 0):
+            raise InvalidParameterError(f"odometry_error must be a finite factor >= 0, got {odometry_error!r}")
+        self.odometry_error = odometry_error
+        if odometry not in ("simulated", "exact"):
+            raise InvalidParameterError(f"odometry must be 'simulated' or 'exact', got {odometry!r}")
+        self.odometry_source = odometry
+        self.n_particles = n_particles
+        self.outlier = outlier
+        self.seed = seed
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> PoseFilteredMethod:
+        """Fit the base method and ``beta`` (:meth:`FilteredMethod.fit`), then set up the pose filter."""
+        from ..map.pose_filter import OdometryError, PoseFilter, odometry_increments, simulate_odometry
+        from .carmen import PLACE_RADIUS_M, PLACE_SPACING_M
+
+        super().fit(scans, labels)
+        all_scans, split = self._need_context()
+        poses = _full_poses(all_scans)
+        self.kidnap_ = 1.0 / (len(scans) + 2)
+        self.filter_ = PoseFilter(
+            split.centres,
+            PLACE_RADIUS_M,
+            n_particles=self.n_particles,
+            kidnap=self.kidnap_,
+            outlier=self.outlier,
+            start=poses[: split.n_mapping, :2],
+            random_state=self.seed,
+        )
+        q = poses[split.n_mapping :]
+        if self.odometry_source == "simulated" and self.odometry_error > 0:
+            e = OdometryError()
+            err = OdometryError(*(self.odometry_error * getattr(e, f) for f in OdometryError.__slots__))
+            self.increments_ = simulate_odometry(q, err, random_state=self.seed + 1)
+        else:
+            self.increments_ = odometry_increments(q)
+        fov = [sum(w for _, w in s.fov) for s in all_scans[: split.n_mapping]]
+        self.temper_metres_ = PLACE_SPACING_M
+        self.temper_radians_ = float(np.median(fov)) if fov else math.pi
+        return self
+
+    def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
+        """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
+        from ..map.pose_filter import observation_weights, run_pose_filter
+
+        ll = np.asarray(log_likelihood, dtype=np.float64)
+        inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:]
+        w = None
+        if self.temper:
+            observed = ~np.all(np.isnan(ll), axis=1)
+            w = observation_weights(inc, observed, metres=self.temper_metres_, radians=self.temper_radians_)
+        pf = MarkovFilter(self.transition_) if self.relocalize else None
+        return run_pose_filter(ll, inc, self.filter_, weights=w, place_filter=pf)
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """The pose filter's log-posterior over places at each query, shape (n_queries, P)."""
+        _, split = self._need_context()
+        if len(scans) != split.n_queries:
+            raise InvalidParameterError(
+                f"{self.name} scores the split's {split.n_queries} queries, got {len(scans)} scans"
+            )
+        self.query_scores_ = np.asarray(self.base_.score(scans), dtype=np.float64)
+        ll, _ = self.step_log_likelihoods(self.query_scores_)
+        self.result_ = self.run_steps(ll, np.vstack([np.zeros((1, 3)), self.increments_]))
+        return self.result_.log_posterior[split.query_idx - split.n_mapping]
+
+
+def _full_poses(scans: Sequence[Scan]) -> FArray:
+    if any(s.pose is None for s in scans):
+        raise InvalidParameterError("every scan needs a pose (x, y, theta) for odometry")
+    return np.array([s.pose for s in scans if s.pose is not None], dtype=np.float64).reshape(-1, 3)
+
+
+@register_method("fingerprint-odometry")
+def _fingerprint_odometry() -> Method:
+    return PoseFilteredMethod("fingerprint")
+
+
+@register_method("fingerprint-odometry-exact", default=False)
+def _fingerprint_odometry_exact() -> Method:
+    # Ablation: the corrected poses' increments as an error-free odometry.
+    return PoseFilteredMethod("fingerprint", odometry="exact")
+
+
+@register_method("fingerprint-odometry-untempered", default=False)
+def _fingerprint_odometry_untempered() -> Method:
+    # Ablation: every observation counts as independent evidence.
+    return PoseFilteredMethod("fingerprint", temper=False)
+
+
+@register_method("baseline-histogram-odometry", default=False)
+def _histogram_odometry() -> Method:
+    return PoseFilteredMethod("baseline-histogram")
+
+
 # ---------------------------------------------------------------------------------------------------
 # Kidnapped robot
 # ---------------------------------------------------------------------------------------------------
@@ -312,6 +460,9 @@ class TrackingData:
     truth : ndarray of int, shape (n_steps,)
         True place of each query-pass step (``-1`` outside every place's radius).
     positions : ndarray, shape (n_steps, 2)
+    increments : ndarray, shape (n_steps, 3), optional
+        Odometry from the previous step to each step (row 0 zero); needed by
+        a :class:`PoseFilteredMethod`.
     """
 
     method: FilteredMethod
@@ -319,22 +470,46 @@ class TrackingData:
     distances: FArray
     truth: IArray
     positions: FArray
+    increments: FArray | None = None
+
+    def run(self, idx: Any = None) -> FilterResult:
+        """The method's filter over the steps ``idx`` (default all), in that order.
+
+        Row 0 of the chosen steps starts the filter (its distance / increment
+        is not used); a later step's motion is its own recorded one, so a
+        spliced sequence carries the second stretch's own odometry across the
+        splice (an unobserved kidnapping).
+        """
+        sel = np.arange(self.truth.size) if idx is None else np.asarray(idx, dtype=np.int64)
+        ll = self.log_likelihood[sel]
+        if isinstance(self.method, PoseFilteredMethod):
+            if self.increments is None:
+                raise InvalidParameterError("a pose filter needs the steps' odometry increments")
+            return self.method.run_steps(ll, self.increments[sel])
+        dist = self.distances[sel].copy()
+        if dist.size:
+            dist[0] = 0.0
+        return run_filter(ll, self.method.transition_, distances=dist)
 
 
-def prepare_tracking(scans: Sequence[Scan], base: str = "fingerprint", **options: Any) -> TrackingData:
-    """Split a log (benchmark protocol), fit ``FilteredMethod(base)`` and score its queries."""
+def prepare_tracking(
+    scans: Sequence[Scan], base: str = "fingerprint", *, pose: bool = False, **options: Any
+) -> TrackingData:
+    """Split a log (benchmark protocol), fit ``FilteredMethod(base)`` (``pose``: :class:`PoseFilteredMethod`) and score its queries."""
     pos = _positions(scans)
     split = make_split(pos)
     if split.n_queries == 0:
         raise InvalidParameterError("the log's query pass has no scan within a place's radius")
-    m = FilteredMethod(base, **options)
+    m = PoseFilteredMethod(base, **options) if pose else FilteredMethod(base, **options)
     m.set_context(scans, split)
     m.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
     qs = np.asarray(m.base_.score([scans[i] for i in split.query_idx.tolist()]), dtype=np.float64)
     ll, dist = m.step_log_likelihoods(qs)
     truth = np.full(split.n_scans - split.n_mapping, -1, dtype=np.int64)
     truth[split.query_idx - split.n_mapping] = split.query_labels
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :])
+    inc = getattr(m, "increments_", None)
+    steps_inc = None if inc is None else np.vstack([np.zeros((1, 3)), inc])
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc)
 
 
 def with_synthetic_likelihood(
@@ -354,7 +529,7 @@ def with_synthetic_likelihood(
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
     ll[np.flatnonzero(q), data.truth[q]] += separation
-    return TrackingData(data.method, ll, data.distances, data.truth, data.positions)
+    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)
 
 
 @dataclass(slots=True)
@@ -368,7 +543,11 @@ class KidnapResult:
         ``jump_m`` (metres between the two stretches), ``recover_steps`` (steps
         after the jump until the kidnapped filter's best place agrees with the
         best place of the filter that was never kidnapped, and keeps agreeing
-        to the end of the stretch; ``None`` if it never does), ``merge_steps``
+        to the end of the stretch; ``None`` if it never does),
+        ``recover_observed_steps`` (the same, comparing only at the observed
+        (query) steps, where an answer is scored: a particle filter's best
+        place between places is a near-tie that two runs break differently),
+        ``merge_steps``
         (the same for the two posteriors' total-variation distance falling
         below :data:`MERGED_TV` for good),
         ``first_right_steps`` (steps after the jump until the best place is
@@ -382,6 +561,7 @@ class KidnapResult:
     def summary(self, within: int = 10) -> dict[str, Any]:
         """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
         rec = [t["recover_steps"] for t in self.trials]
+        rec_seen = [t.get("recover_observed_steps") for t in self.trials]
         merged = [t["merge_steps"] for t in self.trials if t["merge_steps"] is not None]
         done = [r for r in rec if r is not None]
         first = [t["first_right_steps"] for t in self.trials if t["first_right_steps"] is not None]
@@ -393,6 +573,10 @@ class KidnapResult:
             "max_recover_steps": int(max(done)) if done else None,
             f"within_{within}": float(np.mean([r is not None and r <= within for r in rec])) if rec else None,
             "median_recover_observations": _median([t["recover_observations"] for t in self.trials]),
+            "median_recover_observed_steps": _median(rec_seen),
+            f"observed_within_{within}": float(np.mean([r is not None and r <= within for r in rec_seen]))
+            if rec_seen
+            else None,
             "merged": len(merged),
             "median_merge_steps": float(np.median(merged)) if merged else None,
             "median_merge_observations": _median([t["merge_observations"] for t in self.trials]),
@@ -450,8 +634,7 @@ def kidnap_experiment(
         raise InvalidParameterError(f"n_trials >= 1 and stretch >= 2 are needed, got {n_trials}, {stretch}")
     rng = random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
     n = data.truth.size
-    t = data.method.transition_
-    full = run_filter(data.log_likelihood, t, distances=data.distances)
+    full = data.run()
     has_q = data.truth >= 0
     b_ok = [
         b
@@ -472,14 +655,14 @@ def kidnap_experiment(
     for k in sorted(chosen.tolist()):
         a, b = pairs[k]
         idx = np.r_[a : a + stretch, b : b + stretch]
-        dist = data.distances[idx].copy()
-        dist[0] = 0.0
-        res = run_filter(data.log_likelihood[idx], t, distances=dist)
+        res = data.run(idx)
         kid = res.best[stretch:]
         ref = full.best[b : b + stretch]
         truth = data.truth[b : b + stretch]
         agree = kid == ref
         recover = next((j for j in range(stretch) if np.all(agree[j:])), None)
+        seen = has_q[b : b + stretch]
+        recover_seen = next((j for j in range(stretch) if np.all(agree[j:][seen[j:]])), None)
         tv = 0.5 * np.abs(np.exp(res.log_posterior[stretch:]) - np.exp(full.log_posterior[b : b + stretch])).sum(axis=1)
         merged = next((j for j in range(stretch) if np.all(tv[j:] < MERGED_TV)), None)
 
@@ -493,6 +676,7 @@ def kidnap_experiment(
                 "b_start": int(b),
                 "jump_m": float(math.hypot(*(data.positions[b] - data.positions[a + stretch - 1]))),
                 "recover_steps": recover,
+                "recover_observed_steps": recover_seen,
                 "merge_steps": merged,
                 "recover_observations": None if recover is None else int(has_q[b : b + recover + 1].sum()),
                 "merge_observations": None if merged is None else int(has_q[b : b + merged + 1].sum()),
@@ -512,17 +696,24 @@ def run_kidnap(
     min_jump_m: float = 10.0,
     seed: int = 0,
     synthetic: float | None = None,
+    pose: bool = False,
+    odometry_error: float = 1.0,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
 
     ``synthetic``: replace the base method's scores by a synthetic front end
-    with this separation (:func:`with_synthetic_likelihood`).
+    with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
+    pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
+    simulated odometry errors times ``odometry_error``) instead of the
+    discrete filter over places.
     """
     from .carmen import load_log_scans, log_name
 
     out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
-                                                  "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic}}  # fmt: skip
+                                                  "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
+                                                  "filter": "pose" if pose else "places",
+                                                  "odometry_error": odometry_error if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -532,7 +723,8 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        data = prepare_tracking(scans, base)
+        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error} if pose else {}
+        data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)
         res = kidnap_experiment(data, name=name, n_trials=n_trials, stretch=stretch, min_jump_m=min_jump_m,
@@ -558,7 +750,7 @@ def run_kidnap(
 def tracking_ranks(data: TrackingData) -> tuple[IArray, IArray]:
     """True-place ranks at the query steps: single-shot (the rows alone) and filtered along the query pass."""
     q = data.truth >= 0
-    res = run_filter(data.log_likelihood, data.method.transition_, distances=data.distances)
+    res = data.run()
     single = true_place_ranks(
         np.where(np.isnan(data.log_likelihood[q]), -np.inf, data.log_likelihood[q]), data.truth[q]
     )
