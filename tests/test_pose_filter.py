@@ -277,3 +277,64 @@ def test_pose_filtered_benchmark_end_to_end(rooms_log):  # noqa: F811
     assert figs["top1"] >= js["logs"]["rooms"]["methods"]["baseline-histogram"]["top1"] - 1e-9
     with pytest.raises(InvalidParameterError, match="odometry"):
         PoseFilteredMethod("fingerprint", odometry="wheels")
+
+
+def test_cli_track_pose_filter(rooms_log, tmp_path, capsys):  # noqa: F811
+    from tests._cli import run_cli
+
+    db = tmp_path / "rooms.sqlite"
+    out = tmp_path / "t.json"
+    code, text, err = run_cli(
+        capsys, "track", str(rooms_log), "--db", str(db), "--map", "--filter", "pose", "--json", str(out), "-q"
+    )
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    s = js["summary"]
+    assert s["filter"] == "pose" and s["steps"] == 11 and s["filtered"]["labelled"] == 9
+    assert np.isfinite(s["filtered"]["top1"])
+    assert "pose filter" in text
+    code, _, err = run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--filter", "wheels")
+    assert code == 2 and err.startswith("error:") and "--filter" in err
+    code, _, err = run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--filter", "pose", "--radius", "-1")
+    assert code == 2 and "--radius" in err
+
+
+def test_cli_track_pose_filter_jsonl(tmp_path, capsys):
+    """JSON Lines: the places' positions are the mean poses of their views in --graph-from."""
+    from fingerloc.io.jsonl import write_observations
+    from fingerloc.map.database import save_model
+    from fingerloc.model import PlaceModel
+    from fingerloc.observation import Observation
+    from tests._cli import run_cli
+
+    rng = np.random.default_rng(0)
+    bearings = {"a": [10, 100, 200], "b": [40, 150, 300], "c": [70, 220, 330]}
+    where = {"a": 0.0, "b": 4.0, "c": 8.0}
+
+    def obs(lab, dx=0.0, pose=True):
+        return Observation.from_degrees(
+            {"VE": (np.array(bearings[lab]) + rng.normal(0, 3, 3)).tolist()},
+            label=lab,
+            pose=[where[lab] + dx, 0.0, 0.0] if pose else None,
+        )
+
+    train = [obs(lab, dx) for lab in "abc" for dx in (-0.3, 0.3)]
+    db = tmp_path / "p.sqlite"
+    save_model(PlaceModel(n_components=2, terms=("VE",)).fit(train), db)
+    tr = tmp_path / "train.jsonl"
+    write_observations(tr, train)
+    q = tmp_path / "q.jsonl"
+    write_observations(q, [obs(lab) for lab in "abcba"])
+    out = tmp_path / "t.json"
+    code, text, err = run_cli(
+        capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--filter", "pose", "--json", str(out)
+    )
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    assert js["summary"]["filter"] == "pose" and js["summary"]["filtered"]["top1"] >= 0.8
+    # without the views' positions the pose filter cannot run: one line, exit 2
+    code, _, err = run_cli(capsys, "track", str(q), "--db", str(db), "--filter", "pose")
+    assert code == 2 and err.startswith("error:") and "--graph-from" in err
+    write_observations(q, [obs("a", pose=False)])
+    code, _, err = run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--filter", "pose")
+    assert code == 2 and "pose" in err

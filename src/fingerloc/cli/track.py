@@ -55,18 +55,43 @@ def track_cmd(
         help="JSON Lines: labelled observations in the order the robot passed them (e.g. the file given to "
         "'learn'); their consecutive places give the graph, stored into --db (and odometry when they have poses).",
     ),
+    filter_kind: str = typer.Option(
+        "places",
+        "--filter",
+        help="'places': discrete filter over the places; 'pose': particle filter over the robot's pose with the "
+        "odometry increments (needs poses: a CARMEN log, or JSON Lines with --graph-from, both with poses).",
+    ),
+    odometry_error: float = typer.Option(
+        0.0,
+        "--odometry-error",
+        help="Pose filter: simulate wheel-odometry errors on the poses' increments, times this factor (0 = the "
+        "poses' own increments).",
+    ),
+    radius: float | None = typer.Option(
+        None, help="Pose filter, JSON Lines: metres within which a pose is at a place [half the median spacing]."
+    ),
+    seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
 ) -> None:
-    """Filter the posterior over places along a sequence of observations (a discrete Bayes filter).
+    """Filter the posterior over places along a sequence of observations.
 
     Per step: the best place, its probability and the posterior's entropy
     (bits); with known places, the filtered and single-shot top-1 and mean
-    rank of the true place.
+    rank of the true place. ``--filter places`` (default) is the discrete
+    Bayes filter on the place graph; ``--filter pose`` the particle filter of
+    ``fingerloc.map.pose_filter``, which follows the odometry's direction and
+    turn, not only the distance.
     """
     from ..map.filter import TransitionModel, run_filter
 
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
+    if filter_kind not in ("places", "pose"):
+        raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
+    if not (math.isfinite(odometry_error) and odometry_error >= 0):
+        raise InvalidParameterError(f"--odometry-error must be a finite factor >= 0, got {odometry_error!r}")
+    if radius is not None and not (math.isfinite(radius) and radius > 0):
+        raise InvalidParameterError(f"--radius must be a positive number of metres, got {radius!r}")
     if scale is not None and not (math.isfinite(scale) and scale > 0):
         raise InvalidParameterError(f"--scale must be a positive number, got {scale!r}")
     from .logs import detect_kind
@@ -78,7 +103,7 @@ def track_cmd(
     if kind == "carmen":
         if graph_from is not None:
             raise InvalidParameterError("--graph-from is for JSON Lines; a CARMEN log's graph comes from --map")
-        ll, truth, dist, graph, classes, beta, metres, names = _carmen_steps(
+        ll, truth, dist, graph, classes, beta, metres, names, geo = _carmen_steps(
             data, db, map_log=map_log, observe=observe, scale=scale
         )
         if metres_per_move is not None:
@@ -86,7 +111,7 @@ def track_cmd(
     else:
         if map_log:
             raise InvalidParameterError("--map needs a CARMEN log (learn JSON Lines places with 'fingerloc learn')")
-        ll, truth, dist, graph, classes, beta, metres, names = _jsonl_steps(
+        ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
             data, db, scale=scale, graph_from=graph_from
         )
         if metres_per_move is not None:
@@ -98,7 +123,10 @@ def track_cmd(
         transition = TransitionModel.from_graph(
             graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres
         )
-    res = run_filter(beta * ll, transition, distances=dist)
+    if filter_kind == "pose":
+        res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
+    else:
+        res = run_filter(beta * ll, transition, distances=dist)
     single = np.where(np.isnan(ll), 0.0, ll)
     steps: list[dict[str, Any]] = []
     for t in range(ll.shape[0]):
@@ -132,6 +160,7 @@ def track_cmd(
         "likelihood_scale": beta,
         "metres_per_move": metres,
         "uniform_mix": transition.uniform_mix,
+        "filter": filter_kind,
         "filtered": _summary(res.best, res.log_posterior, np.where(observed, truth, -1)),
         "single_shot": _summary(np.argmax(single, axis=1), single, np.where(observed, truth, -1)),
     }
@@ -142,13 +171,57 @@ def track_cmd(
             f"single-shot top-1 {s['top1']:.3f}, mean rank {s['mean_rank']:.2f}",
             soft_wrap=True,
         )
-    console.print(
-        f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
-        f"beta {beta:.3g}, uniform mixing {transition.uniform_mix:.3g}, "
-        f"odometry {'off' if metres is None else f'{metres:.2f} m per place change'}",
-        soft_wrap=True,
-    )
+    if filter_kind == "pose":
+        console.print(
+            f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
+            f"beta {beta:.3g}, pose filter (odometry increments, error factor {odometry_error:g})",
+            soft_wrap=True,
+        )
+    else:
+        console.print(
+            f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
+            f"beta {beta:.3g}, uniform mixing {transition.uniform_mix:.3g}, "
+            f"odometry {'off' if metres is None else f'{metres:.2f} m per place change'}",
+            soft_wrap=True,
+        )
     write_json(json_out, {"steps": steps, "summary": summary})
+
+
+def _pose_filter_run(
+    ll: np.ndarray, transition: Any, geo: dict[str, Any], *, radius: float | None, odometry_error: float, seed: int
+) -> Any:
+    """The pose filter along the steps (``geo``: step poses, place centres, start positions, radius, n_train)."""
+    from ..map.filter import MarkovFilter
+    from ..map.pose_filter import (
+        OdometryError,
+        PoseFilter,
+        observation_weights,
+        odometry_increments,
+        run_pose_filter,
+        simulate_odometry,
+    )
+
+    if geo.get("poses") is None or geo.get("centres") is None:
+        raise InvalidParameterError(geo.get("why", "the pose filter needs poses of the steps and of the places"))
+    centres = np.asarray(geo["centres"], dtype=np.float64)
+    r = radius if radius is not None else geo.get("radius")
+    if r is None:
+        if centres.shape[0] < 2:
+            raise InvalidParameterError("give --radius: one place has no spacing to take it from")
+        d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+        np.fill_diagonal(d, np.inf)
+        r = 0.5 * float(np.median(d.min(axis=1)))
+    poses = np.asarray(geo["poses"], dtype=np.float64)
+    if odometry_error > 0:
+        e = OdometryError()
+        err = OdometryError(*(odometry_error * getattr(e, f) for f in OdometryError.__slots__))
+        inc = simulate_odometry(poses, err, random_state=seed + 1)
+    else:
+        inc = odometry_increments(poses)
+    f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), start=geo["start"], random_state=seed)
+    observed = ~np.all(np.isnan(ll), axis=1)
+    w = observation_weights(inc, observed, metres=2.0 * float(r), radians=float(geo.get("fov", math.pi)))
+    return run_pose_filter(ll, inc, f, weights=w, place_filter=MarkovFilter(transition))
 
 
 def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
@@ -161,6 +234,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
     metres = None
+    geo: dict[str, Any] = {"why": "the pose filter needs the places' positions: give --graph-from with poses"}
     if graph_from is not None:
         train = read_observations(graph_from)
         seq = [o.label for o in train]
@@ -174,7 +248,15 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
         err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
         if len(train) > 1 and all(o.pose is not None for o in train):
             col = {c: j for j, c in enumerate(classes)}
-            metres = metres_per_move([o.pose[:2] for o in train if o.pose is not None], [col[str(lab)] for lab in seq])
+            tp = np.array([o.pose for o in train if o.pose is not None], dtype=np.float64)
+            lab_idx = np.array([col[str(lab)] for lab in seq], dtype=np.int64)
+            metres = metres_per_move(tp[:, :2], lab_idx)
+            if np.all(np.isin(np.arange(len(classes)), lab_idx)):
+                centres = np.array([tp[lab_idx == j, :2].mean(axis=0) for j in range(len(classes))])
+                geo = {"centres": centres, "start": tp[:, :2], "n_train": len(train),
+                       "fov": 2 * math.pi * float(np.median([o.fov_coverage() for o in train]))}  # fmt: skip
+            else:
+                geo = {"why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"}
     graph = load_graph(db, classes)
     obs = read_observations(data)
     if not obs:
@@ -185,12 +267,15 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     dist = None
     if all(o.pose is not None for o in obs):
         dist = step_distances([o.pose[:2] for o in obs if o.pose is not None])
+        geo["poses"] = np.array([o.pose for o in obs if o.pose is not None], dtype=np.float64)
+    elif "centres" in geo:
+        geo = {"why": f"{data}: the pose filter needs a pose on every observation"}
     names = [f"{data.name}:{i + 1}" for i in range(len(obs))]
-    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names
+    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names, geo
 
 
 def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
-    from ..experiments.carmen import load_log_scans, make_method, make_split
+    from ..experiments.carmen import PLACE_RADIUS_M, load_log_scans, make_method, make_split
     from ..experiments.markov import FilteredMethod, mapping_graph, step_distances
     from ..map.database import load_model, save_model
     from ..map.graph import load_graph
@@ -239,7 +324,16 @@ def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: f
         truth[split.query_idx - split.n_mapping] = [inv[int(q)] for q in split.query_labels.tolist()]
     dist = step_distances(pos[split.n_mapping :])
     names = [f"{data.name}#{split.n_mapping + i}" for i in range(len(qscans))]
-    return ll, truth, dist, graph, classes, beta, metres, names
+    geo = {
+        "poses": np.array([s.pose for s in qscans], dtype=np.float64),
+        "centres": split.centres[order] if sorted(order) == list(range(split.n_places)) else None,
+        "why": f"{db}: its places are not the log's places (learn them with --map)",
+        "start": pos[: split.n_mapping],
+        "radius": PLACE_RADIUS_M,
+        "n_train": split.n_train,
+        "fov": float(np.median([sum(w for _, w in s.fov) for s in scans[: split.n_mapping]])),
+    }
+    return ll, truth, dist, graph, classes, beta, metres, names, geo
 
 
 @bench_app.command("kidnap")
