@@ -338,3 +338,13 @@ def test_cli_track_pose_filter_jsonl(tmp_path, capsys):
     write_observations(q, [obs("a", pose=False)])
     code, _, err = run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--filter", "pose")
     assert code == 2 and "pose" in err
+
+
+def test_speed_section_times_both_filters():
+    from fingerloc.experiments.speed_markov import _pose_filter_times
+
+    figs = _pose_filter_times(quick=True)
+    assert set(figs) == {
+        f"pose_filter_us_per_{kind}_{p}_places" for kind in ("prediction", "observed_step") for p in (50, 500)
+    }
+    assert all(v > 0 for v in figs.values())

@@ -1,4 +1,4 @@
-"""Speed of the Markov filter over places (``fingerloc bench speed --only markov``)."""
+"""Speed of the Markov filter over places and of the pose filter (``fingerloc bench speed --only markov``)."""
 
 from __future__ import annotations
 
@@ -37,4 +37,31 @@ def markov_section(quick: bool) -> dict[str, Any]:
                     f.step(ll[t], float(dist[t]) if odo else None)
 
             out[f"us_per_step_{p}_places{'_odometry' if odo else ''}"] = 1e6 * best_time(run, repeat=3) / steps
+    out.update(_pose_filter_times(quick))
+    return out
+
+
+def _pose_filter_times(quick: bool) -> dict[str, float]:
+    """Microseconds per pose-filter step, 3,000 particles: a prediction, and a prediction + observation."""
+    from ..map.pose_filter import PoseFilter
+
+    rng = np.random.default_rng(1)
+    steps = 20 if quick else 200
+    out: dict[str, float] = {}
+    for p in (50, 500):
+        centres = np.column_stack([np.arange(p) * 2.0, np.zeros(p)])
+        f = PoseFilter(centres, 1.0, n_particles=3000, kidnap=0.005, random_state=0)
+        ll = rng.normal(size=(steps, p))
+        inc = np.column_stack([rng.uniform(0.3, 1.0, steps), np.zeros(steps), rng.normal(0, 0.1, steps)])
+
+        def predict(f: PoseFilter = f, inc: Any = inc) -> None:
+            for t in range(steps):
+                f.predict(inc[t])
+
+        def observe(f: PoseFilter = f, inc: Any = inc, ll: Any = ll) -> None:
+            for t in range(steps):
+                f.step(ll[t], inc[t], 0.5)
+
+        out[f"pose_filter_us_per_prediction_{p}_places"] = 1e6 * best_time(predict, repeat=3) / steps
+        out[f"pose_filter_us_per_observed_step_{p}_places"] = 1e6 * best_time(observe, repeat=3) / steps
     return out
