@@ -326,7 +326,7 @@ def test_cli_track_pose_filter_jsonl(tmp_path, capsys):
     q = tmp_path / "q.jsonl"
     write_observations(q, [obs(lab) for lab in "abcba"])
     out = tmp_path / "t.json"
-    code, text, err = run_cli(
+    code, _, err = run_cli(
         capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--filter", "pose", "--json", str(out)
     )
     assert code == 0, err
