@@ -190,7 +190,7 @@ def track_cmd(
 def _pose_filter_run(
     ll: np.ndarray, transition: Any, geo: dict[str, Any], *, radius: float | None, odometry_error: float, seed: int
 ) -> Any:
-    """The pose filter along the steps (``geo``: step poses, place centres, start positions, radius, n_train)."""
+    """The pose filter along the steps (``geo``: step poses, place centres, radius, n_train, fov)."""
     from ..map.filter import MarkovFilter
     from ..map.pose_filter import (
         OdometryError,
@@ -218,7 +218,7 @@ def _pose_filter_run(
         inc = simulate_odometry(poses, err, random_state=seed + 1)
     else:
         inc = odometry_increments(poses)
-    f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), start=geo["start"], random_state=seed)
+    f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), random_state=seed)
     observed = ~np.all(np.isnan(ll), axis=1)
     w = observation_weights(inc, observed, metres=2.0 * float(r), radians=float(geo.get("fov", math.pi)))
     return run_pose_filter(ll, inc, f, weights=w, place_filter=MarkovFilter(transition))
@@ -253,7 +253,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
             metres = metres_per_move(tp[:, :2], lab_idx)
             if np.all(np.isin(np.arange(len(classes)), lab_idx)):
                 centres = np.array([tp[lab_idx == j, :2].mean(axis=0) for j in range(len(classes))])
-                geo = {"centres": centres, "start": tp[:, :2], "n_train": len(train),
+                geo = {"centres": centres, "n_train": len(train),
                        "fov": 2 * math.pi * float(np.median([o.fov_coverage() for o in train]))}  # fmt: skip
             else:
                 geo = {"why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"}
@@ -328,7 +328,6 @@ def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: f
         "poses": np.array([s.pose for s in qscans], dtype=np.float64),
         "centres": split.centres[order] if sorted(order) == list(range(split.n_places)) else None,
         "why": f"{db}: its places are not the log's places (learn them with --map)",
-        "start": pos[: split.n_mapping],
         "radius": PLACE_RADIUS_M,
         "n_train": split.n_train,
         "fov": float(np.median([sum(w for _, w in s.fov) for s in scans[: split.n_mapping]])),

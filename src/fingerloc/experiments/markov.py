@@ -301,8 +301,8 @@ class PoseFilteredMethod(FilteredMethod):
     ``beta``), but the filter tracks the robot's pose in the mapping frame
     with the odometry *increments* (direction and turn, not only distance).
     Set from the mapping pass only: the place centres and the protocol's
-    radius; the start positions are the mapping scans' positions; the
-    kidnapping probability per observation is ``1 / (n_train + 2)`` (Laplace's
+    radius; the filter starts uniform over the places (as the discrete
+    filter), near their centres with any heading; the kidnapping probability per observation is ``1 / (n_train + 2)`` (Laplace's
     rule over the mapping pass's observations, as the discrete filter's
     mixing term); ``outlier`` and the motion noise are the filter's defaults.
     Observations are tempered (:func:`~fingerloc.map.pose_filter.observation_weights`):
@@ -373,7 +373,6 @@ class PoseFilteredMethod(FilteredMethod):
             n_particles=self.n_particles,
             kidnap=self.kidnap_,
             outlier=self.outlier,
-            start=poses[: split.n_mapping, :2],
             random_state=self.seed,
         )
         q = poses[split.n_mapping :]

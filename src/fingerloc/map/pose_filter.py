@@ -221,9 +221,12 @@ class PoseFilter:
     outlier : float, default 0.1
         ``rho``: weight of the noise part of the place likelihood (in ``[0, 1]``).
     start : array_like, shape (m, 2), optional
-        Positions the robot may start from (e.g. the mapping run's poses);
-        the initial particles are drawn from them with ``radius / 2`` of
-        jitter and uniform headings. Default: the place centres.
+        Positions the robot may start from, equally likely; the initial
+        particles are drawn from them with ``radius / 2`` of jitter and
+        uniform headings. Default: the place centres (a uniform prior over
+        the places, as the discrete filter's). Positions where the robot
+        spent long (e.g. every scan of a mapping run) weigh the prior towards
+        those places.
     random_state : int or Generator, optional
 
     Attributes
