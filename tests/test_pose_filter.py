@@ -348,3 +348,13 @@ def test_speed_section_times_both_filters():
         f"pose_filter_us_per_{kind}_{p}_places" for kind in ("prediction", "observed_step") for p in (50, 500)
     }
     assert all(v > 0 for v in figs.values())
+
+
+def test_pose_filtered_method_options_are_checked():
+    with pytest.raises(InvalidParameterError, match="kidnap"):
+        PoseFilteredMethod("fingerprint", kidnap=1.0)
+    with pytest.raises(InvalidParameterError, match="odometry_error"):
+        PoseFilteredMethod("fingerprint", odometry_error=-1.0)
+    m = PoseFilteredMethod("fingerprint")
+    with pytest.raises(InvalidParameterError, match="set_context"):
+        m.fit([], np.zeros(0))

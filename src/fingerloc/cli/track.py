@@ -352,6 +352,9 @@ def kidnap_cmd(
     odometry_error: float = typer.Option(
         1.0, "--odometry-error", help="Pose filter: factor on the simulated odometry's errors (0 = exact)."
     ),
+    kidnap: float | None = typer.Option(
+        None, "--kidnap-prob", help="Pose filter: kidnapping probability per observation [1 / (training scans + 2)]."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures and trials as JSON here."),
 ) -> None:
     """Kidnapped robot: splice two distant stretches of each log's query pass; steps until the filter recovers.
@@ -374,6 +377,7 @@ def kidnap_cmd(
             synthetic=synthetic,
             pose=filter_kind == "pose",
             odometry_error=odometry_error,
+            kidnap=kidnap,
             on_progress=lambda s: status.update(s),
         )
     rows = [*((n, lg["summary"]) for n, lg in res["logs"].items()), ("pooled", res["pooled"])]

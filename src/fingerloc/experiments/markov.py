@@ -328,6 +328,11 @@ class PoseFilteredMethod(FilteredMethod):
         Weigh observations by the motion since the previous one.
     odometry_error : float, default 1.0
         Factor on every error of the simulated odometry (0 = exact).
+    relocalize : bool, default True
+        Run the discrete filter alongside; its predicted belief is where a
+        kidnapped robot is looked for (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
+    kidnap : float, optional
+        Kidnapping probability per observation; default ``1 / (n_train + 2)``.
     """
 
     name = "pose-filtered"
@@ -344,8 +349,12 @@ class PoseFilteredMethod(FilteredMethod):
         temper: bool = True,
         odometry_error: float = 1.0,
         relocalize: bool = True,
+        kidnap: float | None = None,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        if kidnap is not None and not (math.isfinite(kidnap) and 0 <= kidnap < 1):
+            raise InvalidParameterError(f"kidnap must be a probability in [0, 1), got {kidnap!r}")
+        self.kidnap = kidnap
         self.temper = temper
         self.relocalize = relocalize
         if not (math.isfinite(odometry_error) and odometry_error >= 0):
@@ -366,7 +375,7 @@ class PoseFilteredMethod(FilteredMethod):
         super().fit(scans, labels)
         all_scans, split = self._need_context()
         poses = _full_poses(all_scans)
-        self.kidnap_ = 1.0 / (len(scans) + 2)
+        self.kidnap_ = 1.0 / (len(scans) + 2) if self.kidnap is None else self.kidnap
         self.filter_ = PoseFilter(
             split.centres,
             PLACE_RADIUS_M,
@@ -697,6 +706,7 @@ def run_kidnap(
     synthetic: float | None = None,
     pose: bool = False,
     odometry_error: float = 1.0,
+    kidnap: float | None = None,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -704,15 +714,17 @@ def run_kidnap(
     ``synthetic``: replace the base method's scores by a synthetic front end
     with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
     pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
-    simulated odometry errors times ``odometry_error``) instead of the
-    discrete filter over places.
+    simulated odometry errors times ``odometry_error``, kidnapping
+    probability ``kidnap`` per observation if given) instead of the discrete
+    filter over places.
     """
     from .carmen import load_log_scans, log_name
 
     out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
                                                   "filter": "pose" if pose else "places",
-                                                  "odometry_error": odometry_error if pose else None}}  # fmt: skip
+                                                  "odometry_error": odometry_error if pose else None,
+                                                  "kidnap": kidnap if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -722,7 +734,7 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error} if pose else {}
+        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
         data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)
