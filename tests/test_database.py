@@ -130,3 +130,21 @@ def test_cli_bad_database_exit_2(tmp_path):
         assert r.returncode == 2
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and db.name in lines[0]
+
+
+def test_cli_learn_weights(tmp_path):
+    obs, labels = dataset()
+    train = tmp_path / "train.jsonl"
+    write_observations(train, [o.with_label(lab) for o, lab in zip(obs, labels, strict=True)])
+    db = tmp_path / "fit.sqlite"
+    r = _cli("learn", str(train), "--db", str(db), "-k", "2", "--terms", "VE,Ex,Fp", "--weights", "fit")
+    assert r.returncode == 0, r.stderr
+    m = load_model(db)
+    assert m.weights == "fit" and set(m.weights_) == {"VE", "Ex", "Fp"}
+    db2 = tmp_path / "fixed.sqlite"
+    r = _cli("learn", str(train), "--db", str(db2), "-k", "2", "--weights", "VE=0.5, Fp=2")
+    assert r.returncode == 0, r.stderr
+    assert load_model(db2).weights == {"VE": 0.5, "Fp": 2.0}
+    for bad in ("VE", "VE=-1", "VE=x", "fitted"):
+        r = _cli("learn", str(train), "--db", str(tmp_path / "x.sqlite"), "--weights", bad)
+        assert r.returncode == 2 and r.stderr.startswith("error:"), (bad, r.stderr)

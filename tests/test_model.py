@@ -220,3 +220,51 @@ def test_errors():
         PlaceModel().fit([Observation()])
     with pytest.raises(InvalidParameterError, match="one label per observation"):
         PlaceModel().fit(obs, labels[:-1])
+
+
+def _noisy_ex_dataset(seed, n=8):
+    """Three places whose VE bearings are their own (5 deg noise) and whose Ex bearings are pure noise."""
+    rng = np.random.default_rng(seed)
+    obs, labels = [], []
+    for lab, base in BASES.items():
+        for _ in range(n):
+            ve = (np.asarray(base["VE"]) + rng.normal(0, 5.0, len(base["VE"]))).tolist()
+            ex = rng.uniform(0, 360, 6).tolist()
+            obs.append(Observation.from_degrees({"VE": ve, "Ex": ex}))
+            labels.append(lab)
+    return obs, labels
+
+
+def test_fitted_weights_trust_the_informative_term():
+    obs, labels = _noisy_ex_dataset(0)
+    m = PlaceModel(2, terms=("VE", "Ex"), weights="fit").fit(obs, labels)
+    assert set(m.weights_) == {"VE", "Ex"}
+    assert m.weights_["Ex"] < 0.25 * m.weights_["VE"]
+    # held-out views: the fitted weights give the right place more probability than weights of 1
+    test, tl = _noisy_ex_dataset(1, n=10)
+    ones = PlaceModel(2, terms=("VE", "Ex")).fit(obs, labels)
+    col = {c: j for j, c in enumerate(m.classes_)}
+    y = np.array([col[t] for t in tl])
+    lp_fit = m.predict_log_proba(test)[np.arange(y.size), y].mean()
+    lp_one = ones.predict_log_proba(test)[np.arange(y.size), y].mean()
+    assert lp_fit > lp_one
+    assert m.get_params()["weights"] == "fit"
+
+
+def test_fitted_weights_edge_cases_and_errors():
+    obs, labels = dataset(n=1)  # one view a place: no held-out rows, every weight 1
+    m = PlaceModel(2, terms=("VE", "Ex"), weights="fit").fit(obs, labels)
+    assert m.weights_ == {"VE": 1.0, "Ex": 1.0}
+    with pytest.raises(InvalidParameterError, match="fit"):
+        PlaceModel(2, weights="learn").fit(obs, labels)  # type: ignore[arg-type]
+
+
+def test_fitted_weights_survive_the_database(tmp_path):
+    from fingerloc.map.database import load_model, save_model
+
+    obs, labels = _noisy_ex_dataset(2)
+    m = PlaceModel(2, terms=("VE", "Ex"), weights="fit").fit(obs, labels)
+    save_model(m, tmp_path / "p.sqlite")
+    back = load_model(tmp_path / "p.sqlite")
+    assert back.weights == "fit" and back.weights_ == pytest.approx(m.weights_)
+    np.testing.assert_allclose(back.predict_log_proba(obs[:5]), m.predict_log_proba(obs[:5]))

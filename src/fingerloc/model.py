@@ -132,9 +132,16 @@ class PlaceModel:
         :meth:`headings` then estimates the heading.
     costs : fingerloc.align.CostModel, optional
         Alignment costs; unit costs (Levenshtein) by default, as in the paper.
-    weights : mapping of str to float, optional
+    weights : mapping of str to float, or "fit", optional
         Per-term weight multiplying its log-likelihood (default 1 each; the
-        paper's program has all weights 1).
+        paper's program has all weights 1). ``"fit"``: weights learned from
+        the training data (:meth:`fit`; ``weights_``): the views of each place
+        are split in two halves (alternate views), a model fit on one half
+        gives the per-term log-likelihoods of the other, and the weights
+        maximise the held-out log-probability of the right place. The terms'
+        independence assumption makes a term with many bearings (VE) count
+        many times over; fitted weights say how far each term is to be
+        trusted, and they also calibrate the posterior's sharpness.
     unknown_prior : float, default 0
         Prior probability that an observation comes from no learned place.
         0 (the paper) disables the "unknown" hypothesis; see
@@ -169,7 +176,7 @@ class PlaceModel:
         fp_reference: FpReference = "all",
         cyclic: bool = False,
         costs: Any = None,
-        weights: Mapping[str, float] | None = None,
+        weights: Mapping[str, float] | Literal["fit"] | None = None,
         unknown_prior: float = 0.0,
         outlier_weight: float = 0.0,
         min_sigma_deg: float = 1.0,
@@ -191,7 +198,7 @@ class PlaceModel:
         self.fp_reference = fp_reference
         self.cyclic = cyclic
         self.costs = costs
-        self.weights = dict(weights) if weights is not None else None
+        self.weights: dict[str, float] | str | None = dict(weights) if isinstance(weights, Mapping) else weights
         self.unknown_prior = unknown_prior
         self.outlier_weight = outlier_weight
         self.min_sigma_deg = min_sigma_deg
@@ -250,7 +257,12 @@ class PlaceModel:
             raise InvalidParameterError(
                 f"fp_reference must be 'all', 'medoid' or 'consensus', got {self.fp_reference!r}"
             )
-        for name, w in (self.weights or {}).items():
+        if isinstance(self.weights, str):
+            if self.weights != "fit":
+                raise InvalidParameterError(f"weights must be a mapping of term -> weight or 'fit', got {self.weights!r}")
+        elif self.weights is not None and not isinstance(self.weights, Mapping):
+            raise InvalidParameterError(f"weights must be a mapping of term -> weight or 'fit', got {self.weights!r}")
+        for name, w in (self.weights if isinstance(self.weights, Mapping) else {}).items():
             if name not in TERMS:
                 raise InvalidParameterError(f"weights: unknown term {name!r}")
             if not (math.isfinite(w) and w >= 0):
@@ -287,7 +299,10 @@ class PlaceModel:
         self.places_: dict[str, PlaceData] = {}
         self.lambdas_: dict[str, float] = {}
         self.unknown_costs_: dict[str, float] = {}
+        self.weights_: dict[str, float] = {}
         self._add(observations, labels, refit_global=True)
+        if self.weights == "fit":
+            self.weights_ = self._fit_term_weights()
         return self
 
     def add_places(self, observations: Sequence[Observation], labels: Sequence[str] | None = None) -> PlaceModel:
@@ -509,7 +524,62 @@ class PlaceModel:
             raise NotFittedError("this PlaceModel is not fitted yet: call fit(observations, labels) first")
 
     def _weight(self, term: str) -> float:
-        return float((self.weights or {}).get(term, 1.0))
+        if self.weights == "fit":
+            return float(getattr(self, "weights_", {}).get(term, 1.0))
+        return float((self.weights if isinstance(self.weights, Mapping) else {}).get(term, 1.0))
+
+    def _fit_term_weights(self) -> dict[str, float]:
+        """Per-term weights maximising the held-out log-probability of the right place (``weights="fit"``).
+
+        Two folds: alternate views of each place. Places with one view are
+        absent from one fold's model; rows whose place is absent are not
+        used. Fewer than two places with a held-out row: every weight 1.
+        """
+        from scipy.optimize import minimize
+
+        params = self.get_params()
+        params["weights"] = None
+        terms = list(self.terms)
+        col = {str(c): j for j, c in enumerate(self.classes_)}
+        rows: dict[str, list[FArray]] = {t: [] for t in terms}
+        truth: list[NDArray[np.int64]] = []
+        for fold in (0, 1):
+            train: list[Observation] = []
+            test: list[Observation] = []
+            for p in self.places_.values():
+                for i, o in enumerate(p.observations):
+                    (test if i % 2 == fold else train).append(o)
+            have = {o.label for o in train}
+            test = [o for o in test if o.label in have]
+            if len(have) < 2 or not test:
+                continue
+            sub = PlaceModel(**params).fit(train)
+            ll = sub.term_log_likelihoods(test)
+            cols = np.array([col[str(c)] for c in sub.classes_], dtype=np.int64)
+            for t in terms:
+                full = np.full((len(test), len(col)), -np.inf)
+                full[:, cols] = ll[t]
+                rows[t].append(full)
+            truth.append(np.array([col[str(o.label)] for o in test], dtype=np.int64))
+        if not truth:
+            return {t: 1.0 for t in terms}
+        y = np.concatenate(truth)
+        mats = []
+        for t in terms:
+            m = np.vstack(rows[t])
+            finite = m[np.isfinite(m)]
+            floor = (float(finite.min()) if finite.size else 0.0) - 100.0
+            mats.append(np.where(np.isfinite(m), m, floor))  # a place a term rules out: far below every seen value
+        present = np.isfinite(np.vstack(rows[terms[0]]))  # places of the fold's model
+        stack = np.stack(mats)  # (T, n, P)
+
+        def nll(log_w: FArray) -> float:
+            joint = np.tensordot(np.exp(log_w), stack, axes=1)
+            joint = np.where(present, joint, -np.inf)
+            return -float(np.mean(joint[np.arange(y.size), y] - logsumexp(joint, axis=1)))
+
+        res = minimize(nll, np.zeros(len(terms)), method="L-BFGS-B", bounds=[(-9.0, 5.0)] * len(terms))
+        return {t: float(w) for t, w in zip(terms, np.exp(res.x), strict=True)}
 
     def _fov_log_mass(self, term: str, fov: tuple[tuple[float, float], ...]) -> FArray:
         """log of each place's mixture mass inside ``fov``, shape (P,); 0 for the full circle."""

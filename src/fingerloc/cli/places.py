@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,23 @@ def _costs(name: str) -> Any:
     raise InvalidParameterError(f"--costs must be 'unit' or 'feature', got {name!r}")
 
 
+def _parse_weights(text: str) -> str | dict[str, float]:
+    """``fit`` or ``TERM=W,...`` -> the ``weights`` argument of PlaceModel."""
+    if text.strip() == "fit":
+        return "fit"
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        name, sep, value = part.partition("=")
+        try:
+            w = float(value)
+        except ValueError:
+            w = float("nan")
+        if not sep or not name.strip() or not (math.isfinite(w) and w >= 0):
+            raise InvalidParameterError(f"--weights: expected 'fit' or TERM=W,... with W >= 0, got {part!r}")
+        out[name.strip()] = w
+    return out
+
+
 @app.command("learn")
 def learn_cmd(
     data: Path = typer.Argument(..., help="Labelled observations, JSON Lines ('place' on every line)."),
@@ -53,6 +71,10 @@ def learn_cmd(
     cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Align over all rotations (unknown heading)."),
     costs: str | None = typer.Option(None, help="Alignment costs: 'unit' (Levenshtein) or 'feature' [unit]."),
     unknown_prior: float | None = typer.Option(None, help="Prior probability of an unknown place [0]."),
+    weights: str | None = typer.Option(
+        None,
+        help="Per-term weights: 'fit' (learned from held-out training views) or TERM=W,... e.g. VE=0.5,Fp=2 [all 1].",
+    ),
     seed: int | None = typer.Option(None, help="Seed of the mixtures' initialisation [0]."),
 ) -> None:
     """Learn places from labelled observations into a place database.
@@ -75,6 +97,7 @@ def learn_cmd(
         "laser_letters": laser_letters,
         "costs": None if costs is None else _costs(costs),
         "unknown_prior": unknown_prior,
+        "weights": None if weights is None else _parse_weights(weights),
         "random_state": seed,
     }
     given = {k: v for k, v in given.items() if v is not None}

@@ -3,7 +3,7 @@
 Layout (schema version 1)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
-                                                   -- params, lambdas, unknown_costs (JSON)
+                                                   -- params, lambdas, unknown_costs, fitted_weights (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, record TEXT)
@@ -130,6 +130,7 @@ def save_model(
                     "params": json.dumps(params),
                     "lambdas": json.dumps(model.lambdas_),
                     "unknown_costs": json.dumps(model.unknown_costs_),
+                    "fitted_weights": json.dumps(getattr(model, "weights_", {})),
                 }
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
                 for pid, place in enumerate(model.places_.values()):
@@ -217,6 +218,7 @@ def load_model(path: str | Path) -> PlaceModel:
             model._validate()
             model.lambdas_ = {str(k): float(v) for k, v in json.loads(meta["lambdas"]).items()}
             model.unknown_costs_ = {str(k): float(v) for k, v in json.loads(meta["unknown_costs"]).items()}
+            model.weights_ = {str(k): float(v) for k, v in json.loads(meta.get("fitted_weights", "{}")).items()}
         except (KeyError, TypeError, ValueError, FingerlocError) as err:
             raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
         places: dict[str, PlaceData] = {}
