@@ -358,3 +358,12 @@ def test_pose_filtered_method_options_are_checked():
     m = PoseFilteredMethod("fingerprint")
     with pytest.raises(InvalidParameterError, match="set_context"):
         m.fit([], np.zeros(0))
+
+
+def test_parameters_of_the_wrong_type_are_errors():
+    with pytest.raises(InvalidParameterError, match="kidnap"):
+        _filter(kidnap="often")
+    with pytest.raises(InvalidParameterError, match="n_particles"):
+        _filter(n_particles=100.5)
+    with pytest.raises(InvalidParameterError, match="radius"):
+        PoseFilter(np.zeros((2, 2)), None)

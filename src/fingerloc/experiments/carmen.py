@@ -557,6 +557,12 @@ def _fingerprint() -> Method:
     return FingerprintMethod(**best_fingerprint_params())
 
 
+@register_method("fingerprint-weighted", default=False)
+def _fingerprint_weighted() -> Method:
+    # The best configuration with the terms' weights fit on held-out training scans (weights="fit").
+    return FingerprintMethod(**{**best_fingerprint_params(), "weights": "fit"})
+
+
 @register_method("fingerprint-string")
 def _fingerprint_string() -> Method:
     # The same without the range term: what the fingerprint string alone does.

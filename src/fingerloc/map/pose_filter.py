@@ -67,7 +67,10 @@ IArray = NDArray[np.int64]
 
 
 def _finite(name: str, value: Any, *, low: float = 0.0) -> float:
-    v = float(value)
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"{name} must be a finite number >= {low:g}, got {value!r}") from None
     if not (math.isfinite(v) and v >= low):
         raise InvalidParameterError(f"{name} must be a finite number >= {low:g}, got {value!r}")
     return v
@@ -255,7 +258,7 @@ class PoseFilter:
         self.radius = _finite("radius", radius)
         if self.radius <= 0:
             raise InvalidParameterError(f"radius must be > 0 metres, got {radius!r}")
-        if int(n_particles) != n_particles or n_particles < 10:
+        if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 10:
             raise InvalidParameterError(f"n_particles must be an integer >= 10, got {n_particles!r}")
         self.n_particles = int(n_particles)
         self.motion = MotionNoise() if motion is None else motion
