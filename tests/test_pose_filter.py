@@ -367,3 +367,11 @@ def test_parameters_of_the_wrong_type_are_errors():
         _filter(n_particles=100.5)
     with pytest.raises(InvalidParameterError, match="radius"):
         PoseFilter(np.zeros((2, 2)), None)
+
+
+def test_odometry_error_scaled():
+    e = OdometryError().scaled(2.0)
+    assert e.scale == pytest.approx(0.04) and e.bias_per_metre == pytest.approx(0.01)
+    assert OdometryError().scaled(0.0) == OdometryError(0, 0, 0, 0, 0)
+    with pytest.raises(InvalidParameterError):
+        OdometryError().scaled(-1.0)

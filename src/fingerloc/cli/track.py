@@ -213,9 +213,7 @@ def _pose_filter_run(
         r = 0.5 * float(np.median(d.min(axis=1)))
     poses = np.asarray(geo["poses"], dtype=np.float64)
     if odometry_error > 0:
-        e = OdometryError()
-        err = OdometryError(*(odometry_error * getattr(e, f) for f in OdometryError.__slots__))
-        inc = simulate_odometry(poses, err, random_state=seed + 1)
+        inc = simulate_odometry(poses, OdometryError().scaled(odometry_error), random_state=seed + 1)
     else:
         inc = odometry_increments(poses)
     f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), random_state=seed)

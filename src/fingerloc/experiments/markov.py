@@ -9,8 +9,13 @@
   pseudo-likelihoods, to show the filter's effect on another front end);
   ablations ``fingerprint-filtered-no-odometry`` (per-step counts) and
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
+* :class:`PoseFilteredMethod`: the same front end followed by the pose
+  particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
+  not only distances), registered as ``fingerprint-odometry``; ablations
+  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``, and
+  ``baseline-histogram-odometry``, run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
-  pass and count the steps the filter needs to recover.
+  pass and count the steps the filter needs to recover (either filter).
 
 Everything the filter needs is taken from the **mapping pass** only:
 
@@ -302,9 +307,10 @@ class PoseFilteredMethod(FilteredMethod):
     with the odometry *increments* (direction and turn, not only distance).
     Set from the mapping pass only: the place centres and the protocol's
     radius; the filter starts uniform over the places (as the discrete
-    filter), near their centres with any heading; the kidnapping probability per observation is ``1 / (n_train + 2)`` (Laplace's
-    rule over the mapping pass's observations, as the discrete filter's
-    mixing term); ``outlier`` and the motion noise are the filter's defaults.
+    filter), near their centres with any heading; the kidnapping
+    probability per observation is ``1 / (n_train + 2)`` (Laplace's rule
+    over the mapping pass's observations, as the discrete filter's mixing
+    term); ``outlier`` and the motion noise are the filter's defaults.
     Observations are tempered (:func:`~fingerloc.map.pose_filter.observation_weights`):
     one counts fully after the robot has travelled the place spacing (2 m,
     the map's own scale: views closer than that are one place) or turned by
@@ -386,8 +392,7 @@ class PoseFilteredMethod(FilteredMethod):
         )
         q = poses[split.n_mapping :]
         if self.odometry_source == "simulated" and self.odometry_error > 0:
-            e = OdometryError()
-            err = OdometryError(*(self.odometry_error * getattr(e, f) for f in OdometryError.__slots__))
+            err = OdometryError().scaled(self.odometry_error)
             self.increments_ = simulate_odometry(q, err, random_state=self.seed + 1)
         else:
             self.increments_ = odometry_increments(q)

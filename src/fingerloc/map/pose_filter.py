@@ -39,7 +39,7 @@ Everything is in log space; a likelihood of zero never makes a NaN.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -171,6 +171,11 @@ class OdometryError:
     rotation: float = 0.05
     drift_per_metre: float = 0.01
     bias_per_metre: float = 0.005
+
+    def scaled(self, factor: float) -> OdometryError:
+        """Every error times ``factor`` (>= 0; 0 = an exact odometry)."""
+        f = _finite("factor", factor)
+        return OdometryError(*(f * getattr(self, x.name) for x in fields(self)))
 
     def __post_init__(self) -> None:
         for name in ("translation", "rotation", "drift_per_metre"):
