@@ -375,3 +375,13 @@ def test_odometry_error_scaled():
     assert OdometryError().scaled(0.0) == OdometryError(0, 0, 0, 0, 0)
     with pytest.raises(InvalidParameterError):
         OdometryError().scaled(-1.0)
+
+
+def test_one_step_from_the_uniform_prior_is_the_single_shot_posterior():
+    """Particles spread evenly over the places, one observation, no kidnapping, no outliers: the softmax of the row."""
+    centres = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 5.0], [5.0, 5.0]])
+    f = PoseFilter(centres, 1.0, n_particles=40000, kidnap=0.0, outlier=0.0, random_state=5)
+    row = np.array([0.3, -1.2, 2.0, 0.0])
+    post = np.exp(f.update(row))
+    want = np.exp(row - logsumexp(row))
+    assert np.allclose(post, want, atol=0.01)
