@@ -15,13 +15,6 @@ from .bench import write_json
 if TYPE_CHECKING:
     from ..experiments.robot import RobotResult
 
-_ROW_NAMES = {
-    "VE": "VE only",
-    "Ex": "Ex only",
-    "VE+Ex": "VE & Ex",
-    "VE+Ex+Fp": "VE, Ex & fingerprint",
-    "VE+Ex+Fp-fit": "VE, Ex & fingerprint, term weights fit (not in the paper)",
-}
 _METHOD_NAMES = {
     "minimum_energy": "string matching, minimum energy",
     "global_alignment": "string matching, global alignment",
@@ -34,7 +27,7 @@ def _pm(mean: float, std: float, n_trials: int, fmt: str) -> str:
 
 def print_robot_tables(res: RobotResult, out: Console, *, title_note: str = "") -> None:
     """Print Tables II-IV and the random-heading row of a :class:`~fingerloc.experiments.robot.RobotResult`."""
-    from ..experiments.robot import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4
+    from ..experiments.robot import PAPER_TABLE2, PAPER_TABLE3, PAPER_TABLE4, TABLE4_NAMES
 
     n = len(res.trials)
     avg = f"mean over {n} trials ± standard deviation" if n > 1 else "one trial"
@@ -74,7 +67,7 @@ def print_robot_tables(res: RobotResult, out: Console, *, title_note: str = "") 
     t4.add_column("", justify="left")
     for k in ks:
         t4.add_column(f"k={k}", justify="right")
-    for row, label in _ROW_NAMES.items():
+    for row, label in TABLE4_NAMES.items():
         if ("table4", row, str(ks[0])) not in cells:
             continue
         ours = []

@@ -18,6 +18,7 @@ from .robot import (
     PAPER_TABLE2,
     PAPER_TABLE3,
     PAPER_TABLE4,
+    TABLE4_NAMES,
     RobotResult,
     TrialData,
     TrialEvaluation,
@@ -43,13 +44,6 @@ FIGURES: dict[str, str] = {
     "confusion.png": "All test measurements of the trial: true office against the program's answer (VE, Ex & Fp, k = 5).",
 }
 
-_ROW_NAMES = {
-    "VE": "VE only",
-    "Ex": "Ex only",
-    "VE+Ex": "VE & Ex",
-    "VE+Ex+Fp": "VE, Ex & fingerprint",
-    "VE+Ex+Fp-fit": "VE, Ex & fingerprint, term weights fit (not in the paper)",
-}
 
 
 def _pm(mean: float, std: float, n: int, fmt: str) -> str:
@@ -91,7 +85,7 @@ def robot_tables_markdown(res: RobotResult) -> str:
         "| terms | " + " | ".join(f"k={k}" for k in ks) + " |",
         "|---|" + "---:|" * len(ks),
     ]
-    for row in _ROW_NAMES:
+    for row in TABLE4_NAMES:
         if ("table4", row, str(ks[0])) not in cells:
             continue
         parts = []
@@ -100,7 +94,7 @@ def robot_tables_markdown(res: RobotResult) -> str:
             p = PAPER_TABLE4.get(row, {}).get(k)
             ptxt = f" ({100 * p[0]:.1f} / {p[1]:.2f})" if p is not None else ""
             parts.append(f"{_pm(100 * a, 100 * as_, n, '.1f')} / {_pm(r, rs, n, '.2f')}{ptxt}")
-        lines.append(f"| {_ROW_NAMES[row]} | " + " | ".join(parts) + " |")
+        lines.append(f"| {TABLE4_NAMES[row]} | " + " | ".join(parts) + " |")
     if ("random_heading", "global_alignment") in cells:
         lines += [
             "",

@@ -72,6 +72,7 @@ __all__ = [
     "PAPER_TABLE3",
     "PAPER_TABLE4",
     "TABLE4_FITTED",
+    "TABLE4_NAMES",
     "TABLE4_TERMS",
     "Measurement",
     "RobotProtocol",
@@ -109,6 +110,14 @@ TABLE4_TERMS: dict[str, tuple[str, ...]] = {
 #: Our extra Table IV row: the full program with per-term weights fit on the training views
 #: (``PlaceModel(weights="fit")``); not in the paper.
 TABLE4_FITTED = "VE+Ex+Fp-fit"
+#: Display names of the Table IV rows (ours and the paper's), in print order.
+TABLE4_NAMES: dict[str, str] = {
+    "VE": "VE only",
+    "Ex": "Ex only",
+    "VE+Ex": "VE & Ex",
+    "VE+Ex+Fp": "VE, Ex & fingerprint",
+    TABLE4_FITTED: "VE, Ex & fingerprint, term weights fit (not in the paper)",
+}
 #: The paper's Table IV: row -> k -> (right classification in [0, 1], mean rank).
 PAPER_TABLE4: dict[str, dict[int, tuple[float, float]]] = {
     "VE": {3: (0.421, 2.58), 4: (0.471, 2.47), 5: (0.556, 1.82)},
