@@ -192,14 +192,7 @@ def _pose_filter_run(
 ) -> Any:
     """The pose filter along the steps (``geo``: step poses, place centres, radius, n_train, fov)."""
     from ..map.filter import MarkovFilter
-    from ..map.pose_filter import (
-        OdometryError,
-        PoseFilter,
-        observation_weights,
-        odometry_increments,
-        run_pose_filter,
-        simulate_odometry,
-    )
+    from ..map.pose_filter import PoseFilter, run_pose_filter, wheel_odometry
 
     if geo.get("poses") is None or geo.get("centres") is None:
         raise InvalidParameterError(geo.get("why", "the pose filter needs poses of the steps and of the places"))
@@ -211,15 +204,10 @@ def _pose_filter_run(
         d = np.linalg.norm(centres[:, None] - centres[None], axis=2)
         np.fill_diagonal(d, np.inf)
         r = 0.5 * float(np.median(d.min(axis=1)))
-    poses = np.asarray(geo["poses"], dtype=np.float64)
-    if odometry_error > 0:
-        inc = simulate_odometry(poses, OdometryError().scaled(odometry_error), random_state=seed + 1)
-    else:
-        inc = odometry_increments(poses)
+    inc = wheel_odometry(np.asarray(geo["poses"], dtype=np.float64), odometry_error, random_state=seed + 1)
     f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), random_state=seed)
-    observed = ~np.all(np.isnan(ll), axis=1)
-    w = observation_weights(inc, observed, metres=2.0 * float(r), radians=float(geo.get("fov", math.pi)))
-    return run_pose_filter(ll, inc, f, weights=w, place_filter=MarkovFilter(transition))
+    temper = (2.0 * float(r), float(geo.get("fov", math.pi)))  # a new view: the place spacing, or the field of view
+    return run_pose_filter(ll, inc, f, temper=temper, place_filter=MarkovFilter(transition))
 
 
 def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:

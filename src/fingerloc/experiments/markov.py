@@ -82,9 +82,7 @@ MIN_CALIBRATION_ROWS = 10
 
 
 def _positions(scans: Sequence[Scan]) -> FArray:
-    if any(s.pose is None for s in scans):
-        raise InvalidParameterError("every scan needs a pose for the place graph and odometry")
-    return np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64).reshape(-1, 2)
+    return _full_poses(scans)[:, :2]
 
 
 def step_distances(positions: Any) -> FArray:
@@ -375,7 +373,7 @@ class PoseFilteredMethod(FilteredMethod):
 
     def fit(self, scans: Sequence[Scan], labels: Any) -> PoseFilteredMethod:
         """Fit the base method and ``beta`` (:meth:`FilteredMethod.fit`), then set up the pose filter."""
-        from ..map.pose_filter import OdometryError, PoseFilter, odometry_increments, simulate_odometry
+        from ..map.pose_filter import PoseFilter, wheel_odometry
         from .carmen import PLACE_RADIUS_M, PLACE_SPACING_M
 
         super().fit(scans, labels)
@@ -390,12 +388,8 @@ class PoseFilteredMethod(FilteredMethod):
             outlier=self.outlier,
             random_state=self.seed,
         )
-        q = poses[split.n_mapping :]
-        if self.odometry_source == "simulated" and self.odometry_error > 0:
-            err = OdometryError().scaled(self.odometry_error)
-            self.increments_ = simulate_odometry(q, err, random_state=self.seed + 1)
-        else:
-            self.increments_ = odometry_increments(q)
+        factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
+        self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         fov = [sum(w for _, w in s.fov) for s in all_scans[: split.n_mapping]]
         self.temper_metres_ = PLACE_SPACING_M
         self.temper_radians_ = float(np.median(fov)) if fov else math.pi
@@ -403,16 +397,15 @@ class PoseFilteredMethod(FilteredMethod):
 
     def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
-        from ..map.pose_filter import observation_weights, run_pose_filter
+        from ..map.pose_filter import run_pose_filter
 
-        ll = np.asarray(log_likelihood, dtype=np.float64)
-        inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:]
-        w = None
-        if self.temper:
-            observed = ~np.all(np.isnan(ll), axis=1)
-            w = observation_weights(inc, observed, metres=self.temper_metres_, radians=self.temper_radians_)
-        pf = MarkovFilter(self.transition_) if self.relocalize else None
-        return run_pose_filter(ll, inc, self.filter_, weights=w, place_filter=pf)
+        return run_pose_filter(
+            log_likelihood,
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            self.filter_,
+            temper=(self.temper_metres_, self.temper_radians_) if self.temper else None,
+            place_filter=MarkovFilter(self.transition_) if self.relocalize else None,
+        )
 
     def score(self, scans: Sequence[Scan]) -> FArray:
         """The pose filter's log-posterior over places at each query, shape (n_queries, P)."""
@@ -429,7 +422,7 @@ class PoseFilteredMethod(FilteredMethod):
 
 def _full_poses(scans: Sequence[Scan]) -> FArray:
     if any(s.pose is None for s in scans):
-        raise InvalidParameterError("every scan needs a pose (x, y, theta) for odometry")
+        raise InvalidParameterError("every scan needs a pose for the place graph and odometry")
     return np.array([s.pose for s in scans if s.pose is not None], dtype=np.float64).reshape(-1, 3)
 
 

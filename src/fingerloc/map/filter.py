@@ -470,6 +470,19 @@ class FilterResult:
     best_probability: FArray
     entropy_bits: FArray
 
+    @classmethod
+    def from_log_posterior(cls, log_posterior: Any) -> FilterResult:
+        """The result of a sequence of log-posteriors, shape (n_steps, P)."""
+        out = np.asarray(log_posterior, dtype=np.float64)
+        n = out.shape[0]
+        best = np.argmax(out, axis=1).astype(np.int64) if n else np.zeros(0, np.int64)
+        return cls(
+            log_posterior=out,
+            best=best,
+            best_probability=np.exp(out[np.arange(n), best]) if n else np.zeros(0),
+            entropy_bits=entropy_bits(out) if n else np.zeros(0),
+        )
+
 
 def run_filter(
     log_likelihood: Any,
@@ -514,10 +527,4 @@ def run_filter(
     for t in range(n):
         row = None if (obs is not None and not obs[t]) else ll[t]
         out[t] = f.step(row, None if dist is None else float(dist[t]))
-    best = np.argmax(out, axis=1).astype(np.int64) if n else np.zeros(0, np.int64)
-    return FilterResult(
-        log_posterior=out,
-        best=best,
-        best_probability=np.exp(out[np.arange(n), best]) if n else np.zeros(0),
-        entropy_bits=entropy_bits(out) if n else np.zeros(0),
-    )
+    return FilterResult.from_log_posterior(out)

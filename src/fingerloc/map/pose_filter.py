@@ -49,7 +49,7 @@ from scipy.special import logsumexp
 
 from ..angles import wrap
 from ..errors import InvalidParameterError
-from .filter import FilterResult, MarkovFilter, entropy_bits
+from .filter import FilterResult, MarkovFilter
 
 __all__ = [
     "MotionNoise",
@@ -60,6 +60,7 @@ __all__ = [
     "odometry_increments",
     "run_pose_filter",
     "simulate_odometry",
+    "wheel_odometry",
 ]
 
 FArray = NDArray[np.float64]
@@ -210,6 +211,18 @@ def simulate_odometry(
         + err.bias_per_metre * dist
     )
     return out
+
+
+def wheel_odometry(poses: Any, error_factor: float = 1.0, *, random_state: int | np.random.Generator | None = 0) -> FArray:
+    """The increments a wheel odometry would report along ``poses``, shape (n - 1, 3).
+
+    ``error_factor`` 0: the poses' exact increments (:func:`odometry_increments`);
+    otherwise :func:`simulate_odometry` with ``OdometryError().scaled(error_factor)``.
+    """
+    f = _finite("error_factor", error_factor)
+    if f == 0:
+        return odometry_increments(poses)
+    return simulate_odometry(poses, OdometryError().scaled(f), random_state=random_state)
 
 
 class PoseFilter:
@@ -491,6 +504,7 @@ def run_pose_filter(
     pose_filter: PoseFilter,
     *,
     weights: Any = None,
+    temper: tuple[float, float] | None = None,
     place_filter: MarkovFilter | None = None,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
@@ -505,7 +519,11 @@ def run_pose_filter(
         ``n_steps`` rows, row 0 is ignored.
     pose_filter : PoseFilter
     weights : array_like, shape (n_steps,), optional
-        Each observation's weight (:func:`observation_weights`); default 1.
+        Each observation's weight; default 1, or from ``temper``.
+    temper : (metres, radians), optional
+        Weigh the observations by the motion between them
+        (:func:`observation_weights` with these scales), when ``weights`` is
+        not given.
     place_filter : MarkovFilter, optional
         A discrete filter over the same places, run alongside (reset first;
         travelled distances from the increments; untempered observations):
@@ -527,6 +545,8 @@ def run_pose_filter(
         inc = inc[1:]
     if n and inc.shape[0] != n - 1:
         raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
+    if weights is None and temper is not None:
+        weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
     wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     if wts.size != n:
         raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
@@ -544,7 +564,6 @@ def run_pose_filter(
             prior = (
                 place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
             )
-
             if observed:
                 place_filter.update(np.where(np.isnan(row), -np.inf, row))
         out[t] = pose_filter.step(
@@ -553,10 +572,4 @@ def run_pose_filter(
             float(wts[t]) if observed else 1.0,
             prior if observed else None,
         )
-    best = np.argmax(out, axis=1).astype(np.int64) if n else np.zeros(0, np.int64)
-    return FilterResult(
-        log_posterior=out,
-        best=best,
-        best_probability=np.exp(out[np.arange(n), best]) if n else np.zeros(0),
-        entropy_bits=entropy_bits(out) if n else np.zeros(0),
-    )
+    return FilterResult.from_log_posterior(out)
