@@ -262,7 +262,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
 
 def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
     from ..experiments.carmen import PLACE_RADIUS_M, load_log_scans, make_method, make_split
-    from ..experiments.markov import FilteredMethod, mapping_graph, step_distances
+    from ..experiments.markov import FilteredMethod, field_of_view, mapping_graph, step_distances
     from ..map.database import load_model, save_model
     from ..map.graph import load_graph
 
@@ -316,7 +316,7 @@ def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: f
         "why": f"{db}: its places are not the log's places (learn them with --map)",
         "radius": PLACE_RADIUS_M,
         "n_train": split.n_train,
-        "fov": float(np.median([sum(w for _, w in s.fov) for s in scans[: split.n_mapping]])),
+        "fov": field_of_view(scans[: split.n_mapping]),
     }
     return ll, truth, dist, graph, classes, beta, metres, names, geo
 

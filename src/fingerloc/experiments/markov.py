@@ -62,7 +62,9 @@ from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_m
 __all__ = [
     "FilteredMethod",
     "KidnapResult",
+    "PoseFilteredMethod",
     "TrackingData",
+    "field_of_view",
     "kidnap_experiment",
     "mapping_graph",
     "prepare_tracking",
@@ -390,9 +392,8 @@ class PoseFilteredMethod(FilteredMethod):
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
-        fov = [sum(w for _, w in s.fov) for s in all_scans[: split.n_mapping]]
         self.temper_metres_ = PLACE_SPACING_M
-        self.temper_radians_ = float(np.median(fov)) if fov else math.pi
+        self.temper_radians_ = field_of_view(all_scans[: split.n_mapping])
         return self
 
     def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
@@ -418,6 +419,12 @@ class PoseFilteredMethod(FilteredMethod):
         ll, _ = self.step_log_likelihoods(self.query_scores_)
         self.result_ = self.run_steps(ll, np.vstack([np.zeros((1, 3)), self.increments_]))
         return self.result_.log_posterior[split.query_idx - split.n_mapping]
+
+
+def field_of_view(scans: Sequence[Scan]) -> float:
+    """Median field of view of the scans, radians (pi when there are none)."""
+    fov = [sum(w for _, w in s.fov) for s in scans]
+    return float(np.median(fov)) if fov else math.pi
 
 
 def _full_poses(scans: Sequence[Scan]) -> FArray:
