@@ -268,8 +268,12 @@ class FilteredMethod:
             )
         self.query_scores_ = np.asarray(self.base_.score(scans), dtype=np.float64)
         ll, dist = self.step_log_likelihoods(self.query_scores_)
-        self.result_: FilterResult = run_filter(ll, self.transition_, distances=dist)
+        self.result_: FilterResult = self._run_query_pass(ll, dist)
         return self.result_.log_posterior[split.query_idx - split.n_mapping]
+
+    def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
+        """The filter over the whole query pass (rows of :meth:`step_log_likelihoods`)."""
+        return run_filter(log_likelihood, self.transition_, distances=distances)
 
 
 @register_method("fingerprint-filtered")
@@ -408,17 +412,9 @@ class PoseFilteredMethod(FilteredMethod):
             place_filter=MarkovFilter(self.transition_) if self.relocalize else None,
         )
 
-    def score(self, scans: Sequence[Scan]) -> FArray:
-        """The pose filter's log-posterior over places at each query, shape (n_queries, P)."""
-        _, split = self._need_context()
-        if len(scans) != split.n_queries:
-            raise InvalidParameterError(
-                f"{self.name} scores the split's {split.n_queries} queries, got {len(scans)} scans"
-            )
-        self.query_scores_ = np.asarray(self.base_.score(scans), dtype=np.float64)
-        ll, _ = self.step_log_likelihoods(self.query_scores_)
-        self.result_ = self.run_steps(ll, np.vstack([np.zeros((1, 3)), self.increments_]))
-        return self.result_.log_posterior[split.query_idx - split.n_mapping]
+    def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
+        """The pose filter over the whole query pass, with the method's odometry increments."""
+        return self.run_steps(log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]))
 
 
 def field_of_view(scans: Sequence[Scan]) -> float:
