@@ -712,6 +712,15 @@ class PlaceModel:
         total = sum(self._weight(t) * ll for t, ll in terms.items())
         return np.asarray(total, dtype=np.float64)
 
+    def joint_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
+        """Weighted sum of the terms' log-likelihoods, unnormalised, shape ``(n, P)``.
+
+        ``log P(Loc) + sum_term w_term log P(term | Loc)`` up to a constant;
+        :meth:`predict_log_proba` normalises it over the places.
+        """
+        self._check_fitted()
+        return self._joint_log_likelihood(self.term_log_likelihoods(observations))
+
     def predict_log_proba(self, observations: Sequence[Observation]) -> FArray:
         """``log P(Loc | observation)`` normalised over the learned places, shape ``(n, P)``.
 

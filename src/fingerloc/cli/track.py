@@ -247,7 +247,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
-    ll = np.asarray(model._joint_log_likelihood(model.term_log_likelihoods(obs)), dtype=np.float64)
+    ll = np.asarray(model.joint_log_likelihood(obs), dtype=np.float64)
     col = {c: j for j, c in enumerate(classes)}
     truth = np.array([col.get(o.label, -1) if o.label else -1 for o in obs], dtype=np.int64)
     dist = None
