@@ -11,7 +11,7 @@ from fingerloc.io import write_observations
 from fingerloc.map.database import load_model, read_graph_edges, save_model
 from fingerloc.model import PlaceModel
 
-from .test_model import dataset
+from ._places import dataset
 
 
 def test_roundtrip_identical_predictions(tmp_path):

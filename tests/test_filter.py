@@ -52,7 +52,7 @@ def test_single_shot_posterior_of_a_place_model():
         for _ in range(3)
     ]
     model = PlaceModel(n_components=2, terms=("VE",)).fit(obs)
-    ll = model._joint_log_likelihood(model.term_log_likelihoods(obs[:1]))
+    ll = model.joint_log_likelihood(obs[:1])
     res = run_filter(ll, TransitionModel.uniform(3))
     assert np.allclose(res.log_posterior, model.predict_log_proba(obs[:1]))
 

@@ -9,29 +9,10 @@ from scipy.special import erf, logsumexp
 
 from fingerloc import Observation, make_fingerprint
 from fingerloc.errors import InvalidParameterError, NotFittedError
-from fingerloc.model import PlaceModel, _normalise, consensus_fingerprint, rank_scores
+from fingerloc.model import PlaceModel, consensus_fingerprint, rank_scores
+from fingerloc.model import normalise_log as _normalise
 
-
-def office(rng, base, noise=3.0, **extra):
-    feats = {k: list(np.asarray(v) + rng.normal(0, noise, len(v))) for k, v in base.items()}
-    return Observation.from_degrees(feats, **extra)
-
-
-BASES = {
-    "a": {"VE": [10, 80, 170, 260], "Ex": [30, 200], "c": [45, 135, 225, 315], "B": [100]},
-    "b": {"VE": [40, 130, 300], "Ex": [90, 250, 330], "c": [45, 135, 225, 315], "B": [10, 200]},
-    "c": {"VE": [5, 60, 120, 180, 240], "Ex": [150], "c": [60, 300]},
-}
-
-
-def dataset(seed=0, n=6, noise=3.0):
-    rng = np.random.default_rng(seed)
-    obs, labels = [], []
-    for lab, base in BASES.items():
-        for _ in range(n):
-            obs.append(office(rng, base, noise))
-            labels.append(lab)
-    return obs, labels
+from ._places import BASES, dataset, office
 
 
 def spec_log_mog(x, w, m, s):
@@ -57,12 +38,12 @@ def test_two_place_example_reproduces_spec():
     fq = make_fingerprint(q).letters
     joint = []
     for lab in ("a", "b"):
-        p = model.places_[lab]
+        j = model.column_of(lab)
         lp = 0.0
         for term in ("VE", "Ex"):
-            w, m, s = p.mixtures[term]
+            w, m, s = model.terms_[term].mixtures_[j]
             lp += sum(spec_log_mog(x, w, m, s) for x in q.bearings(term))
-        cost = min(Levenshtein.distance(fq, fp.letters) for fp in p.fingerprints)
+        cost = min(Levenshtein.distance(fq, fp.letters) for fp in model.terms_["Fp"].fingerprints_[j])
         lp += math.log(1.0 / (cost + 1.0))
         joint.append(lp + math.log(0.5))
     expected = np.exp(np.array(joint) - logsumexp(joint))
@@ -76,9 +57,8 @@ def test_injected_parameters_exact():
     obs, labels = dataset(n=2)
     model = PlaceModel(1, terms=("VE",)).fit(obs, labels)
     params = {"a": (0.0, 0.3), "b": (1.0, 0.5), "c": (-2.0, 1.0)}
-    for lab, (mu, sig) in params.items():
-        model.places_[lab].mixtures["VE"] = (np.array([1.0]), np.array([mu]), np.array([sig]))
-    model._stack_mixtures()
+    mixtures = [[np.array([1.0]), np.array([mu]), np.array([sig])] for mu, sig in params.values()]
+    model.terms_["VE"].set_state({"mixtures": mixtures}, [p.observations for p in model.places_.values()])
     q = Observation(ve=np.array([0.2, 0.5]))
     ll = np.array([sum(spec_log_mog(x, [1.0], [mu], [sig]) for x in q.ve) for mu, sig in params.values()])
     np.testing.assert_allclose(model.predict_log_proba([q])[0], ll - logsumexp(ll), rtol=1e-10)
@@ -123,7 +103,7 @@ def test_no_nan_edge_cases():
     obs, labels = dataset(n=3)
     # place "c" has no beacons at all; a place with no training bearings of a type
     model = PlaceModel(5, n_init=1).fit(obs, labels)
-    assert "B" not in model.places_["c"].mixtures
+    assert model.terms_["B"].mixtures_[model.column_of("c")] is None
     cases = [
         Observation(),  # no features at all
         Observation.from_degrees({"B": [10, 20, 30]}),  # only a type "c" never saw
@@ -161,12 +141,12 @@ def test_fp_exp_and_references():
     exp = PlaceModel(3, terms=("Fp",), fp_likelihood="exp").fit(obs, labels)
     assert 1e-3 <= exp.fp_lambda_ <= 1e4
     np.testing.assert_allclose(
-        exp.term_log_likelihoods(obs[:3])["Fp"], -exp.fp_lambda_ * exp.fingerprint_costs(obs[:3])
+        exp.term_log_likelihoods(obs[:3])["Fp"], -exp.fp_lambda_ * exp.terms_["Fp"].distances(obs[:3])
     )
     for ref in ("medoid", "consensus"):
         m = PlaceModel(3, terms=("Fp",), fp_reference=ref).fit(obs, labels)
         assert m.score(obs, labels) >= 0.6
-        assert m.fingerprint_costs(obs[:1]).shape == (1, 3)
+        assert m.terms_["Fp"].distances(obs[:1]).shape == (1, 3)
 
 
 def test_consensus_not_worse_than_medoid():
@@ -184,12 +164,15 @@ def test_add_places_does_not_refit_others():
     obs, labels = dataset()
     first = [(o, lab) for o, lab in zip(obs, labels, strict=True) if lab != "c"]
     model = PlaceModel(3).fit([o for o, _ in first], [lab for _, lab in first])
-    before = {lab: {t: tuple(a.copy() for a in v) for t, v in p.mixtures.items()} for lab, p in model.places_.items()}
+    before = {
+        lab: {t: tuple(a.copy() for a in model.terms_[t].mixtures_[j]) for t in ("VE", "Ex") if model.terms_[t].mixtures_[j]}
+        for j, lab in enumerate(model.classes_)
+    }
     model.add_places([o for o, lab in zip(obs, labels, strict=True) if lab == "c"], ["c"] * 6)
     assert list(model.classes_) == ["a", "b", "c"]
     for lab, mix in before.items():
         for t, arrays in mix.items():
-            for x, y in zip(arrays, model.places_[lab].mixtures[t], strict=True):
+            for x, y in zip(arrays, model.terms_[t].mixtures_[model.column_of(lab)], strict=True):
                 np.testing.assert_array_equal(x, y)
 
 

@@ -225,16 +225,24 @@ def places_cmd(
 ) -> None:
     """List the places stored in a place database."""
     from ..map.database import load_model
+    from ..terms import FingerprintTerm, MixtureTerm
 
     model = load_model(db)
     rows: list[dict[str, Any]] = []
-    for p in model.places_.values():
+    fp = model.terms_.get("Fp")
+    for j, p in enumerate(model.places_.values()):
+        fps = fp.fingerprints_[j] if isinstance(fp, FingerprintTerm) else []
+        mixtures = {
+            name: int(np.count_nonzero(mx[0]))
+            for name, t in model.terms_.items()
+            if isinstance(t, MixtureTerm) and (mx := t.mixtures_[j]) is not None
+        }
         rows.append(
             {
-                "place": p.label,
+                "place": str(p.label),
                 "observations": len(p.observations),
-                "fingerprint": p.fingerprints[p.medoid].letters if p.fingerprints else "",
-                "mixtures": {t: int(np.count_nonzero(w)) for t, (w, _, _) in p.mixtures.items()},
+                "fingerprint": fps[fp.medoids_[j]].letters if fps and isinstance(fp, FingerprintTerm) else "",
+                "mixtures": mixtures,
             }
         )
     if as_json:

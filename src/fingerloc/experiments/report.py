@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..terms import MixtureTerm
 from .robot import (
     PAPER_TABLE2,
     PAPER_TABLE3,
@@ -190,8 +191,10 @@ def write_demo_report(
     plot.plot_fingerprint(fp, out / "fingerprint.png", title=f"{world.name}: fingerprint of test pose 1")
     model = ev.model
     place = model.places_[world.name]
-    if "VE" in place.mixtures:
-        w, mu, sg = place.mixtures["VE"]
+    ve = model.terms_.get("VE")
+    mixture = ve.mixtures_[model.column_of(world.name)] if isinstance(ve, MixtureTerm) else None
+    if mixture is not None:
+        w, mu, sg = mixture
         samples = np.concatenate([o.bearings("VE") for o in place.observations])
         plot.plot_mixture(
             w,

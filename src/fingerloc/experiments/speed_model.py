@@ -60,7 +60,7 @@ def bench_model(quick: bool) -> dict[str, Any]:
     top1 = model.score(test, ql)
     with tempfile.TemporaryDirectory() as d:
         size = save_model(model, Path(d) / "p.sqlite")
-    fps = [fp for p in model.places_.values() for fp in p.fingerprints]
+    fps = [fp for g in model.terms_["Fp"].fingerprints_ for fp in g]  # type: ignore[attr-defined]
     letters = sum(len(fp) for fp in fps)
     return {
         "places": n_places,

@@ -33,9 +33,8 @@ import numpy as np
 
 from .. import __version__
 from ..errors import DatabaseError, DataFormatError, FingerlocError
-from ..fingerprint import Fingerprint
 from ..io.jsonl import observation_from_record, observation_to_record
-from ..model import PlaceData, PlaceModel
+from ..model import PlaceModel
 
 __all__ = ["FORMAT", "SCHEMA_VERSION", "load_model", "read_graph_edges", "save_model"]
 
@@ -85,6 +84,10 @@ def _costs_from_json(data: Any) -> Any:
     return CostModel(substitution=np.asarray(data["substitution"]), indel=np.asarray(data["indel"]))
 
 
+def _meta_json(value: Any) -> str:
+    return json.dumps(value)
+
+
 def save_model(
     model: PlaceModel,
     path: str | Path,
@@ -92,6 +95,11 @@ def save_model(
     graph_edges: Mapping[tuple[str, str], int] | None = None,
 ) -> int:
     """Write a fitted model to a place database, atomically.
+
+    The model's state (:meth:`PlaceModel.to_state`) is spread over the tables
+    of the module docstring: observations as JSON Lines records, the
+    fingerprint term's fingerprints, medoids and consensus strings, the
+    mixture terms' parameters, the distance terms' calibration in ``meta``.
 
     Parameters
     ----------
@@ -107,12 +115,20 @@ def save_model(
     int
         Size of the written file in bytes.
     """
-    model._check_fitted()
+    state = model.to_state()
     target = Path(path)
-    params = model.get_params()
+    params = dict(state["params"])
     params["costs"] = _costs_to_json(params["costs"])
     rs = params["random_state"]
     params["random_state"] = rs if isinstance(rs, int) or rs is None else None
+    params["terms"] = list(params["terms"])
+    if params["weights"] is not None and not isinstance(params["weights"], str):
+        params["weights"] = dict(params["weights"])
+    labels = state["labels"]
+    terms = state["terms"]
+    fp = terms.get("Fp")
+    lambdas = {n: t["lambda"] for n, t in terms.items() if "lambda" in t}
+    unknown = {n: t["unknown_cost"] for n, t in terms.items() if t.get("unknown_cost") is not None}
     directory = target.parent if str(target.parent) else Path(".")
     if not directory.is_dir():
         raise DatabaseError(f"{target}: directory {directory} does not exist")
@@ -127,36 +143,39 @@ def save_model(
                     "format": FORMAT,
                     "schema_version": str(SCHEMA_VERSION),
                     "fingerloc_version": __version__,
-                    "params": json.dumps(params),
-                    "lambdas": json.dumps(model.lambdas_),
-                    "unknown_costs": json.dumps(model.unknown_costs_),
-                    "fitted_weights": json.dumps(getattr(model, "weights_", {})),
+                    "params": _meta_json(params),
+                    "lambdas": _meta_json(lambdas),
+                    "unknown_costs": _meta_json(unknown),
+                    "fitted_weights": _meta_json(state["weights"]),
                 }
+                if any(isinstance(lab, int) and not isinstance(lab, bool) for lab in labels):
+                    meta["labels"] = _meta_json([lab if isinstance(lab, int) and not isinstance(lab, bool) else str(lab) for lab in labels])
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
-                for pid, place in enumerate(model.places_.values()):
-                    cons = place.consensus
+                for pid, (label, group) in enumerate(zip(labels, state["observations"], strict=True)):
+                    cons = fp["consensus"][pid] if fp else None
                     con.execute(
                         "INSERT INTO places VALUES (?, ?, ?, ?, ?)",
                         (
                             pid,
-                            place.label,
-                            place.medoid,
-                            None if cons is None else cons.letters,
-                            None if cons is None else _blob(cons.bearings),
+                            str(label),
+                            fp["medoids"][pid] if fp else 0,
+                            None if cons is None else cons[0],
+                            None if cons is None else _blob(cons[1]),
                         ),
                     )
-                    for idx, (obs, fp) in enumerate(zip(place.observations, place.fingerprints, strict=True)):
+                    for idx, obs in enumerate(group):
                         cur = con.execute(
                             "INSERT INTO observations(place_id, idx, record) VALUES (?, ?, ?)",
                             (pid, idx, json.dumps(observation_to_record(obs, ndigits=12))),
                         )
-                        con.execute(
-                            "INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, fp.letters, _blob(fp.bearings))
-                        )
-                    for term, (w, m, s) in place.mixtures.items():
-                        con.execute(
-                            "INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, term, _blob(w), _blob(m), _blob(s))
-                        )
+                        if fp:
+                            letters, bearings = fp["fingerprints"][pid][idx]
+                            con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, letters, _blob(bearings)))
+                for name, t in terms.items():
+                    for pid, mx in enumerate(t.get("mixtures", [])):
+                        if mx is not None:
+                            w, m, sg = mx
+                            con.execute("INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, name, _blob(w), _blob(m), _blob(sg)))
                 for (src, dst), count in (graph_edges or {}).items():
                     con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
         with open(tmp, "rb") as fh:
@@ -207,47 +226,74 @@ def load_model(path: str | Path) -> PlaceModel:
     ------
     DatabaseError
         When the file is missing, not SQLite, truncated or corrupt, of another
-        format, or of an unsupported schema version.
+        format, or of an unsupported schema version, or when its rows do not
+        make a consistent model.
     """
     with _open(path) as con:
         meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
         try:
             params = json.loads(meta["params"])
+            if not isinstance(params, dict):
+                raise TypeError(f"params must be a JSON object, got {type(params).__name__}")
             params["costs"] = _costs_from_json(params.get("costs"))
-            model = PlaceModel(**params)
-            model._validate()
-            model.lambdas_ = {str(k): float(v) for k, v in json.loads(meta["lambdas"]).items()}
-            model.unknown_costs_ = {str(k): float(v) for k, v in json.loads(meta["unknown_costs"]).items()}
-            model.weights_ = {str(k): float(v) for k, v in json.loads(meta.get("fitted_weights", "{}")).items()}
-        except (KeyError, TypeError, ValueError, FingerlocError) as err:
+            lambdas = {str(k): float(v) for k, v in json.loads(meta["lambdas"]).items()}
+            unknown = {str(k): float(v) for k, v in json.loads(meta["unknown_costs"]).items()}
+            weights = {str(k): float(v) for k, v in json.loads(meta.get("fitted_weights", "{}")).items()}
+            typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
+        except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
             raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
-        places: dict[str, PlaceData] = {}
+        labels: list[Any] = []
+        medoids: list[int] = []
+        consensus: list[Any] = []
+        index: dict[int, int] = {}
         rows = con.execute("SELECT id, label, medoid, consensus_letters, consensus_bearings FROM places ORDER BY id")
-        ids: dict[int, PlaceData] = {}
         for pid, label, medoid, cl, cb in rows:
-            cons = None if cl is None else Fingerprint(cl, _array(cb))
-            pd = PlaceData(label, [], [], {}, int(medoid), cons)
-            places[label] = pd
-            ids[pid] = pd
+            index[pid] = len(labels)
+            labels.append(label)
+            medoids.append(medoid)
+            consensus.append(None if cl is None else (cl, _array(cb)))
+        observations: list[list[Any]] = [[] for _ in labels]
+        fingerprints: list[list[Any]] = [[] for _ in labels]
         q = (
             "SELECT o.place_id, o.record, f.letters, f.bearings FROM observations o "
-            "JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
+            "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
         )
         for pid, record, letters, bearings in con.execute(q):
+            if pid not in index:
+                raise DatabaseError(f"{path}: an observation row points at place id {pid!r}, which does not exist")
             try:
                 obs = observation_from_record(json.loads(record))
-            except (ValueError, DataFormatError) as err:
+            except (ValueError, TypeError, DataFormatError) as err:
                 raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
-            ids[pid].observations.append(obs)
-            ids[pid].fingerprints.append(Fingerprint(letters, _array(bearings)))
+            observations[index[pid]].append(obs)
+            fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
+        mixtures: dict[str, list[Any]] = {}
         for pid, term, w, m, s in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
-            ids[pid].mixtures[term] = (_array(w), _array(m), _array(s))
-    if not places:
+            if pid not in index:
+                raise DatabaseError(f"{path}: a mixture row points at place id {pid!r}, which does not exist")
+            mixtures.setdefault(str(term), [None] * len(labels))[index[pid]] = (_array(w), _array(m), _array(s))
+    if not labels:
         raise DatabaseError(f"{path}: the place database holds no place")
-    model.places_ = places
-    model.classes_ = np.array(list(places), dtype=object)
-    model._index_references()
-    return model
+    if typed_labels is not None:
+        if not isinstance(typed_labels, list) or len(typed_labels) != len(labels):
+            raise DatabaseError(f"{path}: the stored label types do not match the places")
+        labels = typed_labels
+    terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
+    for name in ("Fp", "R"):
+        terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
+    if all(f is not None for g in fingerprints for f in g):
+        terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
+    else:  # no stored fingerprint for some view: the term recomputes them
+        terms_state["Fp"].update(medoids=medoids, consensus=consensus)
+    for name in ("VE", "CP", "Ex", "B"):
+        terms_state.setdefault(name, {"mixtures": [None] * len(labels)})
+    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights}
+    try:
+        return PlaceModel.from_state(state)
+    except DatabaseError as err:
+        raise DatabaseError(f"{path}: {err}") from err
+    except (FingerlocError, TypeError, ValueError, IndexError, KeyError) as err:
+        raise DatabaseError(f"{path}: the place database does not hold a consistent model ({err})") from err
 
 
 def read_graph_edges(path: str | Path) -> dict[tuple[str, str], int]:

@@ -10,7 +10,7 @@ The filter carries that information along a trajectory: the belief over places
       b_t^-(j) = sum_i b_{t-1}(i) T[i, j]
 
 * **updated** with the likelihood of the step's observation (any single-shot
-  method's per-place log-likelihood, e.g. :meth:`PlaceModel._joint_log_likelihood`)::
+  method's per-place log-likelihood, e.g. :meth:`PlaceModel.joint_log_likelihood`)::
 
       b_t(j) = b_t^-(j) P(z_t | j) / sum_k b_t^-(k) P(z_t | k)
 

@@ -1,0 +1,37 @@
+"""The terms of the Bayesian program (SPEC §4): one factor ``P(term | Loc)`` each.
+
+=====  ==========================================================  ============
+name   term                                                        class
+=====  ==========================================================  ============
+VE     vertical edges: product of angular mixtures                 MixtureTerm
+CP     colour patches: product of angular mixtures                 MixtureTerm
+Ex     laser extremities: product of angular mixtures              MixtureTerm
+B      beacons: product of angular mixtures                        MixtureTerm
+Fp     the fingerprint string: alignment to stored fingerprints   FingerprintTerm
+R      range distribution (2D laser, heading-free; ours)           RangeTerm
+=====  ==========================================================  ============
+
+:class:`fingerloc.model.PlaceModel` combines them; each term can also be used
+on its own (``term.fit(groups).log_likelihood(observations)``).
+"""
+
+from .base import Term
+from .distance import DistanceTerm, fit_lambda
+from .fingerprint import FingerprintTerm, consensus_fingerprint, crop_fingerprint
+from .mixture import LOG_UNIFORM, MOG_TERMS, MixtureTerm, fit_mixture_terms
+from .range import RangeTerm, range_descriptor
+
+__all__ = [
+    "LOG_UNIFORM",
+    "MOG_TERMS",
+    "DistanceTerm",
+    "FingerprintTerm",
+    "MixtureTerm",
+    "RangeTerm",
+    "Term",
+    "consensus_fingerprint",
+    "crop_fingerprint",
+    "fit_lambda",
+    "fit_mixture_terms",
+    "range_descriptor",
+]

@@ -1,0 +1,312 @@
+"""The fingerprint term ``P(Fp | Loc)`` (SPEC §4): string alignment against a place's stored fingerprints.
+
+``likelihood="paper"``: ``P(Fp | loc) = 1 / (cost + 1)``; ``"exp"``:
+``exp(-lambda cost)``, ``lambda`` fit leave-one-out (:mod:`.distance`). The
+cost is the least alignment cost over the place's references
+(``reference``: every training fingerprint, the medoid, or a consensus
+string). With a field of view narrower than the circle and ``cyclic=False``,
+the references' letters outside the query's field of view are dropped before
+aligning, so empty space the query did not see costs nothing. With
+``cyclic=True`` every rotation of a reference is tried (heading unknown), and
+the term estimates the heading of a view at each place (:meth:`FingerprintTerm.headings`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..angles import TWO_PI
+from ..errors import DatabaseError, InvalidParameterError
+from ..fingerprint import Fingerprint, make_fingerprint
+from ..metrics import min_per_place_groups
+from ..observation import FULL_FOV, Observation
+from .base import FArray
+from .distance import DistanceTerm
+
+__all__ = ["FingerprintTerm", "consensus_fingerprint", "crop_fingerprint"]
+
+
+class FingerprintTerm(DistanceTerm):
+    """``P(Fp | Loc)`` from alignment costs to each place's stored fingerprints.
+
+    Parameters
+    ----------
+    likelihood : {"paper", "exp"}
+    reference : {"all", "medoid", "consensus"}
+    cyclic : bool
+        Align over every rotation of the references (heading unknown).
+    costs : fingerloc.align.CostModel or None
+        Edit costs (unit costs by default).
+    empty_step_deg, merge_tol_deg, laser_letters
+        Fingerprint generation (:func:`fingerloc.make_fingerprint`).
+    need_unknown : bool
+        Calibrate ``unknown_cost_`` even with the paper's likelihood.
+
+    Attributes
+    ----------
+    fingerprints_ : list of list of Fingerprint
+        Per place, the fingerprint of each training view.
+    medoids_ : list of int
+        Per place, the index of the training fingerprint with the least summed cost to the others.
+    consensus_ : list of Fingerprint or None
+        Per place, its average fingerprint (``reference="consensus"``).
+    """
+
+    name = "Fp"
+    heading_free = True
+
+    def __init__(
+        self,
+        *,
+        likelihood: str = "paper",
+        reference: str = "all",
+        cyclic: bool = False,
+        costs: Any = None,
+        empty_step_deg: float = 20.0,
+        merge_tol_deg: float = 5.0,
+        laser_letters: bool = False,
+        need_unknown: bool = False,
+    ) -> None:
+        self.likelihood = likelihood
+        self.reference = reference
+        self.cyclic = cyclic
+        self.costs = costs
+        self.empty_step_deg = empty_step_deg
+        self.merge_tol_deg = merge_tol_deg
+        self.laser_letters = laser_letters
+        self.need_unknown = need_unknown
+        self.heading_free = bool(cyclic)
+
+    def fingerprint(self, obs: Observation) -> Fingerprint:
+        """The fingerprint of one observation with this term's generation parameters."""
+        return make_fingerprint(
+            obs, empty_step_deg=self.empty_step_deg, merge_tol_deg=self.merge_tol_deg, laser_letters=self.laser_letters
+        )
+
+    # -- learning --------------------------------------------------------------
+    def fit(self, groups: Sequence[Sequence[Observation]]) -> FingerprintTerm:
+        self.fingerprints_: list[list[Fingerprint]] = []
+        self.medoids_: list[int] = []
+        self.consensus_: list[Fingerprint | None] = []
+        self._refit(groups, range(len(groups)))
+        self.calibrate(groups)
+        return self
+
+    def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> FingerprintTerm:
+        self._refit(groups, changed)
+        return self
+
+    def _refit(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int] | range) -> None:
+        from ..align import alignment_costs
+
+        n = len(groups)
+        grow = n - len(self.fingerprints_)
+        self.fingerprints_ += [[] for _ in range(grow)]
+        self.medoids_ += [0] * grow
+        self.consensus_ += [None] * grow
+        for j in changed:
+            fps = [self.fingerprint(o) for o in groups[j]]
+            self.fingerprints_[j] = fps
+            if len(fps) > 1:
+                d = alignment_costs(fps, fps, cyclic=self.cyclic, costs=self.costs)
+                self.medoids_[j] = int(np.argmin(d.sum(axis=1)))
+            else:
+                self.medoids_[j] = 0
+            if self.reference == "consensus":
+                self.consensus_[j] = consensus_fingerprint(fps, costs=self.costs, cyclic=self.cyclic) if fps else None
+        self._index()
+
+    def _index(self) -> None:
+        """Flatten the references: ``_refs`` and the first column of each place (``_starts``)."""
+        refs: list[Fingerprint] = []
+        owner: list[int] = []
+        for j, fps in enumerate(self.fingerprints_):
+            if self.reference == "all":
+                chosen = fps
+            elif self.reference == "medoid":
+                chosen = [fps[self.medoids_[j]]]
+            else:
+                cons = self.consensus_[j]
+                chosen = [cons if cons is not None else fps[self.medoids_[j]]]
+            refs += chosen
+            owner += [j] * len(chosen)
+        self._refs = refs
+        self._owner = np.asarray(owner, dtype=np.int64)
+        self._starts = np.searchsorted(self._owner, np.arange(len(self.fingerprints_)))
+        self._crop_cache: dict[Any, Any] = {}
+
+    def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
+        from ..align import alignment_costs
+
+        fps = [fp for g in self.fingerprints_ for fp in g]
+        return alignment_costs([fps[i] for i in rows], fps, cyclic=self.cyclic, costs=self.costs)
+
+    # -- inference -------------------------------------------------------------
+    def _references_for(self, fov: tuple[tuple[float, float], ...]) -> Any:
+        """The references as a validated batch, cropped to a partial query ``fov`` (cached)."""
+        from ..align import FingerprintBatch
+
+        if self.cyclic or any(width >= TWO_PI - 1e-12 for _, width in fov):
+            fov = FULL_FOV
+        if fov not in self._crop_cache:
+            refs = self._refs if fov == FULL_FOV else [crop_fingerprint(fp, fov) for fp in self._refs]
+            self._crop_cache[fov] = FingerprintBatch(refs)
+        return self._crop_cache[fov]
+
+    def distances(self, observations: Sequence[Observation]) -> FArray:
+        """Alignment cost of each observation to each place, shape ``(n, P)`` (per ``reference``)."""
+        from ..align import alignment_costs
+
+        obs = list(observations)
+        qfps = [self.fingerprint(o) for o in obs]
+        out = np.full((len(obs), len(self.fingerprints_)), np.inf)
+        groups: dict[Any, list[int]] = {}
+        for i, o in enumerate(obs):
+            groups.setdefault(o.fov, []).append(i)
+        for fov, idx in groups.items():
+            d = alignment_costs([qfps[i] for i in idx], self._references_for(fov), cyclic=self.cyclic, costs=self.costs)
+            out[idx] = min_per_place_groups(d, self._starts)
+        return out
+
+    def headings(self, observations: Sequence[Observation]) -> FArray | None:
+        """Heading of each observation at each place, radians, shape ``(n, P)`` (NaN where none).
+
+        The best cyclic alignment against the place's best-matching reference
+        gives the angle to add to the reference's bearings to bring them onto
+        the observation's (:class:`fingerloc.align.CyclicAlignment`).
+        """
+        from ..align import alignment_costs, cyclic_alignment
+
+        obs = list(observations)
+        qfps = [self.fingerprint(o) for o in obs]
+        out = np.full((len(obs), len(self.fingerprints_)), np.nan)
+        if not obs or not self._refs:
+            return out
+        d = alignment_costs(qfps, self._references_for(FULL_FOV), cyclic=True, costs=self.costs)
+        bounds = [*self._starts.tolist(), len(self._refs)]
+        for j in range(len(self.fingerprints_)):
+            lo, hi = bounds[j], bounds[j + 1]
+            if hi <= lo:
+                continue
+            best = lo + np.argmin(d[:, lo:hi], axis=1)
+            for i, r in enumerate(best):
+                h = cyclic_alignment(qfps[i], self._refs[int(r)], costs=self.costs).heading_deg
+                if h is not None:
+                    out[i, j] = math.radians(h)
+        return out
+
+    def heading_at(self, obs: Observation, place: int) -> tuple[float | None, int]:
+        """Heading (degrees) of one view at one place, and the index of the training view it is measured against."""
+        from ..align import cyclic_alignment
+
+        q = self.fingerprint(obs)
+        best: tuple[float, float | None, int] | None = None
+        for v, fp in enumerate(self.fingerprints_[place]):
+            r = cyclic_alignment(q, fp, costs=self.costs)
+            if best is None or r.cost < best[0]:
+                best = (r.cost, r.heading_deg, v)
+        return (None, -1) if best is None else (best[1], best[2])
+
+    # -- state -----------------------------------------------------------------
+    def to_state(self) -> dict[str, Any]:
+        return {
+            "fingerprints": [[(fp.letters, np.asarray(fp.bearings)) for fp in g] for g in self.fingerprints_],
+            "medoids": list(self.medoids_),
+            "consensus": [None if c is None else (c.letters, np.asarray(c.bearings)) for c in self.consensus_],
+            **self._calibration_state(),
+        }
+
+    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> FingerprintTerm:
+        try:
+            fps = state.get("fingerprints")
+            if fps is None:  # recompute from the observations
+                fps = [[(f.letters, f.bearings) for f in (self.fingerprint(o) for o in g)] for g in groups]
+            self.fingerprints_ = [[Fingerprint(s, np.asarray(b, dtype=np.float64)) for s, b in g] for g in fps]
+            self.medoids_ = [int(m) for m in state.get("medoids", [0] * len(groups))]
+            cons = state.get("consensus") or [None] * len(groups)
+            self.consensus_ = [None if c is None else Fingerprint(c[0], np.asarray(c[1], dtype=np.float64)) for c in cons]
+        except (TypeError, ValueError, IndexError, InvalidParameterError) as err:
+            raise DatabaseError(f"stored fingerprint term is malformed: {err}") from err
+        n = len(groups)
+        if not (len(self.fingerprints_) == len(self.medoids_) == len(self.consensus_) == n):
+            raise DatabaseError(f"stored fingerprint term holds {len(self.fingerprints_)} places for {n}")
+        for j, (g, m) in enumerate(zip(self.fingerprints_, self.medoids_, strict=True)):
+            if g and not (0 <= m < len(g)):
+                raise DatabaseError(f"place {j}: medoid {m} out of range 0..{len(g) - 1}")
+        self._set_calibration_state(state)
+        self._index()
+        return self
+
+
+def crop_fingerprint(fp: Fingerprint, fov: tuple[tuple[float, float], ...]) -> Fingerprint:
+    """The letters of ``fp`` whose bearing lies inside ``fov`` (ranges of (start, width) radians)."""
+    keep = np.zeros(len(fp), dtype=bool)
+    for start, width in fov:
+        keep = keep | np.asarray(np.mod(fp.bearings - start, TWO_PI) <= width)
+    if keep.all():
+        return fp
+    letters = "".join(ch for ch, k in zip(fp.letters, keep, strict=True) if k)
+    return Fingerprint(letters, fp.bearings[keep])
+
+
+def consensus_fingerprint(
+    fingerprints: Sequence[Fingerprint],
+    *,
+    costs: Any = None,
+    cyclic: bool = False,
+    max_rounds: int = 3,
+) -> Fingerprint:
+    """An average fingerprint of a place: an approximate median string.
+
+    The median string minimises the summed alignment cost to the place's
+    fingerprints. Finding it exactly is NP-hard, so we start from the medoid
+    (the best of the given strings) and improve it greedily: for ``max_rounds``
+    rounds, try deleting each letter, substituting it, and inserting a letter
+    of the alphabet at each position, keeping any edit that lowers the summed
+    cost. The result is never worse than the medoid. Letter bearings come from
+    the medoid (inserted letters take their neighbour's bearing).
+    """
+    from ..align import alignment_costs
+    from ..fingerprint import ALPHABET
+
+    fps = list(fingerprints)
+    if not fps:
+        raise InvalidParameterError("consensus_fingerprint needs at least one fingerprint")
+    if len(fps) == 1:
+        return fps[0]
+    d = alignment_costs(fps, fps, cyclic=cyclic, costs=costs)
+    medoid = fps[int(np.argmin(d.sum(axis=1)))]
+    best_s = medoid.letters
+    best_b = list(medoid.bearings)
+
+    def total(strings: list[str]) -> FArray:
+        return alignment_costs(strings, fps, cyclic=cyclic, costs=costs).sum(axis=1)
+
+    best_cost = float(total([best_s])[0])
+    used = sorted(set("".join(fp.letters for fp in fps)) | {"n"}, key=ALPHABET.index)
+    for _ in range(max_rounds):
+        cands: list[tuple[str, list[float]]] = []
+        s, b = best_s, best_b
+        for i in range(len(s)):
+            cands.append((s[:i] + s[i + 1 :], b[:i] + b[i + 1 :]))
+            for ch in used:
+                if ch != s[i]:
+                    cands.append((s[:i] + ch + s[i + 1 :], b))
+        for i in range(len(s) + 1):
+            bb = b[i - 1] if i > 0 else (b[0] if b else 0.0)
+            for ch in used:
+                cands.append((s[:i] + ch + s[i:], [*b[:i], bb, *b[i:]]))
+        if not cands:
+            break
+        tot = total([c[0] for c in cands])
+        j = int(np.argmin(tot))
+        if tot[j] >= best_cost - 1e-12:
+            break
+        best_cost = float(tot[j])
+        best_s, best_b = cands[j]
+    return Fingerprint(best_s, np.asarray(best_b, dtype=np.float64))

@@ -1,0 +1,166 @@
+"""The range term ``R`` (our extension for 2D lasers): a heading-free distance between range distributions.
+
+``P(R | loc) ∝ exp(-lambda_R d(R, R_loc))``, ``d`` the L1 distance between
+cumulative range histograms (an earth mover's distance between the
+distributions of beam ranges, in bins) to the nearest training scan of
+``loc``, ``lambda_R`` fit leave-one-out on the training scans
+(:mod:`.distance`). Observations need their raw ranges (``Observation.ranges``);
+the term keeps only each training scan's descriptor (``len(bins) + 1``
+floats), not the scan.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import DatabaseError, InvalidParameterError
+from ..observation import Observation
+from .base import FArray
+from .distance import DistanceTerm
+
+__all__ = ["RangeTerm", "range_descriptor"]
+
+
+class RangeTerm(DistanceTerm):
+    """``P(R | Loc)`` from range histograms.
+
+    Parameters
+    ----------
+    bin_m, max_m : float
+        Bin width and last bin edge (metres); ranges beyond ``max_m`` and
+        beams without return share one last bin.
+
+    Attributes
+    ----------
+    descriptors_ : list of ndarray, each (v_j, len(bins) + 1)
+        Per place, the descriptor of each training view that carries ranges.
+    """
+
+    name = "R"
+    heading_free = True
+    likelihood = "exp"
+
+    def __init__(self, *, bin_m: float = 0.25, max_m: float = 10.0) -> None:
+        self.bin_m = bin_m
+        self.max_m = max_m
+
+    def bins(self) -> FArray:
+        """Upper bin edges, metres."""
+        return np.arange(self.bin_m, self.max_m + 1e-9, self.bin_m)
+
+    def descriptor(self, obs: Observation) -> FArray:
+        """The cumulative range histogram of one observation (:func:`range_descriptor`)."""
+        return range_descriptor(obs, self.bins())
+
+    def _descriptors(self, group: Sequence[Observation]) -> FArray:
+        width = self.bins().size + 1
+        rows = [self.descriptor(o) for o in group if o.ranges is not None]
+        return np.stack(rows) if rows else np.zeros((0, width))
+
+    def fit(self, groups: Sequence[Sequence[Observation]]) -> RangeTerm:
+        self.descriptors_ = [self._descriptors(g) for g in groups]
+        self._index()
+        self.calibrate(groups)
+        return self
+
+    def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> RangeTerm:
+        width = self.bins().size + 1
+        self.descriptors_ += [np.zeros((0, width))] * (len(groups) - len(self.descriptors_))
+        for j in changed:
+            self.descriptors_[j] = self._descriptors(groups[j])
+        self._index()
+        return self
+
+    def _index(self) -> None:
+        width = self.bins().size + 1
+        self._refs = np.vstack(self.descriptors_) if self.descriptors_ else np.zeros((0, width))
+        self._owner = np.repeat(np.arange(len(self.descriptors_)), [d.shape[0] for d in self.descriptors_])
+
+    def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
+        """Distances between training views; the views without ranges are never anyone's neighbour."""
+        from scipy.spatial.distance import cdist
+
+        if self._refs.shape[0] == 0:
+            return None
+        # one row per training view: views without ranges have none, so index the views that carry one
+        has = self._has_ranges
+        desc = np.zeros((has.size, self._refs.shape[1]))
+        desc[has] = self._refs
+        d = cdist(desc[rows], desc, metric="cityblock")
+        d[:, ~has] = np.inf
+        d[~has[rows]] = np.inf
+        return d
+
+    def calibrate(self, groups: Sequence[Sequence[Observation]]) -> None:
+        self._has_ranges = np.array([o.ranges is not None for g in groups for o in g], dtype=bool)
+        super().calibrate(groups)
+
+    def distances(self, observations: Sequence[Observation]) -> FArray:
+        """Range distance of each observation to each place, shape ``(n, P)``.
+
+        Rows of observations without ranges are 0 (the term says nothing); a
+        place without any training ranges gets the row's largest finite distance.
+        """
+        from scipy.spatial.distance import cdist
+
+        obs = list(observations)
+        n_places = len(self.descriptors_)
+        out = np.zeros((len(obs), n_places))
+        idx = [i for i, o in enumerate(obs) if o.ranges is not None]
+        if not idx or self._refs.shape[0] == 0:
+            return out
+        q = np.stack([self.descriptor(obs[i]) for i in idx])
+        d = cdist(q, self._refs, metric="cityblock")
+        per = np.full((len(idx), n_places), np.inf)
+        has = np.bincount(self._owner, minlength=n_places) > 0
+        starts = np.searchsorted(self._owner, np.arange(n_places))
+        per[:, has] = np.minimum.reduceat(d, starts[has], axis=1)
+        worst = np.max(np.where(np.isfinite(per), per, -np.inf), axis=1, keepdims=True)
+        out[idx] = np.where(np.isfinite(per), per, worst)
+        return out
+
+    def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
+        """The likelihood at ``unknown_cost_`` for views with ranges, 0 (no evidence) for the others."""
+        has = np.array([o.ranges is not None for o in observations], dtype=float)
+        return super().unknown_log_likelihood(observations) * has
+
+    def to_state(self) -> dict[str, Any]:
+        return {"descriptors": [d.copy() for d in self.descriptors_], **self._calibration_state()}
+
+    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> RangeTerm:
+        width = self.bins().size + 1
+        descs = state.get("descriptors")
+        if descs is None:  # recompute from the observations (databases that stored raw ranges)
+            self.descriptors_ = [self._descriptors(g) for g in groups]
+        else:
+            try:
+                self.descriptors_ = [np.asarray(d, dtype=np.float64).reshape(-1, width) for d in descs]
+            except ValueError as err:
+                raise DatabaseError(f"stored range descriptors do not have {width} columns") from err
+        if len(self.descriptors_) != len(groups):
+            raise DatabaseError(f"stored range term holds {len(self.descriptors_)} places for {len(groups)}")
+        self._set_calibration_state(state)
+        self._index()
+        return self
+
+
+def range_descriptor(obs: Observation, bins: FArray) -> FArray:
+    """Cumulative histogram of an observation's beam ranges, shape ``(len(bins) + 1,)``.
+
+    ``bins`` are the upper edges (metres) of all but the last bin; ranges at
+    or beyond the last edge and beams without return fall in the last bin.
+    The histogram is normalised to sum 1 before the cumulative sum, so the
+    last entry is 1 and L1 distances between descriptors are earth mover's
+    distances (in bins) between the range distributions.
+    """
+    if obs.ranges is None:
+        raise InvalidParameterError("the range term needs observations with ranges (Observation.ranges)")
+    r = obs.ranges
+    idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
+    h = np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1).astype(np.float64)
+    total = h.sum()
+    return np.cumsum(h / total) if total > 0 else np.ones(bins.size + 1)
