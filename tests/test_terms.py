@@ -149,3 +149,24 @@ def test_range_term_state_keeps_descriptors_not_scans():
     q = [o for g in groups for o in g]
     np.testing.assert_array_equal(back.log_likelihood(q), t.log_likelihood(q))
     assert np.argmax(t.log_likelihood(q), axis=1).tolist() == [0, 0, 0, 1, 1, 1]
+
+
+def test_range_term_grows_a_place_without_its_old_scans():
+    rng = np.random.default_rng(8)
+    bearings = np.linspace(-np.pi / 2, np.pi / 2, 91)
+
+    def scan(lo):
+        return Observation(ranges=rng.uniform(lo, lo + 1.0, 91), range_bearings=bearings)
+
+    groups = [[scan(1.0), scan(1.0)], [scan(5.0)]]
+    full = RangeTerm().fit(groups)
+    # a term restored from descriptors only (the old views carry no ranges any more) ...
+    stripped = [[Observation() for _ in g] for g in groups]
+    restored = RangeTerm().set_state(full.to_state(), stripped)
+    extra = scan(5.0)
+    full.update([groups[0], [*groups[1], extra]], [1])
+    restored.update([stripped[0], [*stripped[1], extra]], [1])
+    # ... grows exactly as the term that still has every scan
+    for a, b in zip(full.descriptors_, restored.descriptors_, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert restored.descriptors_[1].shape[0] == 2

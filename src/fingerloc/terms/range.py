@@ -63,15 +63,25 @@ class RangeTerm(DistanceTerm):
 
     def fit(self, groups: Sequence[Sequence[Observation]]) -> RangeTerm:
         self.descriptors_ = [self._descriptors(g) for g in groups]
+        self._n_seen = [len(g) for g in groups]
         self._index()
         self.calibrate(groups)
         return self
 
     def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> RangeTerm:
+        """Describe the views appended to the places ``changed`` since the last fit or update.
+
+        Views already described keep their descriptors, so a place database
+        that stores descriptors instead of scans can still grow.
+        """
         width = self.bins().size + 1
-        self.descriptors_ += [np.zeros((0, width))] * (len(groups) - len(self.descriptors_))
+        grow = len(groups) - len(self.descriptors_)
+        self.descriptors_ += [np.zeros((0, width)) for _ in range(grow)]
+        self._n_seen += [0] * grow
         for j in changed:
-            self.descriptors_[j] = self._descriptors(groups[j])
+            fresh = self._descriptors(groups[j][self._n_seen[j] :])
+            self.descriptors_[j] = np.vstack([self.descriptors_[j], fresh])
+            self._n_seen[j] = len(groups[j])
         self._index()
         return self
 
@@ -143,6 +153,7 @@ class RangeTerm(DistanceTerm):
                 raise DatabaseError(f"stored range descriptors do not have {width} columns") from err
         if len(self.descriptors_) != len(groups):
             raise DatabaseError(f"stored range term holds {len(self.descriptors_)} places for {len(groups)}")
+        self._n_seen = [len(g) for g in groups]
         self._set_calibration_state(state)
         self._index()
         return self
