@@ -244,7 +244,6 @@ def test_ros2_storage_file_directly(tmp_path):
 # ---- fingerloc features on bags ------------------------------------------------------------------
 
 
-
 def _box_with_beacons(n=271, fov_deg=270.0):
     """A 270 deg scan from the middle of a 6 x 4 m box; two bright 4-beam stripes on the walls."""
     a = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
@@ -299,3 +298,254 @@ def test_features_command_on_a_bag(tmp_path, capsys, ros1):
     assert code == 2 and "/front/scan, /rear/scan" in err
     code, text, err = _run(capsys, "features", p, "--topic", "/rear/scan")
     assert code == 0 and len(text.strip().splitlines()) == 1
+
+
+# ---- two lidars back to back, one upside down: mounts, poses, merging (issue 12) ----------------
+
+ROOM = (8.0, 6.0)  # a rectangular room [0, 8] x [0, 6], metres
+ROOM_CORNERS = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 6.0], [0.0, 6.0]])
+# mounts in base_link: (x, y, z), (roll, pitch, yaw); the back lidar hangs upside down
+FRONT = ((0.30, 0.05, 0.15), (0.0, 0.0, 0.0))
+BACK = ((-0.30, -0.05, 0.15), (math.pi, 0.0, math.pi))
+FOOT_TO_LINK = ((0.0, 0.0, 0.10), (0.0, 0.0, 0.0))
+MAP_TO_ODOM = ((0.5, -0.2, 0.0), (0.0, 0.0, 0.1))
+
+
+def _rot(rpy):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("xyz", rpy)  # extrinsic x, y, z: R = Rz Ry Rx
+
+
+def _truth_pose(t):
+    """base_footprint in map, moving on a straight line and turning: (x, y, theta)."""
+    return (3.0 + 0.8 * (t - 10.0), 2.5 + 0.3 * (t - 10.0), 0.4 + 0.5 * (t - 10.0))
+
+
+def _odom_pose(t):
+    """base_footprint in odom such that map->odom * odom->base is the truth."""
+    (mx, my, _), (_, _, myaw) = MAP_TO_ODOM
+    x, y, th = _truth_pose(t)
+    c, s = math.cos(myaw), math.sin(myaw)
+    dx, dy = x - mx, y - my
+    return (c * dx + s * dy, -s * dx + c * dy, th - myaw)
+
+
+def _room_ranges(origin, directions):
+    """Distance from origin (2,) along unit directions (n, 2) to the walls of ROOM."""
+    ox, oy = origin
+    dx, dy = directions[:, 0], directions[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tx = np.where(dx > 1e-12, (ROOM[0] - ox) / dx, np.where(dx < -1e-12, -ox / dx, np.inf))
+        ty = np.where(dy > 1e-12, (ROOM[1] - oy) / dy, np.where(dy < -1e-12, -oy / dy, np.inf))
+    return np.minimum(tx, ty)
+
+
+def _lidar_ranges(t, mount, n=541, fov_deg=270.0):
+    """Ray-cast one lidar (beam angles in its own frame, counter-clockwise) at time t (scipy rotations)."""
+    x, y, th = _truth_pose(t)
+    base = _rot((0.0, 0.0, th))
+    link_z = FOOT_TO_LINK[0][2]
+    (mx, my, mz), rpy = mount
+    sensor = base * _rot(rpy)
+    origin = np.array([x, y, 0.0]) + base.apply([mx, my, mz + link_z])
+    phi = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
+    d = sensor.apply(np.column_stack([np.cos(phi), np.sin(phi), np.zeros(n)]))
+    assert np.allclose(d[:, 2], 0.0)  # both lidars scan the horizontal plane
+    return _room_ranges(origin[:2], d[:, :2]).astype(np.float32)
+
+
+def _q(ts, rpy):
+    x, y, z, w = _rot(rpy).as_quat()
+    return ts.types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+
+def _tf3(ts, t, links, ros1):
+    T = ts.types
+    out = []
+    for parent, child, ((x, y, z), rpy) in links:
+        tr = T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z), rotation=_q(ts, rpy)
+        )
+        out.append(
+            T["geometry_msgs/msg/TransformStamped"](
+                header=_header(ts, t, parent, ros1), child_frame_id=child, transform=tr
+            )
+        )
+    return T["tf2_msgs/msg/TFMessage"](transforms=out)
+
+
+FRONT_STAMPS = (10.0, 10.1, 10.2, 10.3)
+BACK_STAMPS = (10.02, 10.12, 10.22)  # none near 10.3: that time step has no partner
+
+
+def write_robot_bag(path, ros1, *, extra_static=()):
+    """base_footprint -> base_link -> laser_front / laser_back (upside down) on /tf_static; map -> odom ->
+    base_footprint on /tf at 50 Hz; 270 deg lidars at 10 Hz, the back one 20 ms after the front one."""
+    ts = _store(ros1)
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        w, ser = Writer(path), ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import Writer
+
+        w, ser = Writer(path, version=9), ts.serialize_cdr
+    LS, TF = "sensor_msgs/msg/LaserScan", "tf2_msgs/msg/TFMessage"
+    items = []
+    with w:
+        c_front = w.add_connection("/scan_front", LS, typestore=ts)
+        c_back = w.add_connection("/scan_back", LS, typestore=ts)
+        c_tf = w.add_connection("/tf", TF, typestore=ts)
+        c_static = w.add_connection("/tf_static", TF, typestore=ts)
+        static = [
+            ("base_footprint", "base_link", FOOT_TO_LINK),
+            ("base_link", "laser_front", FRONT),
+            ("base_link", "laser_back", BACK),
+            *extra_static,
+        ]
+        items.append((9.0, c_static, TF, _tf3(ts, 9.0, static, ros1)))
+        for k in range(30):
+            t = 9.9 + 0.02 * k
+            x, y, th = _odom_pose(t)
+            links = [("map", "odom", MAP_TO_ODOM), ("odom", "base_footprint", ((x, y, 0.0), (0.0, 0.0, th)))]
+            items.append((t, c_tf, TF, _tf3(ts, t, links, ros1)))
+        for stamps, conn, mount, frame in (
+            (FRONT_STAMPS, c_front, FRONT, "laser_front"),
+            (BACK_STAMPS, c_back, BACK, "laser_back"),
+        ):
+            for t in stamps:
+                msg = _scan_msg(ts, t, ros1, n=541, frame=frame, ranges=_lidar_ranges(t, mount))
+                msg.ranges[3:6] = _lidar_ranges(t, mount)[3:6]  # _scan_msg spoils three beams; restore them
+                items.append((t, conn, LS, msg))
+        for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
+            w.write(c, int(t * 1e9), ser(msg, typ))
+    return path
+
+
+def _on_walls(scan, pose):
+    """Distance (m) of each return of a scan (robot frame, with its sensor offset) to the room's walls."""
+    pts = scan.points()
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]
+    return np.minimum.reduce([np.abs(wx), np.abs(wx - ROOM[0]), np.abs(wy), np.abs(wy - ROOM[1])])
+
+
+def _true_corner_bearings(pose):
+    x, y, th = pose
+    return np.arctan2(ROOM_CORNERS[:, 1] - y, ROOM_CORNERS[:, 0] - x) - th
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_two_lidars_back_to_back_merged(tmp_path, ros1):
+    from fingerloc.angles import dist_as
+    from fingerloc.features.laser import observation_from_scan
+    from fingerloc.io.rosbag import BagReadStats
+
+    p = write_robot_bag(_path(tmp_path, ros1), ros1)
+    plans = []
+    st = BagReadStats()
+    scans = read_bag_scans(p, topic=["/scan_front", "/scan_back"], stats=st, on_plan=plans.append)
+    (plan,) = plans
+    assert plan.base_frame == "base_footprint" and "root of the /tf_static tree" in plan.base_frame_origin
+    assert plan.pose_source == "tf:map"
+    assert plan.pair_tolerance == pytest.approx(0.05)  # half the 0.1 s scan period
+    front, back = plan.mounts
+    assert not front.mirrored and back.mirrored and back.tilt == pytest.approx(0.0, abs=1e-9)
+    assert back.xyz == pytest.approx((-0.30, -0.05, 0.25))
+    assert "upside down" in plan.describe()
+    assert len(scans) == 3 and st.unpaired == 1 and st.lines == 7  # 10.3 has no back scan within 0.05 s
+    for t, s in zip(FRONT_STAMPS, scans, strict=False):
+        truth = _truth_pose(t)
+        assert s.timestamp == pytest.approx(t)
+        assert s.pose[:2] == pytest.approx(truth[:2], abs=1e-6)
+        assert math.remainder(s.pose[2] - truth[2], 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
+        assert s.sensor_offset == (0.0, 0.0, 0.0)
+        assert s.fov == ((-math.pi, 2 * math.pi),)  # two 270 deg lidars: the full circle
+        assert np.all(np.diff(s.bearings) > 0)
+        # every return, seen from the robot's origin at the front stamp, lies on a wall
+        # (the back scan, 20 ms later, is moved by the robot's motion in between)
+        assert np.isfinite(s.ranges).all() and s.ranges.size > 700  # 360 deg at 0.5 deg, overlaps split
+        assert _on_walls(s, truth).max() < 2e-3
+        # the four room corners, at their true bearings within 0.5 deg
+        obs = observation_from_scan(s)
+        err = np.abs(np.degrees(dist_as(obs.c[:, None], _true_corner_bearings(truth)[None, :])))
+        assert obs.c.size == 4 and err.min(axis=1).max() < 0.5 and err.min(axis=0).max() < 0.5
+        assert obs.full_fov
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_upside_down_lidar_alone_is_mirrored(tmp_path, ros1):
+    p = write_robot_bag(_path(tmp_path, ros1), ros1)
+    scans = read_bag_scans(p, topic="/scan_back")
+    assert len(scans) == 3
+    for t, s in zip(BACK_STAMPS, scans, strict=True):
+        assert s.sensor_offset[:2] == pytest.approx((-0.30, -0.05))
+        assert abs(abs(s.sensor_offset[2]) - math.pi) < 1e-9
+        assert np.all(np.diff(s.bearings) > 0)
+        assert _on_walls(s, _truth_pose(t)).max() < 2e-3
+        # the raw (mirrored) bearings would put the returns off the walls
+    (raw,) = read_bag_scans(p, topic="/scan_back", base_frame="laser_back", pose_source="none")[:1]
+    assert raw.sensor_offset == (0.0, 0.0, 0.0) and raw.pose is None
+
+
+def test_merged_error_is_large_without_mirroring(tmp_path):
+    """The oracle can fail: the back lidar taken as upright (a yaw of 180 deg only) leaves the walls."""
+    from fingerloc.sensors import Scan
+
+    p = write_robot_bag(tmp_path / "m.bag", True)
+    (s,) = read_bag_scans(p, topic="/scan_back")[:1]
+    wrong = Scan(
+        ranges=s.ranges[::-1],
+        bearings=-s.bearings[::-1],
+        max_range=s.max_range,
+        sensor_offset=s.sensor_offset,
+    )
+    assert _on_walls(wrong, _truth_pose(BACK_STAMPS[0])).max() > 0.5
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
+def test_frame_errors_name_the_frames(tmp_path, ros1):
+    p = write_robot_bag(_path(tmp_path, ros1), ros1, extra_static=[("world", "marker", ((1.0, 0, 0), (0, 0, 0)))])
+    with pytest.raises(DataFormatError, match=r"base frame 'nope' is not in the /tf_static or /tf tree.*base_link"):
+        read_bag_scans(p, topic="/scan_front", base_frame="nope")
+    with pytest.raises(
+        DataFormatError, match=r"no transform chain from lidar frame 'laser_front'.*base frame 'marker'"
+    ):
+        read_bag_scans(p, topic="/scan_front", base_frame="marker")
+    with pytest.raises(DataFormatError, match=r"pose frame 'nope'"):
+        read_bag_scans(p, topic="/scan_front", pose_source="tf:nope")
+    with pytest.raises(InvalidParameterError, match=r"no nav_msgs/msg/Odometry topic '/odom'"):
+        read_bag_scans(p, topic="/scan_front", pose_source="odom:/odom")
+    with pytest.raises(InvalidParameterError, match=r"--pose-source must be .* got 'gps:x'"):
+        read_bag_scans(p, topic="/scan_front", pose_source="gps:x")
+    with pytest.raises(InvalidParameterError, match=r"'/scan_front' given twice"):
+        read_bag_scans(p, topic=["/scan_front", "/scan_front"])
+    # base_link given: mounts relative to it, poses from the chain map -> ... -> base_link
+    scans = read_bag_scans(p, topic="/scan_front", base_frame="base_link", pose_source="tf:odom")
+    t = FRONT_STAMPS[0]
+    assert scans[0].pose == pytest.approx(_odom_pose(t), abs=1e-6)
+    assert scans[0].sensor_offset == pytest.approx((0.30, 0.05, 0.0))
+
+
+def test_cli_features_merges_bag_topics(tmp_path, capsys):
+    from fingerloc.io.jsonl import read_observations
+
+    p = write_robot_bag(tmp_path / "r.bag", True)
+    out = tmp_path / "o.jsonl"
+    code, text, err = _run(capsys, "features", p, "--topic", "/scan_front", "--topic", "/scan_back", "--json", out)
+    assert code == 0, err
+    assert len(text.strip().splitlines()) == 3 and all(" c(4): " in row for row in text.splitlines())
+    assert "base frame 'base_footprint'" in err and "upside down" in err and "dropped 1 time step" in err
+    obs = read_observations(out)
+    assert len(obs) == 3 and all(o.full_fov for o in obs)
+    assert obs[0].pose == pytest.approx(_truth_pose(FRONT_STAMPS[0]), abs=1e-4)
+    for args, needle in (
+        (["--topic", "/scan_front", "--base-frame", "nope"], "base frame 'nope'"),
+        (["--topic", "/scan_front", "--topic", "/nope"], "no topic '/nope'"),
+        (["--topic", "/scan_front", "--pose-source", "odom:/odom"], "'/odom'"),
+        (["--topic", "/scan_front", "--pose-source", "gps"], "--pose-source"),
+    ):
+        code, _, err = _run(capsys, "features", p, "--kind", "bag", *args)
+        assert code == 2 and err.startswith("error: ") and needle in err and len(err.strip().splitlines()) == 1, err
