@@ -549,3 +549,129 @@ def test_cli_features_merges_bag_topics(tmp_path, capsys):
     ):
         code, _, err = _run(capsys, "features", p, "--kind", "bag", *args)
         assert code == 2 and err.startswith("error: ") and needle in err and len(err.strip().splitlines()) == 1, err
+
+
+# ---- the planar reduction and the merge, against independent computations -----------------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    roll=st.sampled_from([0.0, math.pi]),
+    d_roll=st.floats(-0.3, 0.3),
+    pitch=st.floats(-0.3, 0.3),
+    yaw=st.floats(-math.pi, math.pi),
+    xyz=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)),
+    fov_deg=st.sampled_from([90.0, 270.0, 359.0]),
+)
+def test_reduce_to_plane_matches_projected_3d_points(roll, d_roll, pitch, yaw, xyz, fov_deg):
+    """Oracle: rotate each 3D return with scipy and drop z; bearings must increase, mirrored iff upside down."""
+    from fingerloc.io.rosbag import Transform3, reduce_to_plane
+    from fingerloc.sensors import Scan
+
+    rot = _rot((roll + d_roll, pitch, yaw))
+    q = rot.as_quat()
+    mount = Transform3(xyz, tuple(q))
+    n = 181
+    phi = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
+    r = 2.0 + np.sin(3 * phi)
+    scan = Scan(ranges=r, bearings=phi, max_range=10.0, intensities=np.arange(n, dtype=float))
+    out = reduce_to_plane(scan, mount)
+    pts3 = rot.apply(np.column_stack([r * np.cos(phi), r * np.sin(phi), np.zeros(n)])) + np.asarray(xyz)
+    want = pts3[:, :2]
+    upside_down = rot.as_matrix()[2, 2] < 0
+    if upside_down:
+        want = want[::-1]
+    assert np.allclose(out.points(), want, atol=1e-9)
+    assert np.all(np.diff(out.bearings) > 0)
+    assert np.allclose(out.intensities, np.arange(n)[::-1] if upside_down else np.arange(n))
+
+
+def test_reduce_to_plane_refuses_a_steep_lidar():
+    from fingerloc.io.rosbag import Transform3, reduce_to_plane
+    from fingerloc.sensors import Scan
+
+    scan = Scan(ranges=np.ones(10), bearings=np.linspace(-1, 1, 10))
+    steep = Transform3((0, 0, 0), tuple(_rot((0.0, math.radians(40), 0.0)).as_quat()))
+    with pytest.raises(DataFormatError, match=r"lidar frame 'tilted' is tilted 40.0 deg .*max_tilt_deg=30"):
+        reduce_to_plane(scan, steep, frame="tilted")
+    phi, c = np.linspace(-1, 1, 10), math.cos(math.radians(40))
+    assert reduce_to_plane(scan, steep, max_tilt_deg=45).ranges == pytest.approx(np.hypot(np.cos(phi) * c, np.sin(phi)))
+
+
+def test_merge_scans_blind_sectors_and_overlap():
+    """Two 170 deg lidars back to back leave two 10 deg blind sectors; two 270 deg ones overlap and split."""
+    from fingerloc.io.rosbag import merge_scans
+    from fingerloc.sensors import Scan
+
+    def lidar(fov_deg, offset, n):
+        phi = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n))
+        return Scan(ranges=np.full(n, 3.0), bearings=phi, max_range=10.0, sensor_offset=offset)
+
+    front, back = lidar(170.0, (0.2, 0.0, 0.0), 171), lidar(170.0, (-0.2, 0.0, math.pi), 171)
+    m = merge_scans([front, back], pose=(1.0, 2.0, 0.5))
+    assert m.pose == (1.0, 2.0, 0.5) and m.sensor_offset == (0.0, 0.0, 0.0)
+    assert m.ranges.size == 342  # no overlap: every beam kept
+    fov = sorted((round(math.degrees(s) % 360, 6), round(math.degrees(w), 6)) for s, w in m.fov)
+    assert fov == [(94.5, 171.0), (274.5, 171.0)]  # -85.5..85.5 and 94.5..265.5: half a step beyond the ends
+    # points are the lidars' points, seen from the robot's origin
+    both = np.concatenate([front.points(), back.points()])
+    got = m.points()
+    assert np.allclose(np.sort(np.round(got, 9), axis=0), np.sort(np.round(both, 9), axis=0))
+    # overlap: each bearing from the lidar whose field of view is centred nearer
+    f2, b2 = lidar(270.0, (0.0, 0.0, 0.0), 271), lidar(270.0, (0.0, 0.0, math.pi), 271)
+    m2 = merge_scans([f2, b2])
+    assert m2.fov == ((-math.pi, 2 * math.pi),)
+    assert np.all(np.diff(m2.bearings) > 0) and m2.ranges.size in (359, 360, 361)
+    with pytest.raises(InvalidParameterError, match="at least one scan"):
+        merge_scans([])
+
+
+def test_scan_coverage_validation():
+    from fingerloc.sensors import Scan
+
+    s = Scan(ranges=np.ones(3), bearings=[0.0, 0.1, 0.2], coverage=((0.0, 1.0), (2.0, 0.5)))
+    assert s.fov == ((0.0, 1.0), (2.0, 0.5))
+    with pytest.raises(InvalidParameterError, match="coverage"):
+        Scan(ranges=np.ones(3), bearings=[0.0, 0.1, 0.2], coverage=((0.0, 0.0),))
+
+
+def test_odometry_child_frame_and_a_mount_on_tf(tmp_path):
+    """Odometry of base_link composed to base_footprint; a lidar on a /tf link (a turning head) is
+    resolved at each scan's stamp, and a scan outside that link's samples is dropped and counted."""
+    from fingerloc.io.rosbag import BagReadStats
+
+    ts = _store(True)
+    p = tmp_path / "h.bag"
+    from rosbags.rosbag1 import Writer
+
+    LS, TF, OD = "sensor_msgs/msg/LaserScan", "tf2_msgs/msg/TFMessage", "nav_msgs/msg/Odometry"
+    items = []
+    with Writer(p) as w:
+        c_scan = w.add_connection("/scan", LS, typestore=ts)
+        c_tf = w.add_connection("/tf", TF, typestore=ts)
+        c_static = w.add_connection("/tf_static", TF, typestore=ts)
+        c_od = w.add_connection("/odom", OD, typestore=ts)
+        static = [("base_footprint", "base_link", ((0.1, 0.0, 0.2), (0.0, 0.0, 0.0)))]
+        items.append((1.0, c_static, TF, _tf3(ts, 1.0, static, True)))
+        for t, yaw in ((2.0, 0.0), (2.2, 0.4)):  # the head turns from 0 to 0.4 rad
+            items.append((t, c_tf, TF, _tf3(ts, t, [("base_link", "head", ((0.0, 0.0, 0.3), (0, 0, yaw)))], True)))
+        for t in (2.0, 2.2):
+            items.append((t, c_od, OD, _odom_msg(ts, t, (t, 0.0, 0.0), True)))  # base_link at x = t in odom
+        for t in (2.1, 3.0):
+            items.append((t, c_scan, LS, _scan_msg(ts, t, True, frame="head")))
+        for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
+            w.write(c, int(t * 1e9), ts.serialize_ros1(msg, typ))
+    st = BagReadStats()
+    plans = []
+    # by default the base frame is the root of the lidar's /tf_static tree: the head itself here
+    assert read_bag_scans(p, on_plan=plans.append)[0].sensor_offset == (0.0, 0.0, 0.0)
+    assert plans.pop().base_frame == "head"
+    (s,) = read_bag_scans(p, base_frame="base_footprint", stats=st, on_plan=plans.append)
+    assert st.unmounted == 1  # at 3.0 the head's link is 0.8 s from its last sample
+    assert plans[0].base_frame == "base_footprint" and plans[0].pose_source == "odom:/odom"
+    assert "mount moving" in plans[0].describe()
+    assert s.sensor_offset == pytest.approx((0.1, 0.0, 0.2))  # slerp half way: 0.2 rad
+    assert s.pose == pytest.approx((2.1 - 0.1, 0.0, 0.0))  # base_link at 2.1, base_footprint 0.1 m behind
