@@ -675,3 +675,31 @@ def test_odometry_child_frame_and_a_mount_on_tf(tmp_path):
     assert "mount moving" in plans[0].describe()
     assert s.sensor_offset == pytest.approx((0.1, 0.0, 0.2))  # slerp half way: 0.2 rad
     assert s.pose == pytest.approx((2.1 - 0.1, 0.0, 0.0))  # base_link at 2.1, base_footprint 0.1 m behind
+
+
+def test_tf_pose_source_needs_a_moving_base(tmp_path):
+    p = write_bag(
+        tmp_path / "s.bag",
+        True,
+        scans=[(1.0, "/scan", {})],
+        tf=[(1.0, [("odom", "other", (1.0, 0.0, 0.0))])],
+        tf_static=[(0.5, [("base_link", "laser", (0.3, 0.0, 0.0))])],
+    )
+    with pytest.raises(DataFormatError, match=r"base frame 'base_link' does not move in /tf"):
+        read_bag_scans(p, pose_source="tf")
+    (s,) = read_bag_scans(p)  # auto: no odometry, the base does not move in /tf: no pose
+    assert s.pose is None and s.sensor_offset == pytest.approx((0.3, 0.0, 0.0))
+
+
+def test_empty_bag_topic(tmp_path):
+    ts = _store(True)
+    from rosbags.rosbag1 import Writer
+
+    p = tmp_path / "e.bag"
+    with Writer(p) as w:
+        w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        c = w.add_connection("/scan2", "sensor_msgs/msg/LaserScan", typestore=ts)
+        w.write(c, int(1e9), ts.serialize_ros1(_scan_msg(ts, 1.0, True), "sensor_msgs/msg/LaserScan"))
+    assert read_bag_scans(p, topic="/scan") == []
+    with pytest.raises(DataFormatError, match="scan topic /scan has no messages"):
+        read_bag_scans(p, topic=["/scan2", "/scan"])

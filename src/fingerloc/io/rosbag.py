@@ -1009,6 +1009,8 @@ def _resolve_base(
                     path=path,
                 )
         return base, "given"
+    if not lidar:
+        return None, "no scan messages"
     if tree is None or not any(f in known for f in lidar):
         if len(lidar) == 1:
             return None, f"no /tf_static mount for lidar frame {lidar[0]!r}: bearings stay in its frame"
@@ -1048,6 +1050,12 @@ def _fixed_frame(path: Path, poses: _Poses, base: str | None, fixed: str | None)
                 path=path,
             )
         return fixed
+    if not tree.moves(base):
+        raise DataFormatError(
+            f"pose source 'tf': base frame {base!r} does not move in /tf (no /tf link above it; "
+            f"frames: {_frames_list(tree)}); use another pose source or base frame",
+            path=path,
+        )
     return tree.ancestors(base)[-1]
 
 
@@ -1106,7 +1114,7 @@ def _plan(
             raise DataFormatError(f"scan topic {empty[0]} has no messages: nothing to merge", path=p)
     poses = _collect_poses(reader, info, pose_source, odom_topic)
     probe = _probe(reader, info, topics)
-    frames = {t: probe.frames.get(t, "") for t in topics}
+    frames = {t: probe.frames[t] for t in topics if t in probe.frames}
     base, origin = _resolve_base(p, poses.tree, frames, base_frame)
     fixed: str | None = None
     kind, arg = _parse_pose_source(pose_source, odom_topic)
@@ -1122,8 +1130,8 @@ def _plan(
     else:
         source = "none"
     mounts = []
-    for t in topics:
-        m = _lidar_mount(poses.tree, base, t, frames[t], probe.first_stamp.get(t, 0.0), max_pose_gap)
+    for t in frames:
+        m = _lidar_mount(poses.tree, base, t, frames[t], probe.first_stamp[t], max_pose_gap)
         if m is not None:
             mounts.append(m)
     tol = None
