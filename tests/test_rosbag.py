@@ -703,3 +703,55 @@ def test_empty_bag_topic(tmp_path):
     assert read_bag_scans(p, topic="/scan") == []
     with pytest.raises(DataFormatError, match="scan topic /scan has no messages"):
         read_bag_scans(p, topic=["/scan2", "/scan"])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    links=st.lists(
+        st.tuples(
+            st.tuples(st.floats(-2, 2), st.floats(-2, 2), st.floats(-2, 2)),
+            st.tuples(st.floats(-3.2, 3.2), st.floats(-1.5, 1.5), st.floats(-3.2, 3.2)),
+        ),
+        min_size=4,
+        max_size=4,
+    )
+)
+def test_transform_tree_matches_scipy_chain(links):
+    """Tree a <- b <- c and a <- d <- e: T_e_c through the common ancestor a, against scipy's composition."""
+    from scipy.spatial.transform import Rotation
+
+    from fingerloc.io.frames import Transform3, TransformTree
+
+    tree = TransformTree()
+    mats = {}
+    for (parent, child), (xyz, rpy) in zip([("a", "b"), ("b", "c"), ("a", "d"), ("d", "e")], links, strict=True):
+        rot = Rotation.from_euler("xyz", rpy)
+        tree.add(parent, child, 0.0, Transform3(xyz, tuple(rot.as_quat())), static=True)
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = rot.as_matrix(), xyz
+        mats[child] = m
+    a_c = mats["b"] @ mats["c"]
+    a_e = mats["d"] @ mats["e"]
+    want = np.linalg.inv(a_e) @ a_c
+    got = tree.transform("e", "c", 5.0, 0.1)
+    assert got is not None
+    assert np.allclose(got.matrix(), want[:3, :3], atol=1e-9) and np.allclose(got.t, want[:3, 3], atol=1e-9)
+    assert tree.transform("c", "nowhere", 0.0, 0.1) is None
+
+
+def test_transform_series_interpolation_rule():
+    from fingerloc.io.frames import Transform3, TransformSeries
+
+    s = TransformSeries()
+    s.add(2.0, Transform3.from_planar((2.0, 0.0, 1.0)))
+    s.add(1.0, Transform3.from_planar((0.0, 0.0, 3.0)))  # out of order; 3 rad -> 1 rad the short way
+    s.freeze()
+    assert s.at(1.5, 0.5).planar() == pytest.approx((1.0, 0.0, 2.0))
+    assert s.at(1.1, 0.5).planar() == pytest.approx((0.2, 0.0, 2.8))
+    assert s.at(2.3, 0.5).planar() == pytest.approx((2.0, 0.0, 1.0))  # nearest within the gap
+    assert s.at(1.5, 0.4) is None and s.at(2.6, 0.5) is None
+    wrap = TransformSeries()
+    wrap.add(0.0, Transform3.from_planar((0.0, 0.0, 3.0)))
+    wrap.add(1.0, Transform3.from_planar((0.0, 0.0, -3.0)))  # across +-pi: through pi, not through 0
+    wrap.freeze()
+    assert abs(wrap.at(0.5, 1.0).planar()[2]) == pytest.approx(math.pi)

@@ -52,7 +52,7 @@ class Scan:
     coverage : tuple of (start, width), optional
         The covered bearings (radians, robot frame) when they are not the
         span of the beams: a scan merged from several lidars covers the union
-        of theirs (see :func:`fingerloc.io.rosbag.merge_scans`). ``None``:
+        of theirs (see :func:`fingerloc.io.frames.merge_scans`). ``None``:
         the beams' own span (:attr:`fov`).
     """
 
