@@ -239,6 +239,7 @@ def features_cmd(
     topic: list[str] | None = typer.Option(
         None,
         "--topic",
+        metavar="TOPIC",
         help="ROS bag: the LaserScan topic (when there are several). Repeat it to merge lidars into one "
         "observation per time step (the first topic's stamps; others paired within half its scan period).",
         show_default=False,
@@ -246,11 +247,15 @@ def features_cmd(
     base_frame: str | None = typer.Option(
         None,
         "--base-frame",
+        metavar="FRAME",
         help="ROS bag: the robot's frame (default: the root of the /tf_static tree the lidars hang off).",
         show_default=False,
     ),
     pose_source: str = typer.Option(
-        "auto", "--pose-source", help="ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC]."
+        "auto",
+        "--pose-source",
+        metavar="SOURCE",
+        help="ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC].",
     ),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Laser logs: skip malformed lines and report how many."),
     beacon_threshold: float | None = typer.Option(
@@ -268,6 +273,10 @@ def features_cmd(
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
         raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
+    if pose_source != "auto":
+        from ..io.rosbag import parse_pose_source
+
+        parse_pose_source(pose_source)
     if radii is not None and not (0.0 <= radii[0] < radii[1]):
         raise InvalidParameterError(f"--radii must satisfy 0 <= R_IN < R_OUT, got {radii[0]} {radii[1]}")
     opts = FeatureOptions(

@@ -85,6 +85,7 @@ __all__ = [
     "is_bag_path",
     "iter_bag_scans",
     "merge_scans",
+    "parse_pose_source",
     "read_bag_scans",
     "reduce_to_plane",
     "scan_topics",
@@ -405,7 +406,15 @@ def _scan_from_msg(msg: Any, t: float) -> Scan:
 # resolving a bag: pose source, base frame, mounts
 
 
-def _parse_pose_source(pose_source: str, odom_topic: str | None) -> tuple[str, str | None]:
+def parse_pose_source(pose_source: str, odom_topic: str | None = None) -> tuple[str, str | None]:
+    """Split a pose source into its kind (``auto``, ``none``, ``tf``, ``odom``) and argument (frame or topic).
+
+    Raises
+    ------
+    InvalidParameterError
+        Not one of ``auto``, ``none``, ``tf``, ``tf:FRAME``, ``odom``, ``odom:TOPIC``, or a topic that
+        disagrees with ``odom_topic``.
+    """
     kind, _, arg = str(pose_source).partition(":")
     if kind not in ("auto", "odom", "tf", "none") or (arg and kind not in ("odom", "tf")):
         raise InvalidParameterError(
@@ -431,7 +440,7 @@ class _Poses:
 
 def _collect_poses(reader: Any, info: BagInfo, pose_source: str, odom_topic: str | None) -> _Poses:
     """Read the pose messages: an odometry series (when asked or auto) and the transform tree."""
-    kind, arg = _parse_pose_source(pose_source, odom_topic)
+    kind, arg = parse_pose_source(pose_source, odom_topic)
     odoms = info.of_type(ODOMETRY)
     tfs = [t for t in info.of_type(TF_MESSAGE) if t.rstrip("/").split("/")[-1] in ("tf", "tf_static")]
     dynamic_tf = [t for t in tfs if not t.rstrip("/").endswith("tf_static")]
@@ -666,7 +675,7 @@ def _plan(
     frames = {t: probe.frames[t] for t in topics if t in probe.frames}
     base, origin = _resolve_base(p, poses.tree, frames, base_frame)
     fixed: str | None = None
-    kind, arg = _parse_pose_source(pose_source, odom_topic)
+    kind, arg = parse_pose_source(pose_source, odom_topic)
     if poses.kind == "auto":
         moving = poses.tree is not None and base is not None and poses.tree.moves(base)
         poses.kind = "tf" if moving else "none"
@@ -821,7 +830,7 @@ def iter_bag_scans(
     InvalidParameterError
         An unknown or ambiguous ``topic`` / ``odom_topic``, or a pose source the bag cannot serve.
     """
-    _parse_pose_source(pose_source, odom_topic)
+    parse_pose_source(pose_source, odom_topic)
     _check_args(max_pose_gap, pair_tolerance, max_tilt_deg)
     p = Path(path)
     st = stats if stats is not None else ReadStats()
