@@ -755,3 +755,10 @@ def test_transform_series_interpolation_rule():
     wrap.add(1.0, Transform3.from_planar((0.0, 0.0, -3.0)))  # across +-pi: through pi, not through 0
     wrap.freeze()
     assert abs(wrap.at(0.5, 1.0).planar()[2]) == pytest.approx(math.pi)
+
+
+def test_merged_full_circle_bearings_start_at_minus_pi(tmp_path):
+    p = write_robot_bag(tmp_path / "c.bag", True)
+    for s in read_bag_scans(p, topic=["/scan_back", "/scan_front"]):  # the upside-down lidar as reference
+        assert -math.pi <= s.bearings[0] < -math.pi + 0.02 and math.pi - 0.02 < s.bearings[-1] < math.pi
+        assert _on_walls(s, s.pose).max() < 2e-3

@@ -101,13 +101,12 @@ def iter_bag_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[st
             soft_wrap=True,
             markup=False,
         )
-    if st.unpaired or st.unmounted:
-        err_console.print(
-            f"{path}: dropped {st.unpaired} time step(s) without a scan on every topic "
-            f"and {st.unmounted} scan(s) whose mount was missing in /tf",
-            soft_wrap=True,
-            markup=False,
-        )
+    dropped = [
+        f"{st.unpaired} time step(s) without a scan on every topic" if st.unpaired else "",
+        f"{st.unmounted} scan(s) whose lidar mount was missing in /tf at their stamp" if st.unmounted else "",
+    ]
+    if any(dropped):
+        err_console.print(f"{path}: dropped {' and '.join(d for d in dropped if d)}", soft_wrap=True, markup=False)
 
 
 def format_scan_line(name: str, obs: Observation) -> str:

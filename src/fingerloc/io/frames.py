@@ -450,8 +450,9 @@ def merge_scans(
     (a point at infinity) with range ``inf``. Where fields of view overlap,
     a bearing is served by the lidar whose field of view's centre is nearest
     to it (no interleaving of two lidars' beams). The beams are sorted by
-    bearing, starting after the widest gap, and the result's ``coverage`` is
-    the union of the scans' fields of view.
+    bearing, in ``[-pi, pi)`` when the fields of view close the circle, else
+    starting after the widest gap; the result's ``coverage`` is the union of
+    the scans' fields of view.
 
     Parameters
     ----------
@@ -506,13 +507,15 @@ def merge_scans(
     it = None if it is None else it[uniq]
     if b.size < 2:
         raise DataFormatError(f"merged scan has {b.size} beam(s); at least 2 are needed")
-    # start after the widest gap (the circular one included) so that bearings increase without a seam
-    gaps = np.diff(np.concatenate([b, [b[0] + TWO_PI]]))
-    cut = (int(np.argmax(gaps)) + 1) % b.size
-    b = np.concatenate([b[cut:], b[:cut] + TWO_PI])
-    r = np.concatenate([r[cut:], r[:cut]])
-    it = None if it is None else np.concatenate([it[cut:], it[:cut]])
-    b = b - TWO_PI * math.floor((0.5 * (b[0] + b[-1]) + math.pi) / TWO_PI)
+    coverage = _union_fov([f for fov in fovs for f in fov])
+    if coverage[0][1] < TWO_PI:
+        # start after the widest gap (the circular one included) so that bearings increase without a seam
+        gaps = np.diff(np.concatenate([b, [b[0] + TWO_PI]]))
+        cut = (int(np.argmax(gaps)) + 1) % b.size
+        b = np.concatenate([b[cut:], b[:cut] + TWO_PI])
+        r = np.concatenate([r[cut:], r[:cut]])
+        it = None if it is None else np.concatenate([it[cut:], it[:cut]])
+        b = b - TWO_PI * math.floor((0.5 * (b[0] + b[-1]) + math.pi) / TWO_PI)
     reach = max(s.max_range + math.hypot(s.sensor_offset[0], s.sensor_offset[1]) for s in scans)
     return Scan(
         ranges=r,
@@ -521,5 +524,5 @@ def merge_scans(
         intensities=it,
         pose=scans[0].pose if pose is None else pose,
         timestamp=scans[0].timestamp if timestamp is None else timestamp,
-        coverage=_union_fov([f for fov in fovs for f in fov]),
+        coverage=coverage,
     )
