@@ -448,7 +448,7 @@ def test_two_lidars_back_to_back_merged(tmp_path, ros1):
     st = BagReadStats()
     scans = read_bag_scans(p, topic=["/scan_front", "/scan_back"], stats=st, on_plan=plans.append)
     (plan,) = plans
-    assert plan.base_frame == "base_footprint" and "root of the /tf_static tree" in plan.base_frame_origin
+    assert plan.base_frame == "base_footprint" and "root of the static transforms" in plan.base_frame_origin
     assert plan.pose_source == "tf:map"
     assert plan.pair_tolerance == pytest.approx(0.05)  # half the 0.1 s scan period
     front, back = plan.mounts
@@ -762,3 +762,18 @@ def test_merged_full_circle_bearings_start_at_minus_pi(tmp_path):
     for s in read_bag_scans(p, topic=["/scan_back", "/scan_front"]):  # the upside-down lidar as reference
         assert -math.pi <= s.bearings[0] < -math.pi + 0.02 and math.pi - 0.02 < s.bearings[-1] < math.pi
         assert _on_walls(s, s.pose).max() < 2e-3
+
+
+def test_fixed_joints_on_tf_count_as_static(tmp_path):
+    """Older bags send fixed joints on /tf again and again: base_link -> laser is a mount, odom -> base_link
+    (even while the robot stands still) is not."""
+    tf = [
+        (1.0 + 0.1 * k, [("base_link", "laser", (0.2, 0.0, 0.5)), ("odom", "base_link", (0.0, 0.0, 0.0))])
+        for k in range(5)
+    ]
+    p = write_bag(tmp_path / "old.bag", True, scans=[(1.2, "/scan", {})], tf=tf)
+    plans = []
+    (s,) = read_bag_scans(p, on_plan=plans.append)
+    assert plans[0].base_frame == "base_link" and plans[0].mounts[0].static
+    assert s.sensor_offset == pytest.approx((0.2, 0.0, 0.5))
+    assert s.pose == pytest.approx((0.0, 0.0, 0.0)) and plans[0].pose_source == "tf:odom"

@@ -248,7 +248,7 @@ def features_cmd(
         None,
         "--base-frame",
         metavar="FRAME",
-        help="ROS bag: the robot's frame (default: the root of the /tf_static tree the lidars hang off).",
+        help="ROS bag: the robot's frame (default: the root of the static transforms above the lidars).",
         show_default=False,
     ),
     pose_source: str = typer.Option(

@@ -33,6 +33,7 @@ from ..sensors import Scan
 
 __all__ = [
     "IDENTITY",
+    "WORLD_FRAMES",
     "Transform3",
     "TransformSeries",
     "TransformTree",
@@ -45,6 +46,9 @@ __all__ = [
 ]
 
 Planar = tuple[float, float, float]
+
+#: Frames a robot moves in (REP 105 names): a ``/tf`` link into one of them is never taken for a fixed mount.
+WORLD_FRAMES: tuple[str, ...] = ("odom", "map", "world", "earth")
 
 
 def _qmul(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
@@ -254,10 +258,19 @@ class TransformTree:
             seen.add(p)
         return out
 
-    def static_root(self, frame: str) -> str:
-        """The frame reached walking up ``/tf_static`` links only."""
+    def static_root(self, frame: str, *, fixed_frames: Sequence[str] = WORLD_FRAMES) -> str:
+        """The frame reached walking up static links from ``frame``.
+
+        Static links are those of ``/tf_static``, and ``/tf`` links that never
+        change (older bags publish a robot's fixed joints on ``/tf``), except a
+        ``/tf`` link into one of ``fixed_frames``: a robot that stands still
+        for a whole bag is still not part of its ``odom`` frame.
+        """
         seen = {frame}
-        while frame in self.from_static and self.parent[frame] not in seen:
+        while frame in self.links and self.parent[frame] not in seen:
+            link = self.links[frame]
+            if not (frame in self.from_static or (link.constant and self.parent[frame] not in fixed_frames)):
+                break
             frame = self.parent[frame]
             seen.add(frame)
         return frame

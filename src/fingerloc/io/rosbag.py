@@ -7,9 +7,12 @@ of any field of view (with intensities) into :class:`~fingerloc.sensors.Scan`.
 What the reader resolves, and the rules it follows
 --------------------------------------------------
 * **Base frame.** The robot's frame, in which bearings are measured. Given
-  (``base_frame=`` / ``--base-frame``), or by default the root of the
-  ``/tf_static`` tree that the lidar frames hang off (``base_footprint`` on a
-  robot whose lidars are mounted on ``base_link`` under ``base_footprint``).
+  (``base_frame=`` / ``--base-frame``), or by default the root of the static
+  transforms above the lidar frames (``base_footprint`` on a robot whose
+  lidars are mounted on ``base_link`` under ``base_footprint``): links of
+  ``/tf_static``, and ``/tf`` links that never change unless they lead into
+  ``odom``, ``map``, ``world`` or ``earth`` (older bags re-send fixed joints
+  on ``/tf``).
   When the bag has no transform tree at all, the lidar's own frame is the base
   (a zero mount, said so in the plan). A base frame that no chain of
   ``/tf_static`` and ``/tf`` transforms links to a lidar frame is an error
@@ -581,11 +584,11 @@ def _resolve_base(
     if len(set(roots.values())) > 1:
         hang = ", ".join(f"{fr!r} -> {rt!r}" for fr, rt in roots.items())
         raise DataFormatError(
-            f"the lidar frames hang off different /tf_static trees ({hang}); choose one with base_frame= / --base-frame",
+            f"the lidar frames hang off different static trees ({hang}); choose one with base_frame= / --base-frame",
             path=path,
         )
     (root,) = set(roots.values())
-    return root, "root of the /tf_static tree of the lidar frame" + ("s" if len(lidar) > 1 else "")
+    return root, "root of the static transforms above the lidar frame" + ("s" if len(lidar) > 1 else "")
 
 
 def _fixed_frame(path: Path, poses: _Poses, base: str | None, fixed: str | None) -> str | None:
