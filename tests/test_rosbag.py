@@ -2,6 +2,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hs
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fingerloc.errors import DataFormatError, InvalidParameterError
@@ -553,18 +555,15 @@ def test_cli_features_merges_bag_topics(tmp_path, capsys):
 
 # ---- the planar reduction and the merge, against independent computations -----------------------
 
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-
 
 @settings(max_examples=60, deadline=None)
 @given(
-    roll=st.sampled_from([0.0, math.pi]),
-    d_roll=st.floats(-0.3, 0.3),
-    pitch=st.floats(-0.3, 0.3),
-    yaw=st.floats(-math.pi, math.pi),
-    xyz=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)),
-    fov_deg=st.sampled_from([90.0, 270.0, 359.0]),
+    roll=hs.sampled_from([0.0, math.pi]),
+    d_roll=hs.floats(-0.3, 0.3),
+    pitch=hs.floats(-0.3, 0.3),
+    yaw=hs.floats(-math.pi, math.pi),
+    xyz=hs.tuples(hs.floats(-1, 1), hs.floats(-1, 1), hs.floats(-1, 1)),
+    fov_deg=hs.sampled_from([90.0, 270.0, 359.0]),
 )
 def test_reduce_to_plane_matches_projected_3d_points(roll, d_roll, pitch, yaw, xyz, fov_deg):
     """Oracle: rotate each 3D return with scipy and drop z; bearings must increase, mirrored iff upside down."""
@@ -707,10 +706,10 @@ def test_empty_bag_topic(tmp_path):
 
 @settings(max_examples=40, deadline=None)
 @given(
-    links=st.lists(
-        st.tuples(
-            st.tuples(st.floats(-2, 2), st.floats(-2, 2), st.floats(-2, 2)),
-            st.tuples(st.floats(-3.2, 3.2), st.floats(-1.5, 1.5), st.floats(-3.2, 3.2)),
+    links=hs.lists(
+        hs.tuples(
+            hs.tuples(hs.floats(-2, 2), hs.floats(-2, 2), hs.floats(-2, 2)),
+            hs.tuples(hs.floats(-3.2, 3.2), hs.floats(-1.5, 1.5), hs.floats(-3.2, 3.2)),
         ),
         min_size=4,
         max_size=4,
