@@ -4,131 +4,34 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as hs
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fingerloc.errors import DataFormatError, InvalidParameterError
 from fingerloc.io.carmen import ReadStats
 from fingerloc.io.rosbag import bag_info, is_bag_path, iter_bag_scans, read_bag_scans, scan_topics
 
+from ._bags import (
+    BACK_STAMPS,
+    FRONT_STAMPS,
+    bag_path,
+    odom_msg,
+    odom_pose,
+    on_walls,
+    rot,
+    scan_msg,
+    store,
+    tf3,
+    true_corner_bearings,
+    truth_pose,
+    write_bag,
+    write_robot_bag,
+)
 from ._cli import run_cli as _run
-
-TFMSG = "geometry_msgs/TransformStamped[] transforms"
-
-
-def _store(ros1):
-    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    if "tf2_msgs/msg/TFMessage" not in ts.types:
-        ts.register(get_types_from_msg(TFMSG, "tf2_msgs/msg/TFMessage"))
-    return ts
-
-
-def _quat(ts, yaw):
-    Q = ts.types["geometry_msgs/msg/Quaternion"]
-    return Q(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
-
-
-def _header(ts, t, frame, ros1):
-    Time = ts.types["builtin_interfaces/msg/Time"]
-    H = ts.types["std_msgs/msg/Header"]
-    stamp = Time(sec=int(t), nanosec=round((t - int(t)) * 1e9))
-    return H(seq=0, stamp=stamp, frame_id=frame) if ros1 else H(stamp=stamp, frame_id=frame)
-
-
-def _scan_msg(ts, t, ros1, n=271, fov_deg=270.0, frame="laser", ranges=None, intensities=True):
-    LS = ts.types["sensor_msgs/msg/LaserScan"]
-    a0 = -math.radians(fov_deg) / 2
-    inc = math.radians(fov_deg) / (n - 1)
-    r = np.linspace(1.0, 5.0, n).astype(np.float32) if ranges is None else np.asarray(ranges, np.float32)
-    r[3] = np.inf
-    r[4] = 0.0  # below range_min: invalid
-    r[5] = 40.0  # above range_max
-    inten = np.arange(n, dtype=np.float32) * 100 if intensities else np.zeros(0, np.float32)
-    return LS(
-        header=_header(ts, t, frame, ros1),
-        angle_min=a0,
-        angle_max=a0 + inc * (n - 1),
-        angle_increment=inc,
-        time_increment=0.0,
-        scan_time=0.1,
-        range_min=0.05,
-        range_max=30.0,
-        ranges=r,
-        intensities=inten,
-    )
-
-
-def _odom_msg(ts, t, pose, ros1):
-    T = ts.types
-    P = T["geometry_msgs/msg/Point"](x=pose[0], y=pose[1], z=0.0)
-    pose_ = T["geometry_msgs/msg/Pose"](position=P, orientation=_quat(ts, pose[2]))
-    pwc = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose_, covariance=np.zeros(36))
-    V = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    tw = T["geometry_msgs/msg/Twist"](linear=V, angular=V)
-    twc = T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=np.zeros(36))
-    return T["nav_msgs/msg/Odometry"](
-        header=_header(ts, t, "odom", ros1), child_frame_id="base_link", pose=pwc, twist=twc
-    )
-
-
-def _tf_msg(ts, t, links, ros1):
-    T = ts.types
-    out = []
-    for parent, child, (x, y, yaw) in links:
-        tr = T["geometry_msgs/msg/Transform"](
-            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.0), rotation=_quat(ts, yaw)
-        )
-        out.append(
-            T["geometry_msgs/msg/TransformStamped"](
-                header=_header(ts, t, parent, ros1), child_frame_id=child, transform=tr
-            )
-        )
-    return T["tf2_msgs/msg/TFMessage"](transforms=out)
-
-
-def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_topic=None):
-    """Write a small bag. scans: list of (t, topic, msg-kwargs); odom: (t, pose); tf: (t, links)."""
-    ts = _store(ros1)
-    if ros1:
-        from rosbags.rosbag1 import Writer
-
-        w = Writer(path)
-        ser = ts.serialize_ros1
-    else:
-        from rosbags.rosbag2 import Writer
-
-        w = Writer(path, version=9)
-        ser = ts.serialize_cdr
-    LS, OD, TF = "sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage"
-    with w:
-        conns = {}
-
-        def conn(topic, typ):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=ts)
-            return conns[topic]
-
-        items = []
-        for t, topic, kw in scans:
-            items.append((t, conn(topic, LS), LS, _scan_msg(ts, t, ros1, **kw)))
-        for t, pose in odom:
-            items.append((t, conn("/odom", OD), OD, _odom_msg(ts, t, pose, ros1)))
-        for t, links in tf:
-            items.append((t, conn("/tf", TF), TF, _tf_msg(ts, t, links, ros1)))
-        for t, links in tf_static:
-            items.append((t, conn("/tf_static", TF), TF, _tf_msg(ts, t, links, ros1)))
-        for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
-            w.write(c, int(t * 1e9), ser(msg, typ))
-    return path
-
-
-def _path(tmp_path, ros1, name="b"):
-    return tmp_path / (f"{name}.bag" if ros1 else name)
 
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_scans_with_odometry_round_trip(tmp_path, ros1):
     p = write_bag(
-        _path(tmp_path, ros1),
+        bag_path(tmp_path, ros1),
         ros1,
         scans=[(10.0, "/scan", {}), (11.0, "/scan", {})],
         odom=[(9.95, (1.0, 2.0, 0.3)), (10.5, (5.0, 5.0, 0.0)), (11.02, (3.0, 4.0, -1.0))],
@@ -157,7 +60,7 @@ def test_scans_with_odometry_round_trip(tmp_path, ros1):
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_poses_from_tf_chain_and_sensor_offset(tmp_path, ros1):
     p = write_bag(
-        _path(tmp_path, ros1),
+        bag_path(tmp_path, ros1),
         ros1,
         scans=[(20.0, "/scan", {"intensities": False})],
         tf=[
@@ -178,7 +81,7 @@ def test_poses_from_tf_chain_and_sensor_offset(tmp_path, ros1):
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_topic_choice(tmp_path, ros1):
     p = write_bag(
-        _path(tmp_path, ros1),
+        bag_path(tmp_path, ros1),
         ros1,
         scans=[(1.0, "/front/scan", {}), (1.5, "/rear/scan", {"n": 181, "fov_deg": 180.0})],
     )
@@ -262,12 +165,12 @@ def _box_with_beacons(n=271, fov_deg=270.0):
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_features_command_on_a_bag(tmp_path, capsys, ros1):
-    ts = _store(ros1)
+    ts = store(ros1)
     r, inten = _box_with_beacons()
-    p = _path(tmp_path, ros1)
+    p = bag_path(tmp_path, ros1)
     write_bag(p, ros1, scans=[(1.0, "/front/scan", {"ranges": r.copy()}), (1.0, "/rear/scan", {"ranges": r.copy()})])
     # write_bag puts its own intensities; rewrite with the beacon intensities in a second bag
-    p2 = _path(tmp_path, ros1, "beacons")
+    p2 = bag_path(tmp_path, ros1, "beacons")
     if ros1:
         from rosbags.rosbag1 import Writer
 
@@ -278,7 +181,7 @@ def test_features_command_on_a_bag(tmp_path, capsys, ros1):
         w, ser = Writer(p2, version=9), ts.serialize_cdr
     with w:
         conn = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
-        msg = _scan_msg(ts, 2.0, ros1, ranges=r.copy())
+        msg = scan_msg(ts, 2.0, ros1, ranges=r.copy())
         msg.ranges[3:6] = r[3:6]  # keep the walls whole
         msg.intensities = inten
         w.write(conn, int(2e9), ser(msg, "sensor_msgs/msg/LaserScan"))
@@ -304,140 +207,6 @@ def test_features_command_on_a_bag(tmp_path, capsys, ros1):
 
 # ---- two lidars back to back, one upside down: mounts, poses, merging (issue 12) ----------------
 
-ROOM = (8.0, 6.0)  # a rectangular room [0, 8] x [0, 6], metres
-ROOM_CORNERS = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 6.0], [0.0, 6.0]])
-# mounts in base_link: (x, y, z), (roll, pitch, yaw); the back lidar hangs upside down
-FRONT = ((0.30, 0.05, 0.15), (0.0, 0.0, 0.0))
-BACK = ((-0.30, -0.05, 0.15), (math.pi, 0.0, math.pi))
-FOOT_TO_LINK = ((0.0, 0.0, 0.10), (0.0, 0.0, 0.0))
-MAP_TO_ODOM = ((0.5, -0.2, 0.0), (0.0, 0.0, 0.1))
-
-
-def _rot(rpy):
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_euler("xyz", rpy)  # extrinsic x, y, z: R = Rz Ry Rx
-
-
-def _truth_pose(t):
-    """base_footprint in map, moving on a straight line and turning: (x, y, theta)."""
-    return (3.0 + 0.8 * (t - 10.0), 2.5 + 0.3 * (t - 10.0), 0.4 + 0.5 * (t - 10.0))
-
-
-def _odom_pose(t):
-    """base_footprint in odom such that map->odom * odom->base is the truth."""
-    (mx, my, _), (_, _, myaw) = MAP_TO_ODOM
-    x, y, th = _truth_pose(t)
-    c, s = math.cos(myaw), math.sin(myaw)
-    dx, dy = x - mx, y - my
-    return (c * dx + s * dy, -s * dx + c * dy, th - myaw)
-
-
-def _room_ranges(origin, directions):
-    """Distance from origin (2,) along unit directions (n, 2) to the walls of ROOM."""
-    ox, oy = origin
-    dx, dy = directions[:, 0], directions[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tx = np.where(dx > 1e-12, (ROOM[0] - ox) / dx, np.where(dx < -1e-12, -ox / dx, np.inf))
-        ty = np.where(dy > 1e-12, (ROOM[1] - oy) / dy, np.where(dy < -1e-12, -oy / dy, np.inf))
-    return np.minimum(tx, ty)
-
-
-def _lidar_ranges(t, mount, n=541, fov_deg=270.0):
-    """Ray-cast one lidar (beam angles in its own frame, counter-clockwise) at time t (scipy rotations)."""
-    x, y, th = _truth_pose(t)
-    base = _rot((0.0, 0.0, th))
-    link_z = FOOT_TO_LINK[0][2]
-    (mx, my, mz), rpy = mount
-    sensor = base * _rot(rpy)
-    origin = np.array([x, y, 0.0]) + base.apply([mx, my, mz + link_z])
-    phi = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
-    d = sensor.apply(np.column_stack([np.cos(phi), np.sin(phi), np.zeros(n)]))
-    assert np.allclose(d[:, 2], 0.0)  # both lidars scan the horizontal plane
-    return _room_ranges(origin[:2], d[:, :2]).astype(np.float32)
-
-
-def _q(ts, rpy):
-    x, y, z, w = _rot(rpy).as_quat()
-    return ts.types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
-
-
-def _tf3(ts, t, links, ros1):
-    T = ts.types
-    out = []
-    for parent, child, ((x, y, z), rpy) in links:
-        tr = T["geometry_msgs/msg/Transform"](
-            translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z), rotation=_q(ts, rpy)
-        )
-        out.append(
-            T["geometry_msgs/msg/TransformStamped"](
-                header=_header(ts, t, parent, ros1), child_frame_id=child, transform=tr
-            )
-        )
-    return T["tf2_msgs/msg/TFMessage"](transforms=out)
-
-
-FRONT_STAMPS = (10.0, 10.1, 10.2, 10.3)
-BACK_STAMPS = (10.02, 10.12, 10.22)  # none near 10.3: that time step has no partner
-
-
-def write_robot_bag(path, ros1, *, extra_static=()):
-    """base_footprint -> base_link -> laser_front / laser_back (upside down) on /tf_static; map -> odom ->
-    base_footprint on /tf at 50 Hz; 270 deg lidars at 10 Hz, the back one 20 ms after the front one."""
-    ts = _store(ros1)
-    if ros1:
-        from rosbags.rosbag1 import Writer
-
-        w, ser = Writer(path), ts.serialize_ros1
-    else:
-        from rosbags.rosbag2 import Writer
-
-        w, ser = Writer(path, version=9), ts.serialize_cdr
-    LS, TF = "sensor_msgs/msg/LaserScan", "tf2_msgs/msg/TFMessage"
-    items = []
-    with w:
-        c_front = w.add_connection("/scan_front", LS, typestore=ts)
-        c_back = w.add_connection("/scan_back", LS, typestore=ts)
-        c_tf = w.add_connection("/tf", TF, typestore=ts)
-        c_static = w.add_connection("/tf_static", TF, typestore=ts)
-        static = [
-            ("base_footprint", "base_link", FOOT_TO_LINK),
-            ("base_link", "laser_front", FRONT),
-            ("base_link", "laser_back", BACK),
-            *extra_static,
-        ]
-        items.append((9.0, c_static, TF, _tf3(ts, 9.0, static, ros1)))
-        for k in range(30):
-            t = 9.9 + 0.02 * k
-            x, y, th = _odom_pose(t)
-            links = [("map", "odom", MAP_TO_ODOM), ("odom", "base_footprint", ((x, y, 0.0), (0.0, 0.0, th)))]
-            items.append((t, c_tf, TF, _tf3(ts, t, links, ros1)))
-        for stamps, conn, mount, frame in (
-            (FRONT_STAMPS, c_front, FRONT, "laser_front"),
-            (BACK_STAMPS, c_back, BACK, "laser_back"),
-        ):
-            for t in stamps:
-                msg = _scan_msg(ts, t, ros1, n=541, frame=frame, ranges=_lidar_ranges(t, mount))
-                msg.ranges[3:6] = _lidar_ranges(t, mount)[3:6]  # _scan_msg spoils three beams; restore them
-                items.append((t, conn, LS, msg))
-        for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
-            w.write(c, int(t * 1e9), ser(msg, typ))
-    return path
-
-
-def _on_walls(scan, pose):
-    """Distance (m) of each return of a scan (robot frame, with its sensor offset) to the room's walls."""
-    pts = scan.points()
-    x, y, th = pose
-    c, s = math.cos(th), math.sin(th)
-    wx, wy = x + c * pts[:, 0] - s * pts[:, 1], y + s * pts[:, 0] + c * pts[:, 1]
-    return np.minimum.reduce([np.abs(wx), np.abs(wx - ROOM[0]), np.abs(wy), np.abs(wy - ROOM[1])])
-
-
-def _true_corner_bearings(pose):
-    x, y, th = pose
-    return np.arctan2(ROOM_CORNERS[:, 1] - y, ROOM_CORNERS[:, 0] - x) - th
-
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_two_lidars_back_to_back_merged(tmp_path, ros1):
@@ -445,7 +214,7 @@ def test_two_lidars_back_to_back_merged(tmp_path, ros1):
     from fingerloc.features.laser import observation_from_scan
     from fingerloc.io.rosbag import BagReadStats
 
-    p = write_robot_bag(_path(tmp_path, ros1), ros1)
+    p = write_robot_bag(bag_path(tmp_path, ros1), ros1)
     plans = []
     st = BagReadStats()
     scans = read_bag_scans(p, topic=["/scan_front", "/scan_back"], stats=st, on_plan=plans.append)
@@ -459,7 +228,7 @@ def test_two_lidars_back_to_back_merged(tmp_path, ros1):
     assert "upside down" in plan.describe()
     assert len(scans) == 3 and st.unpaired == 1 and st.lines == 7  # 10.3 has no back scan within 0.05 s
     for t, s in zip(FRONT_STAMPS, scans, strict=False):
-        truth = _truth_pose(t)
+        truth = truth_pose(t)
         assert s.timestamp == pytest.approx(t)
         assert s.pose[:2] == pytest.approx(truth[:2], abs=1e-6)
         assert math.remainder(s.pose[2] - truth[2], 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
@@ -469,24 +238,24 @@ def test_two_lidars_back_to_back_merged(tmp_path, ros1):
         # every return, seen from the robot's origin at the front stamp, lies on a wall
         # (the back scan, 20 ms later, is moved by the robot's motion in between)
         assert np.isfinite(s.ranges).all() and s.ranges.size > 700  # 360 deg at 0.5 deg, overlaps split
-        assert _on_walls(s, truth).max() < 2e-3
+        assert on_walls(s, truth).max() < 2e-3
         # the four room corners, at their true bearings within 0.5 deg
         obs = observation_from_scan(s)
-        err = np.abs(np.degrees(dist_as(obs.c[:, None], _true_corner_bearings(truth)[None, :])))
+        err = np.abs(np.degrees(dist_as(obs.c[:, None], true_corner_bearings(truth)[None, :])))
         assert obs.c.size == 4 and err.min(axis=1).max() < 0.5 and err.min(axis=0).max() < 0.5
         assert obs.full_fov
 
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_upside_down_lidar_alone_is_mirrored(tmp_path, ros1):
-    p = write_robot_bag(_path(tmp_path, ros1), ros1)
+    p = write_robot_bag(bag_path(tmp_path, ros1), ros1)
     scans = read_bag_scans(p, topic="/scan_back")
     assert len(scans) == 3
     for t, s in zip(BACK_STAMPS, scans, strict=True):
         assert s.sensor_offset[:2] == pytest.approx((-0.30, -0.05))
         assert abs(abs(s.sensor_offset[2]) - math.pi) < 1e-9
         assert np.all(np.diff(s.bearings) > 0)
-        assert _on_walls(s, _truth_pose(t)).max() < 2e-3
+        assert on_walls(s, truth_pose(t)).max() < 2e-3
         # the raw (mirrored) bearings would put the returns off the walls
     (raw,) = read_bag_scans(p, topic="/scan_back", base_frame="laser_back", pose_source="none")[:1]
     assert raw.sensor_offset == (0.0, 0.0, 0.0) and raw.pose is None
@@ -504,12 +273,12 @@ def test_merged_error_is_large_without_mirroring(tmp_path):
         max_range=s.max_range,
         sensor_offset=s.sensor_offset,
     )
-    assert _on_walls(wrong, _truth_pose(BACK_STAMPS[0])).max() > 0.5
+    assert on_walls(wrong, truth_pose(BACK_STAMPS[0])).max() > 0.5
 
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_frame_errors_name_the_frames(tmp_path, ros1):
-    p = write_robot_bag(_path(tmp_path, ros1), ros1, extra_static=[("world", "marker", ((1.0, 0, 0), (0, 0, 0)))])
+    p = write_robot_bag(bag_path(tmp_path, ros1), ros1, extra_static=[("world", "marker", ((1.0, 0, 0), (0, 0, 0)))])
     with pytest.raises(DataFormatError, match=r"base frame 'nope' is not in the /tf_static or /tf tree.*base_link"):
         read_bag_scans(p, topic="/scan_front", base_frame="nope")
     with pytest.raises(
@@ -527,7 +296,7 @@ def test_frame_errors_name_the_frames(tmp_path, ros1):
     # base_link given: mounts relative to it, poses from the chain map -> ... -> base_link
     scans = read_bag_scans(p, topic="/scan_front", base_frame="base_link", pose_source="tf:odom")
     t = FRONT_STAMPS[0]
-    assert scans[0].pose == pytest.approx(_odom_pose(t), abs=1e-6)
+    assert scans[0].pose == pytest.approx(odom_pose(t), abs=1e-6)
     assert scans[0].sensor_offset == pytest.approx((0.30, 0.05, 0.0))
 
 
@@ -542,7 +311,7 @@ def test_cli_features_merges_bag_topics(tmp_path, capsys):
     assert "base frame 'base_footprint'" in err and "upside down" in err and "dropped 1 time step" in err
     obs = read_observations(out)
     assert len(obs) == 3 and all(o.full_fov for o in obs)
-    assert obs[0].pose == pytest.approx(_truth_pose(FRONT_STAMPS[0]), abs=1e-4)
+    assert obs[0].pose == pytest.approx(truth_pose(FRONT_STAMPS[0]), abs=1e-4)
     for args, needle in (
         (["--topic", "/scan_front", "--base-frame", "nope"], "base frame 'nope'"),
         (["--topic", "/scan_front", "--topic", "/nope"], "no topic '/nope'"),
@@ -570,17 +339,17 @@ def test_reduce_to_plane_matches_projected_3d_points(roll, d_roll, pitch, yaw, x
     from fingerloc.io.rosbag import Transform3, reduce_to_plane
     from fingerloc.sensors import Scan
 
-    rot = _rot((roll + d_roll, pitch, yaw))
-    q = rot.as_quat()
+    r3 = rot((roll + d_roll, pitch, yaw))
+    q = r3.as_quat()
     mount = Transform3(xyz, tuple(q))
     n = 181
     phi = -math.radians(fov_deg) / 2 + math.radians(fov_deg) / (n - 1) * np.arange(n)
     r = 2.0 + np.sin(3 * phi)
     scan = Scan(ranges=r, bearings=phi, max_range=10.0, intensities=np.arange(n, dtype=float))
     out = reduce_to_plane(scan, mount)
-    pts3 = rot.apply(np.column_stack([r * np.cos(phi), r * np.sin(phi), np.zeros(n)])) + np.asarray(xyz)
+    pts3 = r3.apply(np.column_stack([r * np.cos(phi), r * np.sin(phi), np.zeros(n)])) + np.asarray(xyz)
     want = pts3[:, :2]
-    upside_down = rot.as_matrix()[2, 2] < 0
+    upside_down = r3.as_matrix()[2, 2] < 0
     if upside_down:
         want = want[::-1]
     assert np.allclose(out.points(), want, atol=1e-9)
@@ -593,7 +362,7 @@ def test_reduce_to_plane_refuses_a_steep_lidar():
     from fingerloc.sensors import Scan
 
     scan = Scan(ranges=np.ones(10), bearings=np.linspace(-1, 1, 10))
-    steep = Transform3((0, 0, 0), tuple(_rot((0.0, math.radians(40), 0.0)).as_quat()))
+    steep = Transform3((0, 0, 0), tuple(rot((0.0, math.radians(40), 0.0)).as_quat()))
     with pytest.raises(DataFormatError, match=r"lidar frame 'tilted' is tilted 40.0 deg .*max_tilt_deg=30"):
         reduce_to_plane(scan, steep, frame="tilted")
     phi, c = np.linspace(-1, 1, 10), math.cos(math.radians(40))
@@ -642,7 +411,7 @@ def test_odometry_child_frame_and_a_mount_on_tf(tmp_path):
     resolved at each scan's stamp, and a scan outside that link's samples is dropped and counted."""
     from fingerloc.io.rosbag import BagReadStats
 
-    ts = _store(True)
+    ts = store(True)
     p = tmp_path / "h.bag"
     from rosbags.rosbag1 import Writer
 
@@ -654,13 +423,13 @@ def test_odometry_child_frame_and_a_mount_on_tf(tmp_path):
         c_static = w.add_connection("/tf_static", TF, typestore=ts)
         c_od = w.add_connection("/odom", OD, typestore=ts)
         static = [("base_footprint", "base_link", ((0.1, 0.0, 0.2), (0.0, 0.0, 0.0)))]
-        items.append((1.0, c_static, TF, _tf3(ts, 1.0, static, True)))
+        items.append((1.0, c_static, TF, tf3(ts, 1.0, static, True)))
         for t, yaw in ((2.0, 0.0), (2.2, 0.4)):  # the head turns from 0 to 0.4 rad
-            items.append((t, c_tf, TF, _tf3(ts, t, [("base_link", "head", ((0.0, 0.0, 0.3), (0, 0, yaw)))], True)))
+            items.append((t, c_tf, TF, tf3(ts, t, [("base_link", "head", ((0.0, 0.0, 0.3), (0, 0, yaw)))], True)))
         for t in (2.0, 2.2):
-            items.append((t, c_od, OD, _odom_msg(ts, t, (t, 0.0, 0.0), True)))  # base_link at x = t in odom
+            items.append((t, c_od, OD, odom_msg(ts, t, (t, 0.0, 0.0), True)))  # base_link at x = t in odom
         for t in (2.1, 3.0):
-            items.append((t, c_scan, LS, _scan_msg(ts, t, True, frame="head")))
+            items.append((t, c_scan, LS, scan_msg(ts, t, True, frame="head")))
         for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
             w.write(c, int(t * 1e9), ts.serialize_ros1(msg, typ))
     st = BagReadStats()
@@ -691,14 +460,14 @@ def test_tf_pose_source_needs_a_moving_base(tmp_path):
 
 
 def test_empty_bag_topic(tmp_path):
-    ts = _store(True)
+    ts = store(True)
     from rosbags.rosbag1 import Writer
 
     p = tmp_path / "e.bag"
     with Writer(p) as w:
         w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
         c = w.add_connection("/scan2", "sensor_msgs/msg/LaserScan", typestore=ts)
-        w.write(c, int(1e9), ts.serialize_ros1(_scan_msg(ts, 1.0, True), "sensor_msgs/msg/LaserScan"))
+        w.write(c, int(1e9), ts.serialize_ros1(scan_msg(ts, 1.0, True), "sensor_msgs/msg/LaserScan"))
     assert read_bag_scans(p, topic="/scan") == []
     with pytest.raises(DataFormatError, match="scan topic /scan has no messages"):
         read_bag_scans(p, topic=["/scan2", "/scan"])
@@ -760,7 +529,7 @@ def test_merged_full_circle_bearings_start_at_minus_pi(tmp_path):
     p = write_robot_bag(tmp_path / "c.bag", True)
     for s in read_bag_scans(p, topic=["/scan_back", "/scan_front"]):  # the upside-down lidar as reference
         assert -math.pi <= s.bearings[0] < -math.pi + 0.02 and math.pi - 0.02 < s.bearings[-1] < math.pi
-        assert _on_walls(s, s.pose).max() < 2e-3
+        assert on_walls(s, s.pose).max() < 2e-3
 
 
 def test_fixed_joints_on_tf_count_as_static(tmp_path):
@@ -776,3 +545,19 @@ def test_fixed_joints_on_tf_count_as_static(tmp_path):
     assert plans[0].base_frame == "base_link" and plans[0].mounts[0].static
     assert s.sensor_offset == pytest.approx((0.2, 0.0, 0.5))
     assert s.pose == pytest.approx((0.0, 0.0, 0.0)) and plans[0].pose_source == "tf:odom"
+
+
+def test_robot_bag_with_odometry_along_a_trajectory(tmp_path):
+    """The shared robot bag on a longer run with an odometry topic: auto picks it, poses follow the truth."""
+
+    def pose(t):
+        return (1.5 + 0.5 * (t - 10.0), 3.0 + 0.2 * math.sin(t - 10.0), 0.1 * (t - 10.0))
+
+    stamps = tuple(10.0 + 0.5 * k for k in range(11))
+    p = write_robot_bag(tmp_path / "run", False, front_stamps=stamps, back_stamps=stamps, pose=pose, odom_topic="/odom")
+    plans = []
+    scans = read_bag_scans(p, topic=["/scan_front", "/scan_back"], on_plan=plans.append)
+    assert plans[0].pose_source == "odom:/odom" and len(scans) == 11
+    for t, s in zip(stamps, scans, strict=True):
+        assert s.pose == pytest.approx(odom_pose(t, pose), abs=1e-6)  # odometry: base_footprint in odom
+        assert on_walls(s, pose(t)).max() < 2e-3
