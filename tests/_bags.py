@@ -68,7 +68,7 @@ def odom_msg(ts, t, pose, ros1, child="base_link"):
     return T["nav_msgs/msg/Odometry"](header=header(ts, t, "odom", ros1), child_frame_id=child, pose=pwc, twist=twc)
 
 
-def tf_msg(ts, t, links, ros1):
+def tf_msg(ts, t, links, ros1, typ="tf2_msgs/msg/TFMessage"):
     T = ts.types
     out = []
     for parent, child, (x, y, yaw) in links:
@@ -80,12 +80,16 @@ def tf_msg(ts, t, links, ros1):
                 header=header(ts, t, parent, ros1), child_frame_id=child, transform=tr
             )
         )
-    return T["tf2_msgs/msg/TFMessage"](transforms=out)
+    return T[typ](transforms=out)
 
 
-def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_topic=None):
-    """Write a small bag. scans: list of (t, topic, msg-kwargs); odom: (t, pose); tf: (t, links)."""
+def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_topic=None, tf_type=None):
+    """Write a small bag. scans: list of (t, topic, msg-kwargs); odom: (t, pose); tf: (t, links).
+
+    ``tf_type="tf/msg/tfMessage"`` writes /tf as older ROS 1 bags did."""
     ts = store(ros1)
+    if tf_type is not None and tf_type not in ts.types:
+        ts.register(get_types_from_msg(TFMSG, tf_type))
     if ros1:
         from rosbags.rosbag1 import Writer
 
@@ -96,7 +100,7 @@ def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_
 
         w = Writer(path, version=9)
         ser = ts.serialize_cdr
-    LS, OD, TF = "sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", "tf2_msgs/msg/TFMessage"
+    LS, OD, TF = "sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry", tf_type or "tf2_msgs/msg/TFMessage"
     with w:
         conns = {}
 
@@ -111,9 +115,9 @@ def write_bag(path, ros1, *, scans=(), odom=(), tf=(), tf_static=(), extra_scan_
         for t, pose in odom:
             items.append((t, conn("/odom", OD), OD, odom_msg(ts, t, pose, ros1)))
         for t, links in tf:
-            items.append((t, conn("/tf", TF), TF, tf_msg(ts, t, links, ros1)))
+            items.append((t, conn("/tf", TF), TF, tf_msg(ts, t, links, ros1, TF)))
         for t, links in tf_static:
-            items.append((t, conn("/tf_static", TF), TF, tf_msg(ts, t, links, ros1)))
+            items.append((t, conn("/tf_static", TF), TF, tf_msg(ts, t, links, ros1, TF)))
         for t, c, typ, msg in sorted(items, key=lambda x: x[0]):
             w.write(c, int(t * 1e9), ser(msg, typ))
     return path

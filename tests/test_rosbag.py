@@ -533,13 +533,13 @@ def test_merged_full_circle_bearings_start_at_minus_pi(tmp_path):
 
 
 def test_fixed_joints_on_tf_count_as_static(tmp_path):
-    """Older bags send fixed joints on /tf again and again: base_link -> laser is a mount, odom -> base_link
-    (even while the robot stands still) is not."""
+    """Older bags send fixed joints on /tf (as tf/tfMessage) again and again: base_link -> laser is a
+    mount, odom -> base_link (even while the robot stands still) is not."""
     tf = [
         (1.0 + 0.1 * k, [("base_link", "laser", (0.2, 0.0, 0.5)), ("odom", "base_link", (0.0, 0.0, 0.0))])
         for k in range(5)
     ]
-    p = write_bag(tmp_path / "old.bag", True, scans=[(1.2, "/scan", {})], tf=tf)
+    p = write_bag(tmp_path / "old.bag", True, scans=[(1.2, "/scan", {})], tf=tf, tf_type="tf/msg/tfMessage")
     plans = []
     (s,) = read_bag_scans(p, on_plan=plans.append)
     assert plans[0].base_frame == "base_link" and plans[0].mounts[0].static

@@ -100,6 +100,8 @@ BAG_EXTENSIONS: tuple[str, ...] = (".bag", ".db3", ".mcap")
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+#: Transform message types: tf2's, and tf's of older ROS 1 bags (same fields).
+TF_MESSAGES: tuple[str, ...] = (TF_MESSAGE, "tf/msg/tfMessage")
 
 #: Pairing tolerance (s) when the reference topic's scan period cannot be told (a single scan, no ``scan_time``).
 DEFAULT_PAIR_TOLERANCE = 0.05
@@ -445,7 +447,7 @@ def _collect_poses(reader: Any, info: BagInfo, pose_source: str, odom_topic: str
     """Read the pose messages: an odometry series (when asked or auto) and the transform tree."""
     kind, arg = parse_pose_source(pose_source, odom_topic)
     odoms = info.of_type(ODOMETRY)
-    tfs = [t for t in info.of_type(TF_MESSAGE) if t.rstrip("/").split("/")[-1] in ("tf", "tf_static")]
+    tfs = sorted(t for m in TF_MESSAGES for t in info.of_type(m) if t.rstrip("/").split("/")[-1] in ("tf", "tf_static"))
     dynamic_tf = [t for t in tfs if not t.rstrip("/").endswith("tf_static")]
     if kind == "odom" and arg is not None and arg not in odoms:
         raise InvalidParameterError(
@@ -477,7 +479,7 @@ def _collect_poses(reader: Any, info: BagInfo, pose_source: str, odom_topic: str
             odom.add(_stamp(msg.header, ns), Transform3.from_msg(p.position, p.orientation))
             if child is None and str(msg.child_frame_id).strip("/"):
                 child = str(msg.child_frame_id).strip("/")
-        elif conn.msgtype == TF_MESSAGE and tree is not None:
+        elif conn.msgtype in TF_MESSAGES and tree is not None:
             static = conn.topic.rstrip("/").endswith("tf_static")
             for tf in msg.transforms:
                 value = Transform3.from_msg(tf.transform.translation, tf.transform.rotation)
