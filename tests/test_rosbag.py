@@ -561,3 +561,39 @@ def test_robot_bag_with_odometry_along_a_trajectory(tmp_path):
     for t, s in zip(stamps, scans, strict=True):
         assert s.pose == pytest.approx(odom_pose(t, pose), abs=1e-6)  # odometry: base_footprint in odom
         assert on_walls(s, pose(t)).max() < 2e-3
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    offsets=hs.lists(
+        hs.tuples(hs.floats(-0.5, 0.5), hs.floats(-0.5, 0.5), hs.floats(-math.pi, math.pi)), min_size=1, max_size=3
+    ),
+    fov_deg=hs.sampled_from([90.0, 180.0, 270.0]),
+    seed=hs.integers(0, 1000),
+)
+def test_merge_scans_keeps_points_and_orders_bearings(offsets, fov_deg, seed):
+    """Every merged return is one of the lidars' returns, seen from the robot's origin; bearings increase;
+    the coverage is the union of the fields of view; without overlap nothing is dropped."""
+    from fingerloc.io.rosbag import merge_scans
+    from fingerloc.observation import Observation
+    from fingerloc.sensors import Scan
+
+    rng = np.random.default_rng(seed)
+    n = 91
+    scans = []
+    for off in offsets:
+        phi = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n))
+        r = rng.uniform(1.0, 5.0, n)
+        r[rng.random(n) < 0.1] = np.inf
+        scans.append(Scan(ranges=r, bearings=phi, max_range=10.0, sensor_offset=off))
+    m = merge_scans(scans)
+    assert np.all(np.diff(m.bearings) > 0) and m.bearings[-1] - m.bearings[0] < 2 * math.pi
+    pts = np.concatenate([s.points() for s in scans])
+    got = m.points()
+    d = np.min(np.linalg.norm(got[:, None, :] - pts[None, :, :], axis=2), axis=1)
+    assert d.max() < 1e-9
+    # coverage: the union of the lidars' fields of view, as Observation measures it
+    want = Observation(fov=tuple(f for s in scans for f in s.fov)).fov_coverage()
+    assert Observation(fov=m.fov).fov_coverage() == pytest.approx(want, abs=1e-9)
+    if len(scans) == 1:
+        assert m.ranges.size == n and np.isfinite(m.ranges).sum() == np.isfinite(scans[0].ranges).sum()
