@@ -54,8 +54,8 @@ class FeatureOptions:
         ROS bag: several scan topics merged into one observation per time
         step (the first is the reference); overrides ``topic`` when given.
     base_frame : str or None
-        ROS bag: the robot's frame (default: the root of the ``/tf_static``
-        tree of the lidar frames).
+        ROS bag: the robot's frame (default: the root of the static
+        transforms above the lidar frames).
     pose_source : str
         ROS bag: ``auto``, ``none``, ``tf``, ``tf:FRAME``, ``odom`` or ``odom:TOPIC``.
     skip_bad : bool

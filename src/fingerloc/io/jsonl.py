@@ -125,10 +125,8 @@ def observation_from_record(record: Any) -> Observation:
     ranges = range_bearings = None
     scan = record.get("scan")
     if scan is not None:
-        if (
-            not isinstance(scan, Mapping)
-            or not isinstance(scan.get("bearings"), list)
-            or not isinstance(scan.get("ranges"), list)
+        if not isinstance(scan, Mapping) or not isinstance(scan.get("bearings"), list) or not isinstance(
+            scan.get("ranges"), list
         ):
             raise DataFormatError('"scan" must be {"bearings": [deg, ...], "ranges": [m or null, ...]}')
         if len(scan["bearings"]) != len(scan["ranges"]):
