@@ -461,11 +461,11 @@ def merge_scans(
     ``sensor_offset``: a return becomes the bearing and range of its end point
     seen from the robot's origin; a beam without a return keeps its direction
     (a point at infinity) with range ``inf``. Where fields of view overlap,
-    a bearing is served by the lidar whose field of view's centre is nearest
-    to it (no interleaving of two lidars' beams). The beams are sorted by
-    bearing, in ``[-pi, pi)`` when the fields of view close the circle, else
-    starting after the widest gap; the result's ``coverage`` is the union of
-    the scans' fields of view.
+    a bearing is served by the lidar whose field of view's centre (its mean
+    beam direction) is nearest to it (no interleaving of two lidars' beams).
+    The beams are sorted by bearing, in ``[-pi, pi)`` when the fields of view
+    close the circle, else starting after the widest gap; the result's
+    ``coverage`` is the union of the scans' fields of view.
 
     Parameters
     ----------

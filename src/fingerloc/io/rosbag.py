@@ -281,7 +281,7 @@ class BagPlan:
             s = f"{m.topic} in {m.frame!r} at ({x:.3f}, {y:.3f}, {z:.3f}) m, yaw {math.degrees(m.yaw):.1f} deg"
             if m.mirrored:
                 s += ", upside down (bearings mirrored)"
-            if m.tilt > 1e-6 and not (m.mirrored and abs(m.tilt) < 1e-6):
+            if m.tilt > 1e-6:
                 s += f", tilt {math.degrees(m.tilt):.1f} deg"
             if not m.static:
                 s += ", mount moving (/tf)"
