@@ -12,9 +12,8 @@ What the reader resolves, and the rules it follows
   lidars are mounted on ``base_link`` under ``base_footprint``): links of
   ``/tf_static``, and ``/tf`` links that never change unless they lead into
   ``odom``, ``map``, ``world`` or ``earth`` (older bags re-send fixed joints
-  on ``/tf``).
-  When the bag has no transform tree at all, the lidar's own frame is the base
-  (a zero mount, said so in the plan). A base frame that no chain of
+  on ``/tf``). When no transform names the lidar frame, a single lidar's own
+  frame is the base (a zero mount, said so in the plan). A base frame that no chain of
   ``/tf_static`` and ``/tf`` transforms links to a lidar frame is an error
   naming both frames, never a silent zero mount.
 * **Lidar mount.** The full 3D transform from the lidar frame to the base
@@ -26,15 +25,16 @@ What the reader resolves, and the rules it follows
   more than ``max_tilt_deg`` from the base plane is not a planar sensor and is
   refused.
 * **Poses** (``pose_source``): ``odom`` / ``odom:TOPIC`` from a
-  ``nav_msgs/Odometry`` topic (composed with the static transform from its
-  ``child_frame_id`` to the base frame when one exists), ``tf`` / ``tf:FRAME``
+  ``nav_msgs/Odometry`` topic (composed with the transform from its
+  ``child_frame_id`` to the base frame when the tree links them), ``tf`` / ``tf:FRAME``
   the base frame's pose in FRAME (default: the root of its ``/tf`` tree, e.g.
   ``map``), ``none``, or ``auto`` (odometry if there is any, else ``/tf`` if
   the base frame moves in it, else none). Every pose, and every ``/tf`` link,
   is interpolated to the scan's stamp (linear in position, slerp in
   rotation) between the two samples around it when they are at most
   ``2 max_pose_gap`` seconds apart; else the nearest sample within
-  ``max_pose_gap``; else no pose. A ``/tf`` link whose value never changes counts as static.
+  ``max_pose_gap``; else no pose. A ``/tf`` link whose value never changes
+  counts as static.
 * **Several scan topics** (``topic=["/scan_front", "/scan_back"]``) give one
   scan per time step in the base frame (:func:`merge_scans`): the first topic
   is the reference; each of its scans is merged with, for every other topic,
@@ -45,7 +45,10 @@ What the reader resolves, and the rules it follows
   by the robot's motion between its stamp and the reference's.
 
 A bag is streamed twice: once for the (small) pose messages, once for the
-scans, so a long bag is never held in memory; only the pose time series are.
+scans (after a look at the first few scans for their frames and period), so a
+long bag is never held in memory; only the pose time series are. The options
+and what they resolved to are in a :class:`BagPlan` (``on_plan=``,
+:func:`bag_plan`).
 """
 
 from __future__ import annotations
