@@ -188,6 +188,7 @@ def test_features_command_on_a_bag(tmp_path, capsys, ros1):
     out = tmp_path / "o.jsonl"
     code, text, err = _run(capsys, "features", p2, "--json", out)
     assert code == 0, err
+    assert "base frame: none (no /tf_static mount for lidar frame 'laser'" in err  # the choice is reported
     (row,) = text.strip().splitlines()
     assert " B(2): " in row and " c(2): " in row and " Ex(0): " in row  # two corners within 270 deg, two beacons
     from fingerloc.io.jsonl import read_observations
