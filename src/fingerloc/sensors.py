@@ -49,6 +49,11 @@ class Scan:
         Pose of the sensor in the robot frame; default at the robot's origin.
     timestamp : float, optional
         Seconds.
+    coverage : tuple of (start, width), optional
+        The covered bearings (radians, robot frame) when they are not the
+        span of the beams: a scan merged from several lidars covers the union
+        of theirs (see :func:`fingerloc.io.frames.merge_scans`). ``None``:
+        the beams' own span (:attr:`fov`).
     """
 
     ranges: FArray
@@ -58,6 +63,7 @@ class Scan:
     pose: tuple[float, float, float] | None = None
     sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     timestamp: float | None = None
+    coverage: tuple[tuple[float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         r = np.array(self.ranges, dtype=np.float64).reshape(-1)
@@ -88,6 +94,11 @@ class Scan:
         if self.pose is not None:
             object.__setattr__(self, "pose", tuple(float(v) for v in self.pose))
         object.__setattr__(self, "sensor_offset", tuple(float(v) for v in self.sensor_offset))
+        if self.coverage is not None:
+            cov = tuple((float(s), float(w)) for s, w in self.coverage)
+            if not cov or not all(np.isfinite(s) and 0 < w <= TWO_PI + 1e-9 for s, w in cov):
+                raise InvalidParameterError(f"coverage: (start, width) ranges with 0 < width <= 2 pi, got {cov!r}")
+            object.__setattr__(self, "coverage", cov)
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -101,11 +112,14 @@ class Scan:
 
     @property
     def fov(self) -> tuple[tuple[float, float], ...]:
-        """The covered bearings as one ``(start, width)`` range in radians (robot frame).
+        """The covered bearings as ``(start, width)`` ranges in radians (robot frame).
 
         Half a beam step is added on each side; a scan whose beams close the
-        circle covers the full circle.
+        circle covers the full circle. A scan with an explicit ``coverage``
+        (a merged scan) returns it instead, possibly several ranges.
         """
+        if self.coverage is not None:
+            return self.coverage
         step = self.angular_step
         width = float(self.bearings[-1] - self.bearings[0] + step)
         start = float(self.bearings[0] - step / 2 + self.sensor_offset[2])

@@ -50,6 +50,14 @@ class FeatureOptions:
         Panoramas wider than this are resampled down (area averaging).
     topic : str or None
         Topic of a ROS bag (for the ``bag`` kind).
+    topics : tuple of str
+        ROS bag: several scan topics merged into one observation per time
+        step (the first is the reference); overrides ``topic`` when given.
+    base_frame : str or None
+        ROS bag: the robot's frame (default: the root of the static
+        transforms above the lidar frames).
+    pose_source : str
+        ROS bag: ``auto``, ``none``, ``tf``, ``tf:FRAME``, ``odom`` or ``odom:TOPIC``.
     skip_bad : bool
         Laser logs: skip malformed lines / messages (their count goes to stderr).
     beacon_threshold : float or None
@@ -66,6 +74,9 @@ class FeatureOptions:
     band: tuple[float, float] | None = None
     max_width: int = 1440
     topic: str | None = None
+    topics: tuple[str, ...] = ()
+    base_frame: str | None = None
+    pose_source: str = "auto"
     skip_bad: bool = False
     beacon_threshold: float | None = None
 
@@ -225,7 +236,27 @@ def features_cmd(
         show_default=False,
     ),
     place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
-    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic (when there are several)."),
+    topic: list[str] | None = typer.Option(
+        None,
+        "--topic",
+        metavar="TOPIC",
+        help="ROS bag: the LaserScan topic (when there are several). Repeat it to merge lidars into one "
+        "observation per time step (the first topic's stamps; others paired within half its scan period).",
+        show_default=False,
+    ),
+    base_frame: str | None = typer.Option(
+        None,
+        "--base-frame",
+        metavar="FRAME",
+        help="ROS bag: the robot's frame (default: the root of the static transforms above the lidars).",
+        show_default=False,
+    ),
+    pose_source: str = typer.Option(
+        "auto",
+        "--pose-source",
+        metavar="SOURCE",
+        help="ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC].",
+    ),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Laser logs: skip malformed lines and report how many."),
     beacon_threshold: float | None = typer.Option(
         None,
@@ -242,6 +273,10 @@ def features_cmd(
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
         raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
+    if pose_source != "auto":
+        from ..io.rosbag import parse_pose_source
+
+        parse_pose_source(pose_source)
     if radii is not None and not (0.0 <= radii[0] < radii[1]):
         raise InvalidParameterError(f"--radii must satisfy 0 <= R_IN < R_OUT, got {radii[0]} {radii[1]}")
     opts = FeatureOptions(
@@ -252,7 +287,10 @@ def features_cmd(
         radii=radii,
         mirror=mirror,
         band=band,
-        topic=topic,
+        topic=topic[0] if topic and len(topic) == 1 else None,
+        topics=tuple(topic) if topic and len(topic) > 1 else (),
+        base_frame=base_frame,
+        pose_source=pose_source,
         skip_bad=skip_bad,
         beacon_threshold=beacon_threshold,
     )

@@ -67,14 +67,31 @@ def iter_carmen_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple
 
 
 def iter_bag_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    """One laser-only observation per ``sensor_msgs/LaserScan`` of a ROS bag (``opts.topic`` picks the topic)."""
+    """One laser-only observation per scan (or per merged time step) of a ROS bag.
+
+    ``opts.topic`` / ``opts.topics`` pick the scan topic(s), ``opts.base_frame``
+    and ``opts.pose_source`` the frames (see :func:`fingerloc.io.rosbag.iter_bag_scans`);
+    what the reader resolved (base frame and why, mounts, pose source) goes to stderr.
+    """
     from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats
-    from ..io.rosbag import iter_bag_scans
+    from ..io.rosbag import BagPlan, BagReadStats, iter_bag_scans
 
     params = _feature_params(opts)
-    st = ReadStats()
-    scans = iter_bag_scans(path, topic=opts.topic, skip_bad=bool(getattr(opts, "skip_bad", False)), stats=st)
+    st = BagReadStats()
+    topics = tuple(getattr(opts, "topics", ()) or ())
+
+    def report(plan: BagPlan) -> None:
+        err_console.print(f"{path}: {plan.describe()}", soft_wrap=True, markup=False)
+
+    scans = iter_bag_scans(
+        path,
+        topic=topics or opts.topic,
+        base_frame=getattr(opts, "base_frame", None),
+        pose_source=getattr(opts, "pose_source", "auto"),
+        skip_bad=bool(getattr(opts, "skip_bad", False)),
+        stats=st,
+        on_plan=report,
+    )
     for k, scan in enumerate(scans, start=1):
         t = "" if scan.timestamp is None else f" t={scan.timestamp:.3f}"
         yield f"{path.name}#{k}{t}", observation_from_scan(scan, label=opts.place, **params)
@@ -84,6 +101,12 @@ def iter_bag_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[st
             soft_wrap=True,
             markup=False,
         )
+    dropped = [
+        f"{st.unpaired} time step(s) without a scan on every topic" if st.unpaired else "",
+        f"{st.unmounted} scan(s) whose lidar mount was missing in /tf at their stamp" if st.unmounted else "",
+    ]
+    if any(dropped):
+        err_console.print(f"{path}: dropped {' and '.join(d for d in dropped if d)}", soft_wrap=True, markup=False)
 
 
 def format_scan_line(name: str, obs: Observation) -> str:
