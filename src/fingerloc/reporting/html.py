@@ -32,7 +32,8 @@ th { background: #f4f4f4; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
 code, .fp { font-family: ui-monospace, "DejaVu Sans Mono", monospace; font-size: .92em; overflow-wrap: anywhere; }
 figure { margin: 1em 0; }
-figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+img { max-width: 100%; height: auto; }
+figure img { border: 1px solid #eee; }
 summary { cursor: pointer; font-weight: bold; margin: .5em 0; }
 figcaption { color: #555; font-size: .92em; max-width: 60em; }
 .cards { display: flex; flex-wrap: wrap; gap: .6em; }

@@ -27,6 +27,7 @@ __all__ = [
     "detect_jumps",
     "most_confused",
     "recoveries_after",
+    "scan_end_points",
     "write_localize_report",
     "write_map_report",
     "write_panorama_report",
@@ -68,6 +69,34 @@ def _view_cell(out: Path, rel: str, view: FeatureView | None, caption: str, *, e
 
 
 # ----------------------------------------------------------------------------- map
+
+
+def scan_end_points(scans: Sequence[Any], *, max_points: int = 200_000) -> FArray:
+    """Laser end points of scans with a pose, in the world frame, evenly thinned to at most ``max_points``.
+
+    Parameters
+    ----------
+    scans : sequence of fingerloc.sensors.Scan
+        Scans without a pose are skipped.
+    max_points : int, default 200000
+
+    Returns
+    -------
+    ndarray, shape (m, 2)
+        Metres.
+    """
+    parts = []
+    for s in scans:
+        if s.pose is None:
+            continue
+        x, y, th = s.pose
+        pts = s.points()
+        c, si = math.cos(th), math.sin(th)
+        parts.append(np.column_stack([x + c * pts[:, 0] - si * pts[:, 1], y + si * pts[:, 0] + c * pts[:, 1]]))
+    out = np.concatenate(parts) if parts else np.zeros((0, 2))
+    if out.shape[0] > max_points:
+        out = out[:: math.ceil(out.shape[0] / max_points)]
+    return out
 
 
 def _edge_indices(edges: Sequence[tuple[Any, Any]], names: Sequence[str]) -> IArray:
