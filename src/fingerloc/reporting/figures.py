@@ -72,7 +72,8 @@ def draw_map(
         ax.add_collection(LineCollection(list(segs), colors="tab:orange", linewidths=0.9, alpha=0.8, label="graph edges"))
     if centres.size:
         _circles(ax, centres, radius, facecolors="none", edgecolors="k", linewidths=0.5, alpha=0.6)
-        ax.scatter(centres[:, 0], centres[:, 1], s=12, c="k", zorder=4, label=f"places ({centres.shape[0]})")
+        size = 12 if centres.shape[0] <= 100 else 3
+        ax.scatter(centres[:, 0], centres[:, 1], s=size, c="k", zorder=4, label=f"places ({centres.shape[0]})")
         if len(names) <= 30:
             for (x, y), n in zip(centres, names, strict=True):
                 ax.annotate(n, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7)
@@ -166,10 +167,15 @@ def draw_track(
         if len(kidnaps):  # no line across a jump
             line = np.insert(line, np.asarray(sorted(kidnaps), dtype=np.int64), np.nan, axis=0)
         ax.plot(line[:, 0], line[:, 1], lw=0.5, c="0.6", zorder=1)
-        for val, colour, label in ((1, "tab:green", "right"), (0, "tab:red", "wrong"), (-1, "0.75", "no label")):
+        big = 16 if poses.shape[0] <= 2000 else 6
+        for val, colour, label, size in (
+            (-1, "0.75", "no label or not observed", big / 3),
+            (1, "tab:green", "right", big),
+            (0, "tab:red", "wrong", big),
+        ):
             sel = right == val
             if np.any(sel):
-                ax.scatter(poses[sel, 0], poses[sel, 1], s=7, c=colour, zorder=3, label=f"{label} ({int(sel.sum())})")
+                ax.scatter(poses[sel, 0], poses[sel, 1], s=size, c=colour, zorder=3, label=f"{label} ({int(sel.sum())})")
         for i, k in enumerate(kidnaps):
             ax.plot(*poses[k, :2], marker="X", ms=12, c="tab:red", mec="k", ls="none", zorder=5,
                     label="kidnapped here" if i == 0 else None)  # fmt: skip

@@ -754,8 +754,8 @@ def write_track_report(
             "trajectory.png",
             "trajectory with each labelled step coloured green where the filtered answer is right, red where wrong",
             "Each pose of the run: green where the filter's best place is the true one, red where it is not, "
-            "grey where the true place is unknown or the step only predicted. Crosses: kidnappings; circles: "
-            "where the filter found the right place again.",
+            "grey where the true place is unknown or the step only predicted."
+            + (" Crosses: kidnappings; circles: where the filter found the right place again." if kid.size else ""),
         )
     else:
         page.paragraph("No poses: the trajectory figure needs a pose on every step.", cls="note")
@@ -764,7 +764,7 @@ def write_track_report(
         "over_time.png",
         "the true place's probability (filtered and single-shot) and the filtered posterior's entropy, per step",
         "Top: probability of the true place, filtered (line) and from each observation alone (dots). Bottom: entropy "
-        "of the filtered posterior in bits. Dashed red: kidnappings; dotted green: recoveries.",
+        "of the filtered posterior in bits." + (" Dashed red: kidnappings; dotted green: recoveries." if kid.size else ""),
     )
     runs = sorted(_runs(right == 0), key=lambda r: r[0] - r[1])[:10]
     if runs:
