@@ -326,3 +326,21 @@ def test_browser_check_catches_a_missing_image(tmp_path):
     (tmp_path / "index.html").write_text('<!DOCTYPE html><html><body><img src="gone.png" alt="x"></body></html>')
     with pytest.raises(AssertionError):
         assert_page_ok(tmp_path / "index.html")
+
+
+@pytest.mark.slow
+def test_bench_carmen_report_on_a_shared_log(tmp_path, capsys):
+    from pathlib import Path
+
+    log = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen" / "aces-corrected.log.gz"
+    if not log.exists():
+        pytest.skip(f"{log} not found (the shared CARMEN logs sit beside the project)")
+    out = tmp_path / "bench"
+    code, _, err = run_cli(capsys, "bench", "carmen", log, "-m", "fingerprint", "--report", out)
+    assert code == 0, err
+    html = (out / "index.html").read_text()
+    assert 'href="log1/map/index.html"' in html and 'href="log1/localize/index.html"' in html
+    js = json.loads((out / "log1" / "map" / "report.json").read_text())
+    assert len(js["places"]) == 61  # the protocol's count for aces (docs/RESULTS.md)
+    for page in ("index.html", "log1/map/index.html", "log1/localize/index.html"):
+        assert_page_ok(out / page, min_images=0 if page == "index.html" else 2)
