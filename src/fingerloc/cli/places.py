@@ -256,7 +256,7 @@ def places_cmd(
         return
     t = Table(title=f"{db}: {len(rows)} place(s)")
     for c in ("place", "observations", "medoid fingerprint", "components per term"):
-        t.add_column(c)
+        t.add_column(c, overflow="fold")
     for r in rows:
         comps = " ".join(f"{k}:{v}" for k, v in r["mixtures"].items())
         t.add_row(r["place"], str(r["observations"]), r["fingerprint"], comps)
