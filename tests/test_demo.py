@@ -25,7 +25,7 @@ def test_demo_writes_report(tmp_path, capsys):
             assert im.format == "PNG" and im.size[0] > 200 and im.size[1] > 150
     assert "Table II" in page and "paper" in page
     assert (out / "results.json").exists()
-    # the same page as HTML, checked in a real browser (skipped where none can run)
+    # last: the same page as HTML in a real browser (where none can run, the test is skipped after the checks above)
     assert_page_ok(out / "index.html", min_images=len(FIGURES))
 
 
