@@ -344,3 +344,24 @@ def test_bench_carmen_report_on_a_shared_log(tmp_path, capsys):
     assert len(js["places"]) == 61  # the protocol's count for aces (docs/RESULTS.md)
     for page in ("index.html", "log1/map/index.html", "log1/localize/index.html"):
         assert_page_ok(out / page, min_images=0 if page == "index.html" else 2)
+
+
+def test_map_report_edges_by_name_and_json(tmp_path):
+    index = write_map_report(
+        tmp_path / "m",
+        place_names=["hall", "lab", "office"],
+        centres=[[0, 0], [3, 0], [3, 4]],
+        radius=[1.0, 1.0, 0.5],
+        edges=[("hall", "lab"), (1, 2), ("lab", "lab")],  # a self-loop draws nothing
+        trajectory=[[0, 0, 0], [1.5, 0, 0], [3, 0, 0], [3, 2, 1.57], [3, 4, 1.57]],
+        views_per_place=[2, 3, 1],
+        place_views=[FeatureView({"c": [0.5]}, fingerprint="cnnn"), None, FeatureView({"VE": [1.0, -1.0]})],
+    )
+    js = json.loads((tmp_path / "m" / "report.json").read_text())
+    assert js["edges"] == [["hall", "lab"], ["lab", "office"]]
+    assert [p["views"] for p in js["places"]] == [2, 3, 1] and js["places"][0]["fingerprint"] == "cnnn"
+    assert js["places"][2]["radius_m"] == 0.5
+    html = _all_images_exist(index)
+    assert len(list((tmp_path / "m" / "places").glob("*.png"))) == 2 and "3 views" in html
+    with pytest.raises(InvalidParameterError, match="'kitchen'"):
+        write_map_report(tmp_path / "x", place_names=["a"], centres=[[0, 0]], radius=1, edges=[("a", "kitchen")])
