@@ -77,7 +77,9 @@ def simulated_session(work: Path) -> None:
     # a run: the test views in office order, then a jump back to the first offices (a kidnapping)
     run = test + test[: 6 * 4]
     write_observations(work / "run.jsonl", run)
-    _run("track", work / "run.jsonl", "--db", db, "--graph-from", work / "train.jsonl", "-q", "--report", work / "track")
+    _run(
+        "track", work / "run.jsonl", "--db", db, "--graph-from", work / "train.jsonl", "-q", "--report", work / "track"
+    )
 
 
 def panorama(work: Path) -> None:

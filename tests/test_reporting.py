@@ -43,7 +43,7 @@ def test_markdown_subset_to_html():
     assert "<strong>bold</strong>" in html and "<code>a&lt;b&gt;</code>" in html
     assert '<a href="r.json">a link</a>' in html
     assert "<ol><li>one</li><li>two</li></ol>" in html
-    assert '<th>a</th><th>b</th>' in html and '<td class="num">1.5</td>' in html
+    assert "<th>a</th><th>b</th>" in html and '<td class="num">1.5</td>' in html
     assert '<img src="map.png" alt="map">' in html
 
 
@@ -97,7 +97,12 @@ def _dark_top_and_left(path):
     n = a.shape[0]
     w = slice(n // 2 - 6, n // 2 + 6)
     edge = slice(2, 14)
-    return {"top": a[edge, w].mean(), "left": a[w, edge].mean(), "bottom": a[-14:-2, w].mean(), "right": a[w, -14:-2].mean()}
+    return {
+        "top": a[edge, w].mean(),
+        "left": a[w, edge].mean(),
+        "bottom": a[-14:-2, w].mean(),
+        "right": a[w, -14:-2].mean(),
+    }
 
 
 def test_thumbnail_draws_bearing_zero_up_and_ninety_left(tmp_path):

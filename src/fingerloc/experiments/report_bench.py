@@ -132,7 +132,11 @@ def run_report_bench(
         Per report: ``seconds`` (writing only), ``bytes`` and ``files``; and their totals.
     """
     data = synthetic_report_data(n_places, n_queries, seed=seed)
-    writers: dict[str, Callable[..., Path]] = {"map": write_map_report, "localize": write_localize_report, "track": write_track_report}
+    writers: dict[str, Callable[..., Path]] = {
+        "map": write_map_report,
+        "localize": write_localize_report,
+        "track": write_track_report,
+    }
     out = Path(out_dir)
     res: dict[str, Any] = {"places": n_places, "queries": n_queries}
     for name, fn in writers.items():

@@ -69,7 +69,9 @@ def draw_map(
         ax.plot(trajectory[:, 0], trajectory[:, 1], lw=0.7, c="tab:blue", alpha=0.7, label="trajectory")
     if edges.size:
         segs = np.stack([centres[edges[:, 0]], centres[edges[:, 1]]], axis=1)
-        ax.add_collection(LineCollection(list(segs), colors="tab:orange", linewidths=0.9, alpha=0.8, label="graph edges"))
+        ax.add_collection(
+            LineCollection(list(segs), colors="tab:orange", linewidths=0.9, alpha=0.8, label="graph edges")
+        )
     if centres.size:
         _circles(ax, centres, radius, facecolors="none", edgecolors="k", linewidths=0.5, alpha=0.6)
         size = 12 if centres.shape[0] <= 100 else 3
@@ -175,7 +177,9 @@ def draw_track(
         ):
             sel = right == val
             if np.any(sel):
-                ax.scatter(poses[sel, 0], poses[sel, 1], s=size, c=colour, zorder=3, label=f"{label} ({int(sel.sum())})")
+                ax.scatter(
+                    poses[sel, 0], poses[sel, 1], s=size, c=colour, zorder=3, label=f"{label} ({int(sel.sum())})"
+                )
         for i, k in enumerate(kidnaps):
             ax.plot(*poses[k, :2], marker="X", ms=12, c="tab:red", mec="k", ls="none", zorder=5,
                     label="kidnapped here" if i == 0 else None)  # fmt: skip

@@ -17,7 +17,15 @@ from pathlib import Path
 
 from ..errors import InvalidParameterError
 
-__all__ = ["Page", "check_report_dir", "ellipsize_middle", "esc", "markdown_to_html", "table_html", "write_markdown_page"]
+__all__ = [
+    "Page",
+    "check_report_dir",
+    "ellipsize_middle",
+    "esc",
+    "markdown_to_html",
+    "table_html",
+    "write_markdown_page",
+]
 
 #: The page's style sheet (inline: the folder holds only the page and its figures).
 CSS = """
@@ -171,7 +179,7 @@ class Page:
         """The whole document."""
         body = "\n".join(self.parts)
         return (
-            "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
             '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
             f"<title>{esc(self.title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
             f"<h1>{self.title_html or esc(self.title)}</h1>\n{body}\n</body>\n</html>\n"

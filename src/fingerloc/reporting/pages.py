@@ -196,7 +196,9 @@ def write_map_report(
         + ".",
     ]
     if rad.size:
-        facts.append(f"Place radius {np.min(rad):.2f}-{np.max(rad):.2f} m." if np.ptp(rad) else f"Place radius {rad[0]:.2f} m.")
+        facts.append(
+            f"Place radius {np.min(rad):.2f}-{np.max(rad):.2f} m." if np.ptp(rad) else f"Place radius {rad[0]:.2f} m."
+        )
     page.items(facts)
     page.heading("The places over the run")
     figures.draw_map(
@@ -233,7 +235,9 @@ def write_map_report(
             rel = f"places/p{j:05d}.png"
             draw_view_thumbnail(view, out / rel, size=120)
             counts = ", ".join(f"{k} {v}" for k, v in view.counts().items()) or "no feature"
-            img = f'<img src="{esc(rel)}" alt="{esc(f"features of one view of {n}: {counts}")}" width="120" height="120">'
+            img = (
+                f'<img src="{esc(rel)}" alt="{esc(f"features of one view of {n}: {counts}")}" width="120" height="120">'
+            )
         fp = f'<div class="fp">{esc(view.fingerprint)}</div>' if view is not None else ""
         nv = f"<div>{int(views[j])} view{'s' if views[j] != 1 else ''}</div>" if views is not None else ""
         pos = f"<div>({c[j, 0]:.1f}, {c[j, 1]:.1f}) m</div>"
@@ -248,7 +252,9 @@ def write_map_report(
                     "centre_m": [float(c[j, 0]), float(c[j, 1])],
                     "radius_m": float(rad[j]),
                     "views": None if views is None else int(views[j]),
-                    "fingerprint": None if place_views is None or place_views[j] is None else place_views[j].fingerprint,  # type: ignore[union-attr]
+                    "fingerprint": None
+                    if place_views is None or place_views[j] is None
+                    else place_views[j].fingerprint,  # type: ignore[union-attr]
                 }
                 for j, n in enumerate(names)
             ],
@@ -502,9 +508,7 @@ def write_localize_report(
     if n:
         if lab.any():
             wrong_idx = np.flatnonzero(lab & (rk > 1))
-            p_true = (
-                np.exp(logp[wrong_idx, tr[wrong_idx]]) if logp is not None else np.zeros(wrong_idx.size)
-            )
+            p_true = np.exp(logp[wrong_idx, tr[wrong_idx]]) if logp is not None else np.zeros(wrong_idx.size)
             order = np.lexsort((p_true, -rk[wrong_idx]))
             worst = wrong_idx[order][:n_worst]
             head = "Worst queries (true place ranked lowest)"
@@ -548,7 +552,9 @@ def write_localize_report(
                             cost = float(global_alignment(qv.fingerprint, pv.fingerprint))
                             extra = f"<div>alignment cost to the query: {cost:g}</div>"
                             rec[f"alignment_cost_{who.replace(' ', '_')}"] = cost
-                        cells.append(_view_cell(out, f"worst/q{k:03d}_{who[0]}.png", pv, f"{who}: {names[j]}", extra=extra))
+                        cells.append(
+                            _view_cell(out, f"worst/q{k:03d}_{who[0]}.png", pv, f"{who}: {names[j]}", extra=extra)
+                        )
                 page.raw('<div class="row">' + "".join(cells) + "</div>")
                 js["worst"].append(rec)
     if per_place_table:
@@ -723,12 +729,18 @@ def write_track_report(
             + (f", single-shot top-1 {s_top1:.3f}" if single_log_likelihood is not None else "")
             + "."
         )
-    facts.append(f"Median entropy of the filtered posterior: {np.median(ent):.2f} bits (uniform: {math.log2(max(p, 1)):.2f}).")
+    facts.append(
+        f"Median entropy of the filtered posterior: {np.median(ent):.2f} bits (uniform: {math.log2(max(p, 1)):.2f})."
+    )
     if kid.size:
         got = rec[rec >= 0]
         facts.append(
             f"{kid.size} kidnapping(s) (jumps of the pose); recovered from {got.size}"
-            + (f", after {', '.join(str(int(r - k)) for k, r in zip(kid, rec, strict=True) if r >= 0)} steps" if got.size else "")
+            + (
+                f", after {', '.join(str(int(r - k)) for k, r in zip(kid, rec, strict=True) if r >= 0)} steps"
+                if got.size
+                else ""
+            )
             + "."
         )
     page.items(facts)
@@ -764,7 +776,8 @@ def write_track_report(
         "over_time.png",
         "the true place's probability (filtered and single-shot) and the filtered posterior's entropy, per step",
         "Top: probability of the true place, filtered (line) and from each observation alone (dots). Bottom: entropy "
-        "of the filtered posterior in bits." + (" Dashed red: kidnappings; dotted green: recoveries." if kid.size else ""),
+        "of the filtered posterior in bits."
+        + (" Dashed red: kidnappings; dotted green: recoveries." if kid.size else ""),
     )
     runs = sorted(_runs(right == 0), key=lambda r: r[0] - r[1])[:10]
     if runs:
@@ -844,7 +857,9 @@ def write_panorama_report(
     sign = -1.0 if clockwise else 1.0
 
     def frac(b: ArrayLike) -> FArray:
-        return np.asarray(np.mod(sign * (np.asarray(b, dtype=np.float64).reshape(-1) - bearing_offset), 2 * math.pi) / (2 * math.pi))
+        return np.asarray(
+            np.mod(sign * (np.asarray(b, dtype=np.float64).reshape(-1) - bearing_offset), 2 * math.pi) / (2 * math.pi)
+        )
 
     e = np.asarray(edges, dtype=np.float64).reshape(-1)
     pa = np.asarray(patches, dtype=np.float64).reshape(-1)
@@ -891,8 +906,11 @@ def write_panorama_report(
         f"the panorama with {e.size} vertical edges drawn as cyan lines and {pa.size} colour patches as triangles"
         + ("; below it the reference view turned by the heading estimate" if ref is not None else ""),
         "Vertical edges (cyan lines) and colour patches (triangles in their hue) at the bearings the extractor found."
-        + (" Below: the reference view turned by the heading estimate; when the estimate is right, the two line up."
-           if ref is not None else ""),
+        + (
+            " Below: the reference view turned by the heading estimate; when the estimate is right, the two line up."
+            if ref is not None
+            else ""
+        ),
     )
     if re_.size or rp.size:
         q = FeatureView({"VE": e, "CP": pa}, hu)
