@@ -370,3 +370,22 @@ def test_map_report_edges_by_name_and_json(tmp_path):
     assert len(list((tmp_path / "m" / "places").glob("*.png"))) == 2 and "3 views" in html
     with pytest.raises(InvalidParameterError, match="'kitchen'"):
         write_map_report(tmp_path / "x", place_names=["a"], centres=[[0, 0]], radius=1, edges=[("a", "kitchen")])
+
+
+def test_map_report_adapter_from_a_learned_database(tmp_path, capsys):
+    from fingerloc.cli.reports import map_report
+    from fingerloc.io.jsonl import read_observations
+    from fingerloc.map.database import load_model
+
+    db, tr, _ = _jsonl_session(tmp_path)
+    model = load_model(db)
+    train = read_observations(tr)
+    centres = {c: np.mean([o.pose[:2] for o in train if o.label == c], axis=0) for c in model.classes_}
+    map_report(tmp_path / "map", model=model, centres=centres, radius=0.5, edges={("b", "c"): 2},
+               trajectory=np.array([o.pose for o in train]), data=tr, db=db)  # fmt: skip
+    js = json.loads((tmp_path / "map" / "report.json").read_text())
+    assert [p["views"] for p in js["places"]] == [3, 3, 3, 3]
+    assert js["edges"] == [["b", "c"]]
+    assert all(p["fingerprint"] for p in js["places"])
+    _all_images_exist(tmp_path / "map" / "index.html")
+    assert "index.html" in capsys.readouterr().err

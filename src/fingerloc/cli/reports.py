@@ -17,7 +17,7 @@ from ..errors import InvalidParameterError
 from .app import bench_app, console, err_console
 from .bench import write_json
 
-__all__ = ["carmen_report", "check_report", "localize_report", "track_report"]
+__all__ = ["carmen_report", "check_report", "localize_report", "map_report", "track_report"]
 
 
 class _LazyViews(Sequence[Any]):
@@ -53,6 +53,59 @@ def _done(path: Path) -> None:
     err_console.print(f"wrote {path} (open it in a browser)", soft_wrap=True, markup=False)
 
 
+def _medoid_views(model: Any, classes: Sequence[str]) -> tuple[list[Any], list[int]]:
+    """Each place's medoid training observation (or None) and its number of views."""
+    refs, counts = [], []
+    for c in classes:
+        p = model.places_[c]
+        obs = list(getattr(p, "observations", []))
+        refs.append(obs[min(int(getattr(p, "medoid", 0)), len(obs) - 1)] if obs else None)
+        counts.append(len(obs))
+    return refs, counts
+
+
+def map_report(
+    report: Path,
+    *,
+    model: Any,
+    centres: Any,
+    radius: Any,
+    edges: Any = (),
+    trajectory: Any = None,
+    scans: Sequence[Any] | None = None,
+    data: Path | None = None,
+    db: Path | None = None,
+) -> None:
+    """The map report of a learned database (for ``fingerloc map --report``).
+
+    ``centres``: a mapping place -> (x, y) or an array in ``model.classes_`` order; ``radius``: metres (one, or
+    one per place); ``edges``: (place, place) pairs or a ``{(a, b): count}`` dict; ``trajectory``: (T, 2 or 3)
+    poses; ``scans``: the run's scans with poses (their end points are drawn).
+    """
+    from ..reporting import FeatureView, scan_end_points, write_map_report
+
+    classes = [str(c) for c in model.classes_]
+    if isinstance(centres, dict):
+        xy = np.array([centres[c][:2] for c in classes], dtype=np.float64)
+    else:
+        xy = np.asarray(centres, dtype=np.float64)[:, :2]
+    letters = bool(model.get_params().get("laser_letters", False))
+    refs, counts = _medoid_views(model, classes)
+    page = write_map_report(
+        report,
+        place_names=classes,
+        centres=xy,
+        radius=radius,
+        edges=list(edges),
+        trajectory=trajectory,
+        scan_points=None if scans is None else scan_end_points(scans),
+        views_per_place=counts,
+        place_views=_LazyViews(refs, lambda o: FeatureView.from_observation(o, laser_letters=letters)),
+        notes=[f"fingerloc map {data} --db {db}"] if data is not None else [],
+    )
+    _done(page)
+
+
 def localize_report(
     report: Path, *, model: Any, observations: Sequence[Any], log_proba: Any, ranks: Any, data: Path, db: Path
 ) -> None:
@@ -69,11 +122,7 @@ def localize_report(
     def view(o: Any) -> Any:
         return FeatureView.from_observation(o, laser_letters=letters)
 
-    refs = []
-    for c in classes:
-        p = model.places_[c]
-        obs = list(getattr(p, "observations", []))
-        refs.append(obs[min(int(getattr(p, "medoid", 0)), len(obs) - 1)] if obs else None)
+    refs, _ = _medoid_views(model, classes)
     page = write_localize_report(
         report,
         classes=classes,
