@@ -126,6 +126,8 @@ def _img_srcs(html):
 
 def _all_images_exist(index):
     html = index.read_text()
+    # plain and offline: no script, nothing fetched from elsewhere
+    assert "<script" not in html.lower() and not re.search(r'(src|href)="(https?:)?//', html)
     srcs = _img_srcs(html)
     assert srcs
     for src, alt in srcs:
