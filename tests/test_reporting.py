@@ -15,6 +15,7 @@ from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.report_bench import run_report_bench, synthetic_report_data
 from fingerloc.reporting import (
     FeatureView,
+    alignment_rows,
     check_report_dir,
     detect_jumps,
     draw_view_thumbnail,
@@ -391,3 +392,15 @@ def test_map_report_adapter_from_a_learned_database(tmp_path, capsys):
     assert all(p["fingerprint"] for p in js["places"])
     _all_images_exist(tmp_path / "map" / "index.html")
     assert "index.html" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("a", "b"), [("vnncnnb", "vncnnnbA"), ("", "cc"), ("ffv", "ffv"), ("vbc", "")])
+def test_alignment_rows_spell_both_strings_and_count_the_cost(a, b):
+    from fingerloc.align import global_alignment
+
+    cost, path = global_alignment(a, b, return_alignment=True)
+    top, mid, bottom = alignment_rows(a, b, path)
+    assert top.replace("-", "") == a and bottom.replace("-", "") == b
+    assert len(top) == len(mid) == len(bottom)
+    # unit costs: one per substitution and per gap
+    assert cost == mid.count(".") + mid.count(" ")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from .html import Page, check_report_dir, ellipsize_middle, markdown_to_html, write_markdown_page
 from .pages import (
+    alignment_rows,
     detect_jumps,
     most_confused,
     recoveries_after,
@@ -39,6 +40,7 @@ from .views import FeatureView, draw_view_thumbnail
 __all__ = [
     "FeatureView",
     "Page",
+    "alignment_rows",
     "check_report_dir",
     "detect_jumps",
     "draw_view_thumbnail",

@@ -40,6 +40,7 @@ th { background: #f4f4f4; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
 code, .fp { font-family: ui-monospace, "DejaVu Sans Mono", monospace; font-size: .92em; overflow-wrap: anywhere; }
 figure { margin: 1em 0; }
+pre { overflow-x: auto; margin: .2em 0 .8em; }
 img { max-width: 100%; height: auto; }
 figure img { border: 1px solid #eee; }
 summary { cursor: pointer; font-weight: bold; margin: .5em 0; }

@@ -24,6 +24,7 @@ from .html import Page, ellipsize_middle, esc, table_html
 from .views import FeatureView, draw_view_thumbnail, legend_text
 
 __all__ = [
+    "alignment_rows",
     "detect_jumps",
     "most_confused",
     "recoveries_after",
@@ -295,6 +296,31 @@ def _ranks_from_log_proba(logp: FArray, truth: IArray) -> IArray:
     return (1 + np.sum(logp > own[:, None], axis=1)).astype(np.int64)
 
 
+def alignment_rows(a: str, b: str, path: Sequence[tuple[int | None, int | None]]) -> tuple[str, str, str]:
+    """Two fingerprints written one above the other along an alignment path, with a match line between.
+
+    Parameters
+    ----------
+    a, b : str
+        The strings.
+    path : sequence of (i or None, j or None)
+        Aligned letter pairs (``None``: a gap), as ``global_alignment(..., return_alignment=True)`` gives.
+
+    Returns
+    -------
+    (str, str, str)
+        ``a`` with ``-`` at its gaps, the match line (``|`` same letter, ``.`` substitution, space at a gap), and ``b``.
+    """
+    top, mid, bottom = [], [], []
+    for i, j in path:
+        x = a[i] if i is not None else "-"
+        y = b[j] if j is not None else "-"
+        top.append(x)
+        bottom.append(y)
+        mid.append(" " if i is None or j is None else ("|" if x == y else "."))
+    return "".join(top), "".join(mid), "".join(bottom)
+
+
 def most_confused(confusion: IArray, k: int) -> IArray:
     """Indices of the ``k`` places with the most wrong answers (as true place or as answer), in their order.
 
@@ -540,6 +566,7 @@ def write_localize_report(
                 qv = query_views[i] if query_views is not None else None
                 if query_views is not None:
                     cells.append(_view_cell(out, f"worst/q{k:03d}_query.png", qv, f"the query: {qn[i]}"))
+                aligned: list[tuple[str, str, float, tuple[str, str, str]]] = []
                 rec: dict[str, Any] = {"query": qn[i], "answer": names[a], "true": names[t] if t >= 0 else None,
                                        "rank_of_true": int(rk[i]) if t >= 0 else None}  # fmt: skip
                 if place_views is not None:
@@ -549,13 +576,22 @@ def write_localize_report(
                         pv = place_views[j]
                         extra = ""
                         if qv is not None and pv is not None:
-                            cost = float(global_alignment(qv.fingerprint, pv.fingerprint))
-                            extra = f"<div>alignment cost to the query: {cost:g}</div>"
-                            rec[f"alignment_cost_{who.replace(' ', '_')}"] = cost
+                            cost, path = global_alignment(qv.fingerprint, pv.fingerprint, return_alignment=True)
+                            extra = f"<div>alignment cost to the query: {float(cost):g}</div>"
+                            rec[f"alignment_cost_{who.replace(' ', '_')}"] = float(cost)
+                            aligned.append(
+                                (who, names[j], float(cost), alignment_rows(qv.fingerprint, pv.fingerprint, path))
+                            )
                         cells.append(
                             _view_cell(out, f"worst/q{k:03d}_{who[0]}.png", pv, f"{who}: {names[j]}", extra=extra)
                         )
                 page.raw('<div class="row">' + "".join(cells) + "</div>")
+                for who, name, cost, (top, mid, bottom) in aligned:
+                    page.raw(
+                        f'<div class="note">query against the {esc(who)} ({esc(name)}), cost {cost:g} '
+                        "(| same letter, . substitution, - gap):</div>"
+                        f'<pre class="fp">{esc(top)}\n{esc(mid)}\n{esc(bottom)}</pre>'
+                    )
                 js["worst"].append(rec)
     if per_place_table:
         page.heading("All places")
