@@ -404,3 +404,25 @@ def test_alignment_rows_spell_both_strings_and_count_the_cost(a, b):
     assert len(top) == len(mid) == len(bottom)
     # unit costs: one per substitution and per gap
     assert cost == mid.count(".") + mid.count(" ")
+
+
+def test_importing_the_report_modules_loads_no_plotting_library():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, fingerloc.reporting, fingerloc.cli.reports, fingerloc.experiments.report_bench; "
+        "print(sorted(m for m in ('matplotlib', 'PIL') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_localize_report_without_labels_shows_the_least_confident(tmp_path):
+    logp = np.log(np.array([[0.9, 0.1], [0.55, 0.45], [0.2, 0.8]]))
+    index = write_localize_report(tmp_path / "u", classes=["a", "b"], log_proba=logp, query_views=[None] * 3)
+    html = index.read_text()
+    js = json.loads((tmp_path / "u" / "report.json").read_text())
+    assert "top1" not in js and js["labelled"] == 0
+    assert "Least confident answers" in html
+    assert [w["query"] for w in js["worst"]] == ["query 2", "query 3", "query 1"]
