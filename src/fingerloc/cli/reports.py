@@ -252,7 +252,9 @@ def report_bench_cmd(
 
     if places < 2 or queries < 1:
         raise InvalidParameterError(f"--places must be >= 2 and --queries >= 1, got {places} and {queries}")
-    check_report(out)
+    from ..reporting import check_report_dir
+
+    check_report_dir(out, flag="--out")
     with err_console.status("writing reports...") as status:
         res = run_report_bench(out, n_places=places, n_queries=queries, seed=seed,
                                on_stage=lambda s: status.update(f"writing the {s} report..."))  # fmt: skip
