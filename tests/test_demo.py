@@ -4,6 +4,7 @@ from PIL import Image
 
 from fingerloc.cli import main
 from fingerloc.experiments.report import FIGURES
+from tests._browser import assert_page_ok
 
 
 def test_demo_writes_report(tmp_path, capsys):
@@ -24,6 +25,8 @@ def test_demo_writes_report(tmp_path, capsys):
             assert im.format == "PNG" and im.size[0] > 200 and im.size[1] > 150
     assert "Table II" in page and "paper" in page
     assert (out / "results.json").exists()
+    # last: the same page as HTML in a real browser (where none can run, the test is skipped after the checks above)
+    assert_page_ok(out / "index.html", min_images=len(FIGURES))
 
 
 def test_demo_help(capsys):

@@ -145,12 +145,18 @@ def localize_cmd(
     db: Path = typer.Option(..., "--db", help="Place database written by 'fingerloc learn'."),
     top: int = typer.Option(3, help="Places to print per observation."),
     json_out: Path | None = typer.Option(None, "--json", help="Write per-observation posteriors as JSON here."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary (no per-observation table)."),
+    report: Path | None = typer.Option(
+        None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
+    ),
 ) -> None:
     """Answer "where am I?" for each observation: the posterior over the learned places."""
     from ..map.database import load_model
+    from .reports import check_report, localize_report
 
     if top < 1:
         raise InvalidParameterError(f"--top must be >= 1, got {top}")
+    check_report(report)
     model = load_model(db)
     obs = read_observations(data)
     classes = [str(c) for c in model.classes_]
@@ -165,7 +171,7 @@ def localize_cmd(
     records = []
     table = Table(show_header=True)
     for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if model.cyclic else ()):
-        table.add_column(c)
+        table.add_column(c, overflow="fold")  # long place names wrap, never cut
     for i, o in enumerate(obs):
         order = np.argsort(-logp[i], kind="stable")
         best = classes[order[0]]
@@ -188,7 +194,8 @@ def localize_cmd(
         if model.cyclic:
             row.append("-" if h is None else f"{h:.1f}")
         table.add_row(*row)
-    console.print(table)
+    if not quiet:
+        console.print(table)
     rank_list = [rec["rank_of_true"] for rec in records if rec["rank_of_true"] is not None]
     summary: dict[str, Any] = {"n": len(obs), "top1": None, "mean_rank": None}
     if rank_list:
@@ -198,20 +205,27 @@ def localize_cmd(
             f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "
             f"mean rank of the true place: {summary['mean_rank']:.2f}"
         )
-        _print_confusion(records, classes)
+        if not quiet:
+            _print_confusion(records, classes)
     write_json(json_out, {"observations": records, "summary": summary})
+    if report is not None:
+        localize_report(report, model=model, observations=obs, log_proba=logp, ranks=ranks, data=data, db=db)
 
 
 def _print_confusion(records: list[dict[str, Any]], classes: list[str]) -> None:
     truths = sorted({r["place"] for r in records if r["rank_of_true"] is not None}, key=classes.index)
     cols = sorted({r["best"] for r in records if r["rank_of_true"] is not None} | set(truths), key=classes.index)
     if len(cols) > 30:
-        console.print(f"(confusion matrix omitted: {len(cols)} places)")
+        console.print(
+            f"(confusion matrix omitted: {len(cols)} places, more than 30; --report DIR draws the most confused ones)",
+            soft_wrap=True,
+            markup=False,
+        )
         return
     t = Table(title="confusion (rows: true place, columns: best place)")
-    t.add_column("true \\ best")
+    t.add_column("true \\ best", overflow="fold")
     for c in cols:
-        t.add_column(c, justify="right")
+        t.add_column(c, justify="right", overflow="fold")
     for tr in truths:
         counts = [sum(1 for r in records if r["place"] == tr and r["best"] == c) for c in cols]
         t.add_row(tr, *[str(x) if x else "." for x in counts])
@@ -250,7 +264,7 @@ def places_cmd(
         return
     t = Table(title=f"{db}: {len(rows)} place(s)")
     for c in ("place", "observations", "medoid fingerprint", "components per term"):
-        t.add_column(c)
+        t.add_column(c, overflow="fold")
     for r in rows:
         comps = " ".join(f"{k}:{v}" for k, v in r["mixtures"].items())
         t.add_row(r["place"], str(r["observations"]), r["fingerprint"], comps)

@@ -72,6 +72,9 @@ def track_cmd(
     ),
     seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
+    report: Path | None = typer.Option(
+        None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
+    ),
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
@@ -83,7 +86,9 @@ def track_cmd(
     turn, not only the distance.
     """
     from ..map.filter import TransitionModel, run_filter
+    from .reports import check_report, track_report
 
+    check_report(report)
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
     if filter_kind not in ("places", "pose"):
@@ -185,6 +190,9 @@ def track_cmd(
             soft_wrap=True,
         )
     write_json(json_out, {"steps": steps, "summary": summary})
+    if report is not None:
+        track_report(report, result=res, log_likelihood=beta * ll, truth=truth, classes=classes, names=names,
+                     geo=geo, data=data, db=db)  # fmt: skip
 
 
 def _pose_filter_run(

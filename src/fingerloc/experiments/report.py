@@ -1,9 +1,9 @@
-"""The report folder of ``fingerloc demo``: a Markdown page with PNG figures.
+"""The report folder of ``fingerloc demo``: a Markdown page (and the same as HTML) with PNG figures.
 
 :func:`robot_tables_markdown` renders the robot experiment's tables (beside the
 paper's numbers) as Markdown; :func:`write_demo_report` draws the figures of one
 simulated trial with :mod:`fingerloc.plot` and writes ``index.md`` and
-``results.json`` into a folder.
+``results.json`` into a folder, and ``index.html``, the same page for a browser.
 """
 
 from __future__ import annotations
@@ -213,6 +213,9 @@ def write_demo_report(
     page = _page(data, ev, res, world.name, fp.letters, timings or {}, out)
     path = out / "index.md"
     path.write_text(page, encoding="utf-8")
+    from ..reporting import write_markdown_page  # the same page as plain HTML, for a browser
+
+    write_markdown_page(out / "index.html", page, title="fingerloc demo report")
     return path
 
 
