@@ -55,11 +55,14 @@ def _done(path: Path) -> None:
 
 def _medoid_views(model: Any, classes: Sequence[str]) -> tuple[list[Any], list[int]]:
     """Each place's medoid training observation (or None) and its number of views."""
+    places = list(model.places_.values())
+    fp = model.terms_.get("Fp")
     refs, counts = [], []
     for c in classes:
-        p = model.places_[c]
-        obs = list(getattr(p, "observations", []))
-        refs.append(obs[min(int(getattr(p, "medoid", 0)), len(obs) - 1)] if obs else None)
+        j = model.column_of(c)
+        obs = places[j].observations
+        medoid = fp.medoids_[j] if fp is not None and hasattr(fp, "medoids_") else 0
+        refs.append(obs[min(int(medoid), len(obs) - 1)] if obs else None)
         counts.append(len(obs))
     return refs, counts
 
