@@ -41,6 +41,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
+from ..pipeline.places import PLACE_RADIUS_M as _PLACE_RADIUS_M
+from ..pipeline.places import PLACE_SPACING_M as _PLACE_SPACING_M
+from ..pipeline.places import PlaceSplit, places_from_trajectory
+from ..pipeline.presets import model_options
 from ..sensors import Scan
 
 __all__ = [
@@ -68,9 +72,9 @@ __all__ = [
 ]
 
 #: D: a mapping scan strictly farther than this from every centre makes a new place, metres.
-PLACE_SPACING_M = 2.0
+PLACE_SPACING_M = _PLACE_SPACING_M
 #: R: scans within this distance (inclusive) of a centre train / query it, metres.
-PLACE_RADIUS_M = 1.0
+PLACE_RADIUS_M = _PLACE_RADIUS_M
 
 FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
@@ -81,47 +85,8 @@ IArray = NDArray[np.int64]
 # ---------------------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True, slots=True)
-class Split:
-    """Places, training scans and queries of one log (indices into the log's scan list).
-
-    Attributes
-    ----------
-    centres : ndarray, shape (n_places, 2)
-        Place centres, metres, in creation order (place ``j`` is row ``j``).
-    centre_scans : ndarray of int, shape (n_places,)
-        Index of the scan that created each place.
-    train_idx, train_labels : ndarray of int, shape (n_train,)
-        Training scans (mapping pass, in order) and their place.
-    query_idx, query_labels : ndarray of int, shape (n_queries,)
-        Query scans (query pass, in order) and their true place.
-    n_scans, n_mapping : int
-        Scans in the log, and in its mapping pass (``n_scans // 2``).
-    """
-
-    centres: FArray
-    centre_scans: IArray
-    train_idx: IArray
-    train_labels: IArray
-    query_idx: IArray
-    query_labels: IArray
-    n_scans: int
-    n_mapping: int
-
-    @property
-    def n_places(self) -> int:
-        """Number of places."""
-        return int(self.centres.shape[0])
-
-    @property
-    def n_train(self) -> int:
-        """Number of training scans."""
-        return int(self.train_idx.size)
-
-    @property
-    def n_queries(self) -> int:
-        """Number of queries."""
-        return int(self.query_idx.size)
+#: Places, training scans and queries of one log (the library's :class:`~fingerloc.pipeline.places.PlaceSplit`).
+Split = PlaceSplit
 
 
 def make_split(
@@ -131,6 +96,9 @@ def make_split(
     radius: float = PLACE_RADIUS_M,
 ) -> Split:
     """Apply the benchmark's protocol to a trajectory (module docstring, steps 1-3).
+
+    The library's :func:`~fingerloc.pipeline.places.places_from_trajectory`
+    with the first half of the scans mapping (``fingerloc map``'s defaults).
 
     Parameters
     ----------
@@ -145,46 +113,9 @@ def make_split(
     -------
     Split
     """
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 2 or pos.shape[1] != 2:
-        raise InvalidParameterError(f"positions must have shape (n, 2), got {pos.shape}")
-    if not np.all(np.isfinite(pos)):
-        raise InvalidParameterError("positions must be finite")
-    if not (place_spacing > 0 and math.isfinite(place_spacing)):
+    if not (isinstance(place_spacing, (int, float)) and place_spacing > 0 and math.isfinite(place_spacing)):
         raise InvalidParameterError(f"place_spacing must be a positive number of metres, got {place_spacing!r}")
-    if not (radius > 0 and math.isfinite(radius)):
-        raise InvalidParameterError(f"radius must be a positive number of metres, got {radius!r}")
-    n = pos.shape[0]
-    n_map = n // 2
-    centres: list[FArray] = []
-    creators: list[int] = []
-    for i in range(n_map):
-        p = pos[i]
-        if not centres or float(np.min(np.hypot(*(np.asarray(centres) - p).T))) > place_spacing:
-            centres.append(p)
-            creators.append(i)
-    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
-
-    def assign(idx: IArray) -> tuple[IArray, IArray]:
-        if c.shape[0] == 0 or idx.size == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        d = np.hypot(pos[idx, None, 0] - c[None, :, 0], pos[idx, None, 1] - c[None, :, 1])
-        near = np.argmin(d, axis=1)  # first (lowest index) of equal distances
-        ok = d[np.arange(idx.size), near] <= radius
-        return idx[ok].astype(np.int64), near[ok].astype(np.int64)
-
-    tr_idx, tr_lab = assign(np.arange(n_map, dtype=np.int64))
-    q_idx, q_lab = assign(np.arange(n_map, n, dtype=np.int64))
-    return Split(
-        centres=c,
-        centre_scans=np.asarray(creators, dtype=np.int64),
-        train_idx=tr_idx,
-        train_labels=tr_lab,
-        query_idx=q_idx,
-        query_labels=q_lab,
-        n_scans=n,
-        n_mapping=n_map,
-    )
+    return places_from_trajectory(positions, mapping_part=0.5, spacing=place_spacing, radius=radius)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -524,7 +455,10 @@ def _histogram() -> Method:
 
 
 def best_fingerprint_params() -> dict[str, Any]:
-    """The fingerprint program's configuration for 2D laser logs (the benchmark's ``fingerprint`` method).
+    """The fingerprint program's configuration for 2D laser logs: the library's ``laser2d`` preset.
+
+    Every :class:`~fingerloc.model.PlaceModel` argument of
+    :func:`fingerloc.pipeline.presets.model_options` ``("laser2d")``:
 
     * ``terms=("Fp", "R")``: the fingerprint string and the range term. The
       mixtures' terms (Ex, and VE/CP/B which a 2D laser without remissions
@@ -540,15 +474,7 @@ def best_fingerprint_params() -> dict[str, Any]:
       the training scans, so the string and the range term are weighed by how
       well each separates the training places.
     """
-    from ..align import CostModel
-
-    return {
-        "terms": ("Fp", "R"),
-        "laser_letters": True,
-        "costs": CostModel.feature_aware(),
-        "cyclic": True,
-        "fp_likelihood": "exp",
-    }
+    return model_options("laser2d")
 
 
 @register_method("fingerprint")
