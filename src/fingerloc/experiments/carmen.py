@@ -422,21 +422,18 @@ class FingerprintMethod:
     def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
         """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
         from ..model import PlaceModel
+        from ..pipeline.places import place_label
 
         y = _check_fit_input(scans, labels)
         self.n_places_ = int(y.max()) + 1
-        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [str(v) for v in y.tolist()])
+        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
         return self
 
     def score(self, scans: Sequence[Scan]) -> FArray:
         """Log-posterior of each place, shape (n_queries, n_places)."""
-        out = np.full((len(scans), self.n_places_), -np.inf)
-        if not scans:
-            return out
-        lp = np.asarray(self.model_.predict_log_proba(self._observations(scans)), dtype=np.float64)
-        cols = np.array([int(c) for c in self.model_.classes_], dtype=np.int64)
-        out[:, cols] = lp
-        return out
+        from ..pipeline.tracker import posterior_columns
+
+        return posterior_columns(self.model_, self._observations(scans) if scans else [], self.n_places_)
 
 
 @register_method("baseline-scancontext")
