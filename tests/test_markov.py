@@ -5,7 +5,6 @@ import pytest
 
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.carmen import make_method, make_split, run_benchmark
-from fingerloc.pipeline.places import visit_folds
 from fingerloc.experiments.markov import (
     FilteredMethod,
     TrackingData,
@@ -16,6 +15,7 @@ from fingerloc.experiments.markov import (
 )
 from fingerloc.map.filter import TransitionModel
 from fingerloc.map.graph import PlaceGraph
+from fingerloc.pipeline.places import visit_folds
 from tests.test_bench_carmen import ROOMS, _run_cli, _write_log
 
 

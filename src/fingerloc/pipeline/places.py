@@ -121,7 +121,7 @@ def mapping_count(
     part = 0.5 if mapping_part is None else mapping_part
     if not (isinstance(part, (int, float)) and 0 < part <= 1):
         raise InvalidParameterError(f"mapping_part must be a fraction in (0, 1], got {part!r}")
-    return n // 2 if part == 0.5 else int(math.floor(part * n))
+    return n // 2 if part == 0.5 else math.floor(part * n)
 
 
 def nearest_within(positions: Any, centres: Any, radius: float) -> tuple[IArray, IArray]:
