@@ -293,6 +293,9 @@ class Tracker:
         Pose filter.
     outlier : float, default 0.1
         Pose filter: weight of the noise part of the place likelihood.
+    uniform_mix : float, optional
+        Uniform mixing per step of the transition model (default
+        ``1 / (counted steps + 2)``, :meth:`~fingerloc.map.filter.TransitionModel.from_graph`).
 
     Attributes
     ----------
@@ -307,6 +310,7 @@ class Tracker:
         *,
         n_particles: int = 3000,
         outlier: float = 0.1,
+        uniform_mix: float | None = None,
     ) -> None:
         self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
         self.graph = graph
@@ -317,7 +321,7 @@ class Tracker:
             self.transition_ = TransitionModel.uniform(self.centres.shape[0])
         else:
             self.transition_ = TransitionModel.from_graph(
-                graph, alpha=calibration.alpha, metres_per_move=calibration.metres_per_move
+                graph, alpha=calibration.alpha, uniform_mix=uniform_mix, metres_per_move=calibration.metres_per_move
             )
 
     def pose_filter(self, seed: int = 0, *, kidnap: float | None = None) -> PoseFilter:

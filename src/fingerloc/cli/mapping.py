@@ -1,0 +1,143 @@
+"""``fingerloc map``: places from a recorded run's poses, learned with the sensor's preset (issue 12).
+
+Also the options every raw-run command shares (``--kind``, ``--topic``,
+``--pose-source``, ``--base-frame``, ``--skip-bad``) and the checks done
+before the first write (:func:`check_db_target`, :func:`check_output`).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from ..errors import InvalidParameterError
+from .app import app, err_console
+
+__all__ = ["bag_options", "check_db_target", "check_output", "map_cmd", "read_run_files"]
+
+RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; JSON Lines otherwise)."
+POSE_SOURCE_HELP = "ROS bag: where poses come from: auto | tf | odom | odom:TOPIC | none."
+
+
+def bag_options(topic: str | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
+    """Keyword options of the bag reader from the command-line flags (checked)."""
+    src, _, odom_topic = pose_source.partition(":")
+    if src not in ("auto", "tf", "odom", "none") or (odom_topic and src != "odom"):
+        raise InvalidParameterError(f"--pose-source must be auto, tf, odom, odom:TOPIC or none, got {pose_source!r}")
+    return {"topic": topic, "pose_source": src, "odom_topic": odom_topic or None, "base_frame": base_frame}
+
+
+def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[str, Any]) -> Any:
+    """Read run files as one run (:func:`fingerloc.pipeline.readers.read_runs`), noting skipped lines."""
+    from ..pipeline.readers import read_runs
+
+    with err_console.status("reading..."):
+        run = read_runs(paths, kind=kind, skip_bad=skip_bad, bag_options=bag)
+    if run.skipped:
+        err_console.print(f"skipped {run.skipped} malformed line(s) / message(s)", markup=False)
+    return run
+
+
+def check_output(path: Path | None, flag: str) -> None:
+    """An output file's folder must exist and the path must not be a folder (checked before any write)."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise InvalidParameterError(f"{flag}: {path} is a directory")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InvalidParameterError(f"{flag}: directory {parent} does not exist")
+
+
+def check_db_target(db: Path, overwrite: bool) -> None:
+    """A database about to be written as a whole: refuse to replace one without ``--overwrite``."""
+    check_output(db, "--db")
+    if db.exists() and not overwrite:
+        raise InvalidParameterError(f"--db: {db} exists; give --overwrite to replace it (or another --db)")
+
+
+@app.command("map")
+def map_cmd(
+    runs: list[Path] = typer.Argument(..., metavar="RUN...", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
+    db: Path = typer.Option(..., "--db", help="Place database to write (schema 2)."),
+    preset: str = typer.Option("auto", "--preset", help="paper | laser2d | panorama | multimodal | auto (from the data)."),
+    mapping_part: float | None = typer.Option(None, "--mapping-part", help="Fraction of the run that maps, from its start [0.5]."),
+    until: float | None = typer.Option(None, "--until", help="The mapping part: scans within this many seconds of the first (instead of --mapping-part)."),
+    spacing: float = typer.Option(2.0, "--spacing", help="A mapping scan farther than this (metres) from every place makes a new place."),
+    radius: float = typer.Option(1.0, "--radius", help="Scans within this distance (metres, inclusive) of a place train it (nearest place)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace --db if it exists."),
+    json_out: Path | None = typer.Option(None, "--json", help="Also write the labelled training observations (JSON Lines) here."),
+    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
+    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic."),
+    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
+    base_frame: str | None = typer.Option(None, "--base-frame", help="ROS bag: the robot's frame in /tf."),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
+    components: int | None = typer.Option(None, "-k", "--components", help="Mixture components (overrides the preset)."),
+    terms: str | None = typer.Option(None, help="Terms, comma-separated (overrides the preset)."),
+    laser_letters: bool | None = typer.Option(None, "--laser-letters/--no-laser-letters", help="Overrides the preset."),
+    fp_likelihood: str | None = typer.Option(None, help="'paper' or 'exp' (overrides the preset)."),
+    cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Overrides the preset."),
+    costs: str | None = typer.Option(None, help="'unit' or 'feature' (overrides the preset)."),
+    no_calibration: bool = typer.Option(False, "--no-calibration", help="Do not fit the likelihood scale beta (beta = 1; faster)."),
+) -> None:
+    """Make a place map from a recorded run's poses.
+
+    The first part of the run maps (--mapping-part, default the first half,
+    or --until SECONDS): a place for every mapping scan farther than
+    --spacing from every existing place; every mapping scan within --radius
+    of a place trains its nearest place. The places are learned with the
+    preset, and the database also stores the place positions, the place
+    graph (visiting order) and the filters' calibration, so that
+    'fingerloc localize' and 'fingerloc track' need only the database.
+    """
+    from ..pipeline.mapping import make_map, save_map
+    from ..pipeline.presets import PRESET_NAMES
+    from .places import model_overrides
+
+    if preset not in PRESET_NAMES:
+        raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
+    if mapping_part is not None and until is not None:
+        raise InvalidParameterError("give --mapping-part or --until, not both")
+    if mapping_part is not None and not (0 < mapping_part <= 1):
+        raise InvalidParameterError(f"--mapping-part must be a fraction in (0, 1], got {mapping_part!r}")
+    if until is not None and not (math.isfinite(until) and until >= 0):
+        raise InvalidParameterError(f"--until must be a number of seconds >= 0, got {until!r}")
+    for flag, v in (("--spacing", spacing), ("--radius", radius)):
+        if not (math.isfinite(v) and v > 0):
+            raise InvalidParameterError(f"{flag} must be a positive number of metres, got {v!r}")
+    overrides = model_overrides(components=components, terms=terms, laser_letters=laser_letters,
+                                fp_likelihood=fp_likelihood, cyclic=cyclic, costs=costs)  # fmt: skip
+    check_db_target(db, overwrite)
+    check_output(json_out, "--json")
+    bag = bag_options(topic, pose_source, base_frame)
+    run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    with err_console.status("mapping...") as status:
+        pm = make_map(
+            run,
+            preset=preset,
+            overrides=overrides,
+            mapping_part=0.5 if mapping_part is None else mapping_part,
+            until=until,
+            spacing=spacing,
+            radius=radius,
+            calibrate=not no_calibration,
+            on_step=lambda s: status.update(s),
+        )
+    err_console.print(pm.preset.reason, markup=False)
+    size = save_map(pm, db)
+    sp, cal = pm.split, pm.calibration
+    err_console.print(
+        f"{db}: {sp.n_places} place(s) from {sp.n_train} training scan(s) of the first {sp.n_mapping} of "
+        f"{sp.n_scans}; preset {pm.preset.name}; beta {cal.beta:.3g}, {cal.metres_per_move:.2f} m per place "
+        f"change, kidnap {cal.kidnap:.3g}; {size} bytes",
+        markup=False,
+        soft_wrap=True,
+    )
+    if json_out is not None:
+        from ..io.jsonl import write_observations
+
+        n = write_observations(json_out, pm.training)
+        err_console.print(f"wrote {n} labelled observations to {json_out}", markup=False)
