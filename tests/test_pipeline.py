@@ -1,0 +1,172 @@
+"""The library layer: presets, places from a trajectory, schema v2, map / localize / track on raw runs."""
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+
+from fingerloc import Observation
+from fingerloc.errors import InvalidParameterError
+from fingerloc.experiments.carmen import make_split, run_benchmark
+from fingerloc.model import PlaceModel
+from fingerloc.pipeline.mapping import load_map, make_map, save_map
+from fingerloc.pipeline.places import mapping_count, places_from_trajectory
+from fingerloc.pipeline.presets import PRESETS, choose_preset, model_options, resolve_preset
+from fingerloc.pipeline.readers import read_run
+
+from ._cli import run_cli
+from ._runs import write_carmen
+
+LASER = Observation.from_degrees({"c": [10, 100], "Ex": [40]}, label="a")
+IMAGE = Observation.from_degrees({"VE": [10, 200], "CP": [{"bearing": 40, "hue": 100}]}, label="a")
+BOTH = Observation.from_degrees({"VE": [10], "c": [100]}, label="a")
+
+
+# ---- presets ---------------------------------------------------------------------------------------
+
+
+def test_auto_picks_by_sensor():
+    assert choose_preset([LASER, LASER])[0] == "laser2d"
+    assert choose_preset([IMAGE])[0] == "panorama"
+    assert choose_preset([LASER, IMAGE])[0] == "multimodal"
+    assert choose_preset([BOTH])[0] == "multimodal"
+    assert choose_preset([Observation(label="x")])[0] == "paper"
+    r = resolve_preset("auto", [LASER, LASER])
+    assert r.name == "laser2d" and r.requested == "auto" and "2 of 2 observations have laser features" in r.reason
+
+
+def test_paper_preset_is_the_default_model():
+    opts = model_options("paper")
+    default = PlaceModel().get_params()
+    assert opts == {**default, "terms": tuple(default["terms"])}
+
+
+def test_overrides_win_and_are_recorded():
+    r = resolve_preset("laser2d", overrides={"terms": ["Fp"], "cyclic": True})
+    assert r.options["terms"] == ["Fp"] and r.overrides == {"terms": ["Fp"]}  # cyclic is the preset's already
+    assert r.options["laser_letters"] is True
+    assert r.model().get_params()["terms"] == ["Fp"]
+    with pytest.raises(InvalidParameterError, match="preset must be one of .*got 'lidar'"):
+        resolve_preset("lidar")
+    with pytest.raises(InvalidParameterError, match="costs must be one of unit, feature, got 'zero'"):
+        resolve_preset("paper", overrides={"costs": "zero"})
+
+
+def test_presets_are_editable_plain_dicts():
+    assert set(PRESETS) == {"paper", "laser2d", "panorama", "multimodal"}
+    for p in PRESETS.values():
+        json.dumps(p)  # plain data
+
+
+# ---- places from a trajectory --------------------------------------------------------------------
+
+
+def test_places_from_trajectory_is_the_benchmark_split():
+    rng = np.random.default_rng(3)
+    pos = np.cumsum(rng.normal(0, 0.7, size=(120, 2)), axis=0)
+    a, b = places_from_trajectory(pos), make_split(pos)
+    for f in ("centres", "centre_scans", "train_idx", "train_labels", "query_idx", "query_labels"):
+        assert np.array_equal(getattr(a, f), getattr(b, f))
+    assert a.n_mapping == 60
+
+
+def test_mapping_part_and_until():
+    assert mapping_count(10) == 5 and mapping_count(10, mapping_part=0.3) == 3
+    assert mapping_count(5, until=2.0, timestamps=[10, 11, 12, 12.5, 20]) == 3  # inclusive
+    pos = np.array([[0, 0], [3, 0], [6, 0], [0, 0.5], [3, 0.2], [6, 0.1]], dtype=float)
+    sp = places_from_trajectory(pos, until=1.0, timestamps=[0, 1, 2, 3, 4, 5])
+    assert sp.n_places == 2 and sp.query_idx.tolist() == [3, 4] and sp.query_labels.tolist() == [0, 1]
+    with pytest.raises(InvalidParameterError, match="until needs a timestamp"):
+        places_from_trajectory(pos, until=1.0)
+    with pytest.raises(InvalidParameterError, match="mapping_part must be a fraction in \\(0, 1\\], got 1.5"):
+        mapping_count(4, mapping_part=1.5)
+
+
+# ---- map, database v2 ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rooms(tmp_path_factory):
+    return write_carmen(tmp_path_factory.mktemp("runs") / "rooms-corrected.log")
+
+
+def test_map_round_trip(rooms, tmp_path):
+    run = read_run(rooms)
+    pm = make_map(run, calibrate=False)
+    assert pm.preset.name == "laser2d" and pm.split.n_places == 4 and pm.split.n_train == 12
+    save_map(pm, tmp_path / "m.sqlite")
+    lm = load_map(tmp_path / "m.sqlite")
+    assert lm.labels == pm.labels
+    assert np.allclose(lm.positions, pm.split.centres)
+    assert lm.calibration == pm.calibration
+    assert lm.preset == pm.preset
+    assert len(lm.content_hashes) == 12 and lm.mapped_run(run.key)["n_mapping"] == 12
+    # graph from the visiting order: room 0 -> 1 -> 2 -> 3 along the mapping part
+    assert ("0", "1") in lm.graph.edges() and ("0", "3") not in lm.graph.edges()
+
+
+def test_version_1_database_still_loads(rooms, tmp_path):
+    db = tmp_path / "v1.sqlite"
+    save_map(make_map(read_run(rooms), calibrate=False), db)
+    with sqlite3.connect(db) as con:  # what fingerloc wrote before schema version 2
+        con.execute("UPDATE meta SET value = '1' WHERE key = 'schema_version'")
+        con.execute("DELETE FROM meta WHERE key IN ('preset', 'calibration', 'runs')")
+        con.execute("DROP TABLE place_positions")
+        con.execute("DROP TABLE content_hashes")
+    lm = load_map(db)
+    assert lm.positions is None and lm.preset is None and lm.calibration is None
+    assert len(lm.content_hashes) == 12  # hashed from the stored observations
+
+
+def test_map_then_localize_is_the_benchmark(rooms, tmp_path, capsys):
+    db, out = tmp_path / "m.sqlite", tmp_path / "out.json"
+    code, _, err = run_cli(capsys, "map", rooms, "--db", db)
+    assert code == 0, err
+    assert "auto picked laser2d" in err
+    code, _, err = run_cli(capsys, "localize", rooms, "--db", db, "--json", out, "-q")
+    assert code == 0, err
+    js = json.loads(out.read_text())
+    bench = run_benchmark([rooms], ["fingerprint"]).to_json()["logs"]["rooms"]["methods"]["fingerprint"]
+    assert js["preset"] == "laser2d" and js["summary"]["n"] == 12
+    assert js["summary"]["top1"] == pytest.approx(bench["top1"], abs=1e-9)
+    assert js["summary"]["mean_rank"] == pytest.approx(bench["mean_rank"], abs=1e-9)
+    code, out_text, _ = run_cli(capsys, "places", "--db", db)
+    assert "preset: laser2d" in out_text and "terms=Fp,R" in out_text and "calibration: beta=" in out_text
+
+
+def test_map_refuses_to_replace_and_checks_first(rooms, tmp_path, capsys):
+    db = tmp_path / "m.sqlite"
+    db.write_bytes(b"precious")
+    code, _, err = run_cli(capsys, "map", rooms, "--db", db)
+    assert code == 2 and "--overwrite" in err and db.read_bytes() == b"precious"
+    code, _, err = run_cli(capsys, "map", rooms, "--db", tmp_path / "new.sqlite", "--json", tmp_path / "no" / "x.jsonl")
+    assert code == 2 and "--json: directory" in err and not (tmp_path / "new.sqlite").exists()
+    code, _, err = run_cli(capsys, "map", rooms, "--db", db, "--mapping-part", "0", "--overwrite")
+    assert code == 2 and "--mapping-part must be a fraction in (0, 1], got 0.0" in err
+    assert db.read_bytes() == b"precious"
+
+
+def test_learn_twice_does_not_duplicate(rooms, tmp_path, capsys):
+    db, train = tmp_path / "m.sqlite", tmp_path / "train.jsonl"
+    code, _, err = run_cli(capsys, "map", rooms, "--db", tmp_path / "x.sqlite", "--json", train, "--no-calibration")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "learn", train, "--db", db)
+    assert code == 0 and "auto picked laser2d" in err
+    n1 = sum(len(p.observations) for p in load_map(db).model.places_.values())
+    code, _, err = run_cli(capsys, "learn", train, "--db", db)
+    assert code == 0 and "skipped 12 observation(s) already stored" in err
+    assert sum(len(p.observations) for p in load_map(db).model.places_.values()) == n1 == 12
+    code, _, err = run_cli(capsys, "learn", train, "--db", db, "--preset", "paper")
+    assert code == 2 and "preset 'laser2d'" in err
+
+
+def test_track_raw_log_with_the_map(rooms, tmp_path, capsys):
+    db, out = tmp_path / "m.sqlite", tmp_path / "t.json"
+    code, _, err = run_cli(capsys, "track", rooms, "--db", db, "--map", "--filter", "pose", "--json", out, "-q")
+    assert code == 0, err
+    s = json.loads(out.read_text())["summary"]
+    assert s["filter"] == "pose" and s["steps"] == 12 and s["filtered"]["labelled"] == 12
+    assert s["likelihood_scale"] == pytest.approx(load_map(db).calibration.beta)
+    code, _, err = run_cli(capsys, "track", rooms, "--db", db, "--map")
+    assert code == 2 and "--overwrite" in err
