@@ -47,7 +47,7 @@ def test_overrides_win_and_are_recorded():
     assert r.options["terms"] == ["Fp"] and r.overrides == {"terms": ["Fp"]}  # cyclic is the preset's already
     assert r.options["laser_letters"] is True
     assert r.model().get_params()["terms"] == ["Fp"]
-    with pytest.raises(InvalidParameterError, match="preset must be one of .*got 'lidar'"):
+    with pytest.raises(InvalidParameterError, match=r"preset must be one of .*got 'lidar'"):
         resolve_preset("lidar")
     with pytest.raises(InvalidParameterError, match="costs must be one of unit, feature, got 'zero'"):
         resolve_preset("paper", overrides={"costs": "zero"})
@@ -79,7 +79,7 @@ def test_mapping_part_and_until():
     assert sp.n_places == 2 and sp.query_idx.tolist() == [3, 4] and sp.query_labels.tolist() == [0, 1]
     with pytest.raises(InvalidParameterError, match="until needs a timestamp"):
         places_from_trajectory(pos, until=1.0)
-    with pytest.raises(InvalidParameterError, match="mapping_part must be a fraction in \\(0, 1\\], got 1.5"):
+    with pytest.raises(InvalidParameterError, match=r"mapping_part must be a fraction in \(0, 1\], got 1\.5"):
         mapping_count(4, mapping_part=1.5)
 
 

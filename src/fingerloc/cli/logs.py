@@ -153,8 +153,9 @@ def carmen_cmd(
     every 2 m (strictly) of the mapping pass, training and query scans within
     1 m (inclusive) of a place centre.
     """
-    from ..experiments.carmen import DEFAULT_METHODS, METHODS, plot_benchmark, run_benchmark
+    from ..experiments.carmen import DEFAULT_METHODS, METHODS, load_methods, plot_benchmark, run_benchmark
 
+    load_methods()
     if list_methods:
         for name in METHODS:
             console.print(f"{name}{'' if name in DEFAULT_METHODS else '  (run only when named)'}")

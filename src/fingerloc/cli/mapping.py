@@ -1,63 +1,27 @@
 """``fingerloc map``: places from a recorded run's poses, learned with the sensor's preset (issue 12).
 
-Also the options every raw-run command shares (``--kind``, ``--topic``,
-``--pose-source``, ``--base-frame``, ``--skip-bad``) and the checks done
-before the first write (:func:`check_db_target`, :func:`check_output`).
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import typer
 
 from ..errors import InvalidParameterError
 from .app import app, err_console
+from .options import (
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    bag_options,
+    check_db_target,
+    check_output,
+    model_overrides,
+    read_run_files,
+)
 
-__all__ = ["bag_options", "check_db_target", "check_output", "map_cmd", "read_run_files"]
-
-RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; JSON Lines otherwise)."
-POSE_SOURCE_HELP = "ROS bag: where poses come from: auto | tf | odom | odom:TOPIC | none."
-
-
-def bag_options(topic: str | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
-    """Keyword options of the bag reader from the command-line flags (checked)."""
-    src, _, odom_topic = pose_source.partition(":")
-    if src not in ("auto", "tf", "odom", "none") or (odom_topic and src != "odom"):
-        raise InvalidParameterError(f"--pose-source must be auto, tf, odom, odom:TOPIC or none, got {pose_source!r}")
-    return {"topic": topic, "pose_source": src, "odom_topic": odom_topic or None, "base_frame": base_frame}
-
-
-def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[str, Any]) -> Any:
-    """Read run files as one run (:func:`fingerloc.pipeline.readers.read_runs`), noting skipped lines."""
-    from ..pipeline.readers import read_runs
-
-    with err_console.status("reading..."):
-        run = read_runs(paths, kind=kind, skip_bad=skip_bad, bag_options=bag)
-    if run.skipped:
-        err_console.print(f"skipped {run.skipped} malformed line(s) / message(s)", markup=False)
-    return run
-
-
-def check_output(path: Path | None, flag: str) -> None:
-    """An output file's folder must exist and the path must not be a folder (checked before any write)."""
-    if path is None:
-        return
-    if path.is_dir():
-        raise InvalidParameterError(f"{flag}: {path} is a directory")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise InvalidParameterError(f"{flag}: directory {parent} does not exist")
-
-
-def check_db_target(db: Path, overwrite: bool) -> None:
-    """A database about to be written as a whole: refuse to replace one without ``--overwrite``."""
-    check_output(db, "--db")
-    if db.exists() and not overwrite:
-        raise InvalidParameterError(f"--db: {db} exists; give --overwrite to replace it (or another --db)")
-
+__all__ = ["map_cmd"]
 
 @app.command("map")
 def map_cmd(
@@ -95,7 +59,6 @@ def map_cmd(
     """
     from ..pipeline.mapping import make_map, save_map
     from ..pipeline.presets import PRESET_NAMES
-    from .places import model_overrides
 
     if preset not in PRESET_NAMES:
         raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")

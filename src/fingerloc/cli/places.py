@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -15,86 +14,17 @@ from rich.table import Table
 
 from ..errors import InvalidParameterError
 from ..io.jsonl import read_observations
-from ..model import TERMS
 from .app import app, console, err_console
 from .bench import write_json
-from .mapping import POSE_SOURCE_HELP, RUN_KIND_HELP, bag_options, check_output, read_run_files
-
-
-def _parse_terms(text: str) -> tuple[str, ...]:
-    terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
-    for t in terms:
-        if t not in TERMS:
-            raise InvalidParameterError(f"--terms: unknown term {t!r} (expected some of {', '.join(TERMS)})")
-    return terms
-
-
-def _costs(name: str) -> str:
-    if name not in ("unit", "feature"):
-        raise InvalidParameterError(f"--costs must be 'unit' or 'feature', got {name!r}")
-    return name
-
-
-def model_overrides(
-    *,
-    components: int | None = None,
-    terms: str | None = None,
-    laser_letters: bool | None = None,
-    fp_likelihood: str | None = None,
-    fp_reference: str | None = None,
-    cyclic: bool | None = None,
-    costs: str | None = None,
-    unknown_prior: float | None = None,
-    weights: str | None = None,
-    seed: int | None = None,
-) -> dict[str, Any]:
-    """The model options given on the command line (JSON form, see fingerloc.pipeline.presets); unset ones left out."""
-    given: dict[str, Any] = {
-        "n_components": components,
-        "terms": None if terms is None else list(_parse_terms(terms)),
-        "fp_likelihood": fp_likelihood,
-        "fp_reference": fp_reference,
-        "cyclic": cyclic,
-        "laser_letters": laser_letters,
-        "costs": None if costs is None else _costs(costs),
-        "unknown_prior": unknown_prior,
-        "weights": None if weights is None else _parse_weights(weights),
-        "random_state": seed,
-    }
-    return {k: v for k, v in given.items() if v is not None}
-
-
-def _stored_options(model: Any) -> dict[str, Any]:
-    """A loaded model's options in JSON form (costs by name when they are one of the named ones)."""
-    from ..align import CostModel
-
-    params = model.get_params()
-    c = params["costs"]
-    if c is None:
-        params["costs"] = "unit"
-    else:
-        f = CostModel.feature_aware()
-        same = np.array_equal(c.substitution, f.substitution) and np.array_equal(c.indel, f.indel)
-        params["costs"] = "feature" if same else "custom"
-    params["terms"] = list(params["terms"])
-    return params
-
-
-def _parse_weights(text: str) -> str | dict[str, float]:
-    """``fit`` or ``TERM=W,...`` -> the ``weights`` argument of PlaceModel."""
-    if text.strip() == "fit":
-        return "fit"
-    out: dict[str, float] = {}
-    for part in text.split(","):
-        name, sep, value = part.partition("=")
-        try:
-            w = float(value)
-        except ValueError:
-            w = float("nan")
-        if not sep or not name.strip() or not (math.isfinite(w) and w >= 0):
-            raise InvalidParameterError(f"--weights: expected 'fit' or TERM=W,... with W >= 0, got {part!r}")
-        out[name.strip()] = w
-    return out
+from .options import (
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    bag_options,
+    check_output,
+    model_overrides,
+    read_run_files,
+    stored_options,
+)
 
 
 @app.command("learn")
@@ -159,7 +89,7 @@ def learn_cmd(
         lm = load_map(db)
         model = lm.model
         edges = read_graph_edges(db)
-        stored = _stored_options(model)
+        stored = stored_options(model)
         stored_preset = lm.preset
         if preset is not None and stored_preset is not None and preset not in ("auto", stored_preset.name):
             raise InvalidParameterError(f"{db} was learned with preset {stored_preset.name!r}; got --preset {preset} (use a new --db)")

@@ -12,7 +12,7 @@ import typer
 from ..errors import InvalidParameterError
 from .app import app, bench_app, console, err_console
 from .bench import write_json
-from .mapping import POSE_SOURCE_HELP, RUN_KIND_HELP, bag_options, check_db_target, check_output, read_run_files
+from .options import POSE_SOURCE_HELP, RUN_KIND_HELP, bag_options, check_db_target, check_output, read_run_files
 
 
 def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:

@@ -30,22 +30,34 @@ Positions are the robot's (corrected) pose ``(x, y)`` in each ``FLASER`` line.
 from __future__ import annotations
 
 import math
-import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
-from ..pipeline.places import PLACE_RADIUS_M as _PLACE_RADIUS_M
-from ..pipeline.places import PLACE_SPACING_M as _PLACE_SPACING_M
-from ..pipeline.places import PlaceSplit, places_from_trajectory
+from ..errors import EmptyInputError, InvalidParameterError
 from ..pipeline.presets import model_options
 from ..sensors import Scan
+from .protocol import (
+    DEFAULT_METHODS,
+    METHODS,
+    PLACE_RADIUS_M,
+    PLACE_SPACING_M,
+    Method,
+    Split,
+    load_log_scans,
+    load_methods,
+    log_name,
+    make_method,
+    make_split,
+    rank_metrics,
+    register_method,
+    true_place_ranks,
+)
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -60,6 +72,7 @@ __all__ = [
     "ScanContextBaseline",
     "Split",
     "load_log_scans",
+    "load_methods",
     "log_name",
     "make_method",
     "make_split",
@@ -71,151 +84,8 @@ __all__ = [
     "true_place_ranks",
 ]
 
-#: D: a mapping scan strictly farther than this from every centre makes a new place, metres.
-PLACE_SPACING_M = _PLACE_SPACING_M
-#: R: scans within this distance (inclusive) of a centre train / query it, metres.
-PLACE_RADIUS_M = _PLACE_RADIUS_M
-
 FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
-
-
-# ---------------------------------------------------------------------------------------------------
-# Protocol
-# ---------------------------------------------------------------------------------------------------
-
-
-#: Places, training scans and queries of one log (the library's :class:`~fingerloc.pipeline.places.PlaceSplit`).
-Split = PlaceSplit
-
-
-def make_split(
-    positions: Any,
-    *,
-    place_spacing: float = PLACE_SPACING_M,
-    radius: float = PLACE_RADIUS_M,
-) -> Split:
-    """Apply the benchmark's protocol to a trajectory (module docstring, steps 1-3).
-
-    The library's :func:`~fingerloc.pipeline.places.places_from_trajectory`
-    with the first half of the scans mapping (``fingerloc map``'s defaults).
-
-    Parameters
-    ----------
-    positions : array_like, shape (n, 2)
-        Robot positions of the scans in file order, metres.
-    place_spacing : float, default 2.0
-        ``D``, metres (a new place needs a distance strictly greater).
-    radius : float, default 1.0
-        ``R``, metres (inclusive).
-
-    Returns
-    -------
-    Split
-    """
-    if not (isinstance(place_spacing, (int, float)) and place_spacing > 0 and math.isfinite(place_spacing)):
-        raise InvalidParameterError(f"place_spacing must be a positive number of metres, got {place_spacing!r}")
-    return places_from_trajectory(positions, mapping_part=0.5, spacing=place_spacing, radius=radius)
-
-
-# ---------------------------------------------------------------------------------------------------
-# Metrics
-# ---------------------------------------------------------------------------------------------------
-
-
-def true_place_ranks(scores: Any, labels: Any) -> IArray:
-    """Rank (1 = best) of each query's true place; ties count against.
-
-    ``rank_i = #{j : scores[i, j] >= scores[i, labels[i]]}``: a place scoring
-    the same as the true one ranks before it. NaN scores count as ``-inf``.
-
-    Parameters
-    ----------
-    scores : array_like, shape (n_queries, n_places)
-        Higher is better.
-    labels : array_like of int, shape (n_queries,)
-
-    Returns
-    -------
-    ndarray of int, shape (n_queries,)
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    y = np.asarray(labels, dtype=np.int64).reshape(-1)
-    if s.ndim != 2 or s.shape[0] != y.size:
-        raise InvalidParameterError(f"scores must have shape (n_queries, n_places) = ({y.size}, ...), got {s.shape}")
-    if y.size and (y.min() < 0 or y.max() >= s.shape[1]):
-        raise InvalidParameterError(f"labels must be place indices in [0, {s.shape[1]}), got {y.min()}..{y.max()}")
-    s = np.where(np.isnan(s), -np.inf, s)
-    true = s[np.arange(y.size), y]
-    return (s >= true[:, None]).sum(axis=1).astype(np.int64)
-
-
-def rank_metrics(ranks: Any) -> dict[str, float]:
-    """``top1`` (fraction at rank 1), ``mean_rank`` and ``recall5`` (fraction at rank <= 5) of true-place ranks."""
-    r = np.asarray(ranks, dtype=np.float64).reshape(-1)
-    if r.size == 0:
-        return {"top1": float("nan"), "mean_rank": float("nan"), "recall5": float("nan")}
-    return {"top1": float(np.mean(r == 1)), "mean_rank": float(np.mean(r)), "recall5": float(np.mean(r <= 5))}
-
-
-# ---------------------------------------------------------------------------------------------------
-# Methods
-# ---------------------------------------------------------------------------------------------------
-
-
-@runtime_checkable
-class Method(Protocol):
-    """A place-recognition method under test.
-
-    ``fit`` learns places ``0 .. n_places - 1`` from training scans (every
-    place has at least one); ``score`` returns an ``(n_queries, n_places)``
-    array, higher = more likely that place (any monotone scale: log-posterior,
-    similarity, negative distance).
-    """
-
-    name: str
-
-    def fit(self, scans: Sequence[Scan], labels: IArray) -> object: ...
-
-    def score(self, scans: Sequence[Scan]) -> FArray: ...
-
-
-#: name -> factory making a fresh, unfitted method.
-METHODS: dict[str, Callable[[], Method]] = {}
-
-
-#: Names run when no method is asked for (registration order).
-DEFAULT_METHODS: list[str] = []
-
-
-def register_method(name: str, *, default: bool = True) -> Callable[[Callable[[], Method]], Callable[[], Method]]:
-    """Register a method factory under ``name`` (a decorator).
-
-    Names starting with ``fingerprint`` are fingerprint programs, names
-    starting with ``baseline-`` scan-descriptor baselines. ``default=False``
-    keeps a method out of the default run (it runs when named).
-    """
-    if not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
-        raise InvalidParameterError(f"method name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
-
-    def deco(factory: Callable[[], Method]) -> Callable[[], Method]:
-        METHODS[name] = factory
-        if default and name not in DEFAULT_METHODS:
-            DEFAULT_METHODS.append(name)
-        elif not default and name in DEFAULT_METHODS:
-            DEFAULT_METHODS.remove(name)
-        return factory
-
-    return deco
-
-
-def make_method(name: str) -> Method:
-    """A fresh method by registered name."""
-    if name not in METHODS:
-        raise InvalidParameterError(f"unknown method {name!r} (known: {', '.join(METHODS)})")
-    m = METHODS[name]()
-    m.name = name
-    return m
 
 
 def _max_per_place(sim: FArray, labels: IArray, n_places: int) -> FArray:
@@ -505,36 +375,6 @@ def _fingerprint_paper() -> Method:
 # ---------------------------------------------------------------------------------------------------
 
 
-def log_name(path: str | Path) -> str:
-    """The benchmark's name of a log: the file name without ``-corrected.log.gz`` (or ``.log.gz``, ``.log``...)."""
-    name = Path(path).name
-    for suffix in ("-corrected.log.gz", "-corrected.log", ".log.gz", ".clf.gz", ".log", ".clf", ".gz"):
-        if name.endswith(suffix) and len(name) > len(suffix):
-            return name[: -len(suffix)]
-    return name
-
-
-def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Scan], int]:
-    """The front-laser scans of a CARMEN log in file order, and the number of skipped bad lines.
-
-    ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
-    must carry a pose.
-    """
-    from ..io.carmen import ReadStats, inspect_log, iter_scans
-
-    info = inspect_log(path)
-    msg = "FLASER" if info.counts.get("FLASER", 0) else "ROBOTLASER1"
-    if not info.counts.get(msg, 0):
-        raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
-    st = ReadStats()
-    scans = list(iter_scans(path, skip_bad=skip_bad, messages=(msg,), stats=st))
-    if not scans:
-        raise EmptyInputError("no front-laser scan could be read", path=path)
-    if any(s.pose is None for s in scans):
-        raise DataFormatError("a scan has no pose", path=path)
-    return scans, st.skipped
-
-
 @dataclass(slots=True)
 class MethodRun:
     """One method's results on one log.
@@ -684,6 +524,7 @@ def run_benchmark(
     """
     if not paths:
         raise InvalidParameterError("at least one log is needed")
+    load_methods()  # every module's registrations (the filtered methods of .markov)
     names = list(DEFAULT_METHODS) if not methods else list(dict.fromkeys(methods))
     for n in names:
         if n not in METHODS:
@@ -842,7 +683,3 @@ def _register_speed() -> None:
 
 
 _register_speed()
-
-
-# Methods defined in other modules register themselves on import.
-from . import markov as _markov  # noqa: E402, F401  isort: skip

@@ -60,7 +60,7 @@ from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import Calibration, FitScore, Tracker, fit_scale, run_pose_steps, step_distances
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
-from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_method, true_place_ranks
+from .protocol import METHODS, Method, Split, load_methods, make_split, rank_metrics, register_method, true_place_ranks
 
 __all__ = [
     "FilteredMethod",
@@ -163,6 +163,7 @@ class FilteredMethod:
         self._context: tuple[list[Scan], Split] | None = None
 
     def _factory(self) -> Callable[[], Method]:
+        load_methods()
         if self.base not in METHODS:
             raise InvalidParameterError(f"unknown base method {self.base!r} (known: {', '.join(METHODS)})")
         return METHODS[self.base]
@@ -688,7 +689,7 @@ def run_kidnap(
     probability ``kidnap`` per observation if given) instead of the discrete
     filter over places.
     """
-    from .carmen import load_log_scans, log_name
+    from .protocol import load_log_scans, log_name
 
     out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
