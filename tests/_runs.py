@@ -43,3 +43,46 @@ def write_carmen(path: Path, steps: list[tuple[int, float, float, float]] | None
         lines.append(f"FLASER 181 {rs} {wx:.3f} {y:.3f} {th:.4f} 0 0 0 {k}.0 host {k}.0")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
+
+
+def write_bag(path: Path, steps: list[tuple[int, float, float, float]] | None = None) -> Path:
+    """The same walk as a ROS 2 bag: ``/scan`` (180 deg LaserScan) and ``/odom`` (the world pose), 1 s apart."""
+    import math
+
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+
+    def header(t: float, frame: str) -> object:
+        stamp = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t - int(t)) * 1e9))
+        return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    ls_t, od_t = "sensor_msgs/msg/LaserScan", "nav_msgs/msg/Odometry"
+    with Writer(path, version=9) as w:
+        c_scan = w.add_connection("/scan", ls_t, typestore=ts)
+        c_odom = w.add_connection("/odom", od_t, typestore=ts)
+        for k, (j, x, y, th) in enumerate(walk() if steps is None else steps):
+            t = 10.0 + k
+            w_, h_ = BOXES[j]
+            r = (box_ranges(w_, h_, x, y, th) + np.random.default_rng(k).normal(0, 0.005, 181)).astype(np.float32)
+            inc = math.pi / 180
+            scan = T[ls_t](header=header(t, "base_link"), angle_min=-math.pi / 2, angle_max=math.pi / 2,
+                           angle_increment=inc, time_increment=0.0, scan_time=0.1, range_min=0.05,
+                           range_max=30.0, ranges=r, intensities=np.zeros(0, np.float32))  # fmt: skip
+            q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2))
+            pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x + 20.0 * j, y=y, z=0.0),
+                                               orientation=q)  # fmt: skip
+            v = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+            odom = T[od_t](
+                header=header(t - 0.01, "odom"),
+                child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=T["geometry_msgs/msg/Twist"](linear=v, angular=v), covariance=np.zeros(36)
+                ),
+            )
+            w.write(c_odom, int((t - 0.01) * 1e9), ts.serialize_cdr(odom, od_t))
+            w.write(c_scan, int(t * 1e9), ts.serialize_cdr(scan, ls_t))
+    return path

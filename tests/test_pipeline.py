@@ -16,7 +16,7 @@ from fingerloc.pipeline.presets import PRESETS, choose_preset, model_options, re
 from fingerloc.pipeline.readers import read_run
 
 from ._cli import run_cli
-from ._runs import write_carmen
+from ._runs import write_bag, write_carmen
 
 LASER = Observation.from_degrees({"c": [10, 100], "Ex": [40]}, label="a")
 IMAGE = Observation.from_degrees({"VE": [10, 200], "CP": [{"bearing": 40, "hue": 100}]}, label="a")
@@ -170,3 +170,20 @@ def test_track_raw_log_with_the_map(rooms, tmp_path, capsys):
     assert s["likelihood_scale"] == pytest.approx(load_map(db).calibration.beta)
     code, _, err = run_cli(capsys, "track", rooms, "--db", db, "--map")
     assert code == 2 and "--overwrite" in err
+
+
+def test_map_localize_track_a_bag(tmp_path, capsys):
+    bag = write_bag(tmp_path / "rooms-bag")
+    db, out, t = tmp_path / "m.sqlite", tmp_path / "out.json", tmp_path / "t.json"
+    code, _, err = run_cli(capsys, "map", bag, "--db", db, "--pose-source", "odom", "--no-calibration")
+    assert code == 0, err
+    assert "4 place(s) from 12 training scan(s)" in err
+    code, _, err = run_cli(capsys, "localize", bag, "--db", db, "--json", out, "-q")
+    assert code == 0, err
+    assert json.loads(out.read_text())["summary"]["n"] == 12  # the query pass, every scan within 1 m
+    code, _, err = run_cli(capsys, "track", bag, "--db", db, "--filter", "pose", "--json", t, "-q")
+    assert code == 0, err
+    s = json.loads(t.read_text())["summary"]
+    assert s["steps"] == 12 and s["filtered"]["labelled"] == 12
+    code, _, err = run_cli(capsys, "map", bag, "--db", tmp_path / "n.sqlite", "--pose-source", "gps")
+    assert code == 2 and "--pose-source must be auto, tf, odom, odom:TOPIC or none, got 'gps'" in err

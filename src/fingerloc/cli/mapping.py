@@ -34,6 +34,9 @@ def map_cmd(
     radius: float = typer.Option(1.0, "--radius", help="Scans within this distance (metres, inclusive) of a place train it (nearest place)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace --db if it exists."),
     json_out: Path | None = typer.Option(None, "--json", help="Also write the labelled training observations (JSON Lines) here."),
+    queries_out: Path | None = typer.Option(
+        None, "--queries", help="Also write the queries (later scans within --radius of a place, labelled with the nearest) as JSON Lines here."
+    ),
     kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
     topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic."),
     pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
@@ -75,6 +78,7 @@ def map_cmd(
                                 fp_likelihood=fp_likelihood, cyclic=cyclic, costs=costs)  # fmt: skip
     check_db_target(db, overwrite)
     check_output(json_out, "--json")
+    check_output(queries_out, "--queries")
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
     with err_console.status("mapping...") as status:
@@ -99,8 +103,13 @@ def map_cmd(
         markup=False,
         soft_wrap=True,
     )
-    if json_out is not None:
-        from ..io.jsonl import write_observations
+    from ..io.jsonl import write_observations
 
+    if json_out is not None:
         n = write_observations(json_out, pm.training)
         err_console.print(f"wrote {n} labelled observations to {json_out}", markup=False)
+    if queries_out is not None:
+        features = pm.preset.features
+        q = run.observations(sp.query_idx, features=features)
+        n = write_observations(queries_out, [o.with_label(pm.labels[j]) for o, j in zip(q, sp.query_labels.tolist(), strict=True)])
+        err_console.print(f"wrote {n} labelled queries to {queries_out}", markup=False)
