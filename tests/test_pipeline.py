@@ -187,3 +187,10 @@ def test_map_localize_track_a_bag(tmp_path, capsys):
     assert s["steps"] == 12 and s["filtered"]["labelled"] == 12
     code, _, err = run_cli(capsys, "map", bag, "--db", tmp_path / "n.sqlite", "--pose-source", "gps")
     assert code == 2 and "--pose-source must be auto, tf, odom, odom:TOPIC or none, got 'gps'" in err
+
+
+def test_empty_terms_are_named():
+    from fingerloc.pipeline.presets import empty_terms
+
+    assert empty_terms(model_options("paper"), [LASER]) == ["VE", "CP", "B"]
+    assert empty_terms(model_options("laser2d"), [LASER]) == []

@@ -61,7 +61,7 @@ def map_cmd(
     'fingerloc localize' and 'fingerloc track' need only the database.
     """
     from ..pipeline.mapping import make_map, save_map
-    from ..pipeline.presets import PRESET_NAMES
+    from ..pipeline.presets import PRESET_NAMES, empty_terms
 
     if preset not in PRESET_NAMES:
         raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
@@ -94,6 +94,10 @@ def map_cmd(
             on_step=lambda s: status.update(s),
         )
     err_console.print(pm.preset.reason, markup=False)
+    empty = empty_terms(pm.preset.options, pm.training)
+    if empty:
+        err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
+                          "places apart (see --preset / --terms)", markup=False)  # fmt: skip
     size = save_map(pm, db)
     sp, cal = pm.split, pm.calibration
     err_console.print(

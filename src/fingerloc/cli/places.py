@@ -70,7 +70,7 @@ def learn_cmd(
     from ..map.database import MapInfo, observation_hash, read_graph_edges, read_map_info, save_model
     from ..map.graph import PlaceGraph
     from ..pipeline.mapping import load_map
-    from ..pipeline.presets import PRESET_NAMES, resolve_preset
+    from ..pipeline.presets import PRESET_NAMES, empty_terms, resolve_preset
 
     if preset is not None and preset not in PRESET_NAMES:
         raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
@@ -130,6 +130,10 @@ def learn_cmd(
     else:
         resolved = resolve_preset("auto" if preset is None else preset, obs, given)
         err_console.print(resolved.reason, markup=False)
+        empty = empty_terms(resolved.options, obs)
+        if empty:
+            err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
+                              "places apart (see --preset / --terms)", markup=False)  # fmt: skip
         model = resolved.model().fit(obs)
         verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
         info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes))

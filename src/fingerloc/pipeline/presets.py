@@ -40,6 +40,7 @@ __all__ = [
     "PRESET_NAMES",
     "ResolvedPreset",
     "choose_preset",
+    "empty_terms",
     "model_from_options",
     "model_options",
     "resolve_preset",
@@ -170,6 +171,17 @@ def choose_preset(observations: Sequence[Observation]) -> tuple[str, str]:
     if image:
         return "panorama", f"{image} of {n} observations have image features, none has laser features"
     return "paper", f"none of {n} observations has laser or image features"
+
+
+def empty_terms(options: Mapping[str, Any], observations: Sequence[Observation]) -> list[str]:
+    """The mixture terms (VE, CP, Ex, B) among ``options["terms"]`` for which no observation has a bearing.
+
+    Such a term is learned from nothing: every place gets the same flat
+    density and the term cannot tell places apart (a 2D laser gives no VE
+    or CP; beacons need remission values).
+    """
+    mog = ("VE", "CP", "Ex", "B")
+    return [t for t in options.get("terms", ()) if t in mog and not any(o.bearings(t).size for o in observations)]
 
 
 def _defaults() -> dict[str, Any]:
