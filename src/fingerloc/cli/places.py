@@ -54,6 +54,11 @@ def learn_cmd(
         help="Per-term weights: 'fit' (learned from held-out training views) or TERM=W,... e.g. VE=0.5,Fp=2 [all 1].",
     ),
     seed: int | None = typer.Option(None, help="Seed of the mixtures' initialisation [0]."),
+    calibrate: bool = typer.Option(
+        True,
+        "--calibrate/--no-calibration",
+        help="New database: fit the filters' likelihood scale beta on held-out views (file order = visiting order).",
+    ),
 ) -> None:
     """Learn places from labelled observations into a place database.
 
@@ -71,6 +76,7 @@ def learn_cmd(
     from ..map.graph import PlaceGraph
     from ..pipeline.mapping import load_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms, resolve_preset
+    from ..pipeline.tracker import calibrate_labelled
 
     if preset is not None and preset not in PRESET_NAMES:
         raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
@@ -136,7 +142,11 @@ def learn_cmd(
                               "places apart (see --preset / --terms)", markup=False)  # fmt: skip
         model = resolved.model().fit(obs)
         verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
-        info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes))
+        cal = None
+        if calibrate and len(model.places_) > 1:
+            cal = calibrate_labelled(resolved.options, obs).to_json()
+            verb += f" (likelihood scale beta {cal['beta']:.3g} from {cal['calibration_rows']} held-out views)"
+        info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes), calibration=cal)
     # The place graph: transitions between consecutive observations of the file, added to the stored ones.
     graph = PlaceGraph([str(c) for c in model.classes_], edges)
     for a, b in itertools.pairwise(obs):

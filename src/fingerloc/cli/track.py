@@ -240,7 +240,7 @@ def _pose_filter_run(
 def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
     from ..experiments.markov import step_distances
     from ..io.jsonl import read_observations
-    from ..map.database import load_model, save_model
+    from ..map.database import load_model, read_map_info, save_model
     from ..map.filter import metres_per_move
     from ..map.graph import PlaceGraph, load_graph
 
@@ -257,7 +257,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                 f"{graph_from}:{bad + 1}: place {seq[bad]!r} is not in {db} (every line needs a learned 'place')"
             )
         g = PlaceGraph.from_sequence(classes, [str(lab) for lab in seq])
-        save_model(model, db, graph_edges=g.edges())
+        save_model(model, db, graph_edges=g.edges(), info=read_map_info(db))  # keep the preset, hashes...
         err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
         if len(train) > 1 and all(o.pose is not None for o in train):
             col = {c: j for j, c in enumerate(classes)}
@@ -274,7 +274,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
-    ll = np.asarray(model.joint_log_likelihood(obs), dtype=np.float64)
+    ll = np.asarray(model.predict_log_proba(obs), dtype=np.float64)  # what beta is calibrated on
     col = {c: j for j, c in enumerate(classes)}
     truth = np.array([col.get(o.label, -1) if o.label else -1 for o in obs], dtype=np.int64)
     dist = None
@@ -284,7 +284,11 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     elif "centres" in geo:
         geo = {"why": f"{data}: the pose filter needs a pose on every observation"}
     names = [f"{data.name}:{i + 1}" for i in range(len(obs))]
-    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names, geo
+    beta = scale
+    if beta is None:
+        cal = read_map_info(db).calibration
+        beta = 1.0 if cal is None else float(cal.get("beta", 1.0))  # learn's calibration on its training views
+    return ll, truth, dist, graph, classes, beta, metres, names, geo
 
 
 def _has_map(db: Path) -> bool:

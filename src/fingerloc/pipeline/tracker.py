@@ -50,6 +50,7 @@ __all__ = [
     "Calibration",
     "FitScore",
     "Tracker",
+    "calibrate_labelled",
     "fit_scale",
     "held_out_scores",
     "mapping_graph",
@@ -277,6 +278,22 @@ def run_pose_steps(
         temper=temper,
         place_filter=MarkovFilter(transition) if relocalize else None,
     )
+
+
+def calibrate_labelled(options: Mapping[str, Any], observations: Sequence[Observation]) -> Calibration:
+    """The likelihood scale of labelled observations in visiting order (``fingerloc learn``).
+
+    The file order stands for the visiting order: folds by alternate visits
+    (:func:`fit_scale`), a model with ``options`` fit on one fold scoring the
+    other. Only ``beta``, ``calibration_rows``, ``n_train`` and ``kidnap``
+    are set; the rest keeps the defaults (no positions are known).
+    """
+    labels = [str(o.label) for o in observations]
+    order = list(dict.fromkeys(labels))
+    col = {lab: j for j, lab in enumerate(order)}
+    y = np.array([col[lab] for lab in labels], dtype=np.int64)
+    beta, rows = fit_scale(model_fit_score(options, observations), np.arange(y.size), y, len(order))
+    return Calibration(beta=float(beta), kidnap=1.0 / (y.size + 2), n_train=int(y.size), calibration_rows=rows)
 
 
 class Tracker:
