@@ -194,3 +194,17 @@ def test_empty_terms_are_named():
 
     assert empty_terms(model_options("paper"), [LASER]) == ["VE", "CP", "B"]
     assert empty_terms(model_options("laser2d"), [LASER]) == []
+
+
+def test_learn_into_a_map_keeps_its_preset(rooms, tmp_path, capsys):
+    db, extra = tmp_path / "m.sqlite", tmp_path / "extra.jsonl"
+    pm = make_map(read_run(rooms), calibrate=False)
+    save_map(pm, db)
+    from fingerloc.io.jsonl import write_observations
+
+    write_observations(extra, [pm.training[0].rotated(0.5).with_label("new-place")])
+    code, _, err = run_cli(capsys, "learn", extra, "--db", db)
+    assert code == 0, err
+    lm = load_map(db)
+    assert "new-place" in lm.labels and lm.positions is None  # the new place has no position
+    assert lm.preset is not None and lm.preset.name == "laser2d" and len(lm.content_hashes) == 13

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DatabaseError, InvalidParameterError
+from ..errors import InvalidParameterError
 from ..map.graph import PlaceGraph
 from ..observation import Observation
 from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
@@ -165,6 +165,8 @@ class LoadedMap:
     labels : list of str
         Places in creation order when positions are stored, else the model's order.
     positions : ndarray, shape (P, 2) or None
+        ``None`` when the database stores none, or not for every place (places
+        added by ``learn`` after ``map``).
     preset : ResolvedPreset or None
     calibration : Calibration or None
     graph : PlaceGraph
@@ -203,9 +205,7 @@ def load_map(path: str | Path) -> LoadedMap:
     classes = [str(c) for c in model.classes_]
     positions = None
     labels = classes
-    if info.positions:
-        if set(info.positions) != set(classes):
-            raise DatabaseError(f"{path}: its place positions do not name the same places as its model")
+    if info.positions and set(info.positions) == set(classes):  # places learned later have no position
         labels = list(info.positions)
         positions = np.array([info.positions[lab] for lab in labels], dtype=np.float64).reshape(-1, 2)
     preset = None if info.preset is None else ResolvedPreset.from_json(info.preset)
