@@ -16,7 +16,7 @@ from .options import POSE_SOURCE_HELP, RUN_KIND_HELP, bag_options, check_db_targ
 
 
 def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
-    from ..experiments.carmen import rank_metrics, true_place_ranks
+    from ..experiments.protocol import rank_metrics, true_place_ranks
 
     known = truth >= 0
     if not np.any(known):
@@ -238,11 +238,11 @@ def _pose_filter_run(
 
 
 def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
-    from ..experiments.markov import step_distances
     from ..io.jsonl import read_observations
     from ..map.database import load_model, read_map_info, save_model
     from ..map.filter import metres_per_move
     from ..map.graph import PlaceGraph, load_graph
+    from ..pipeline.tracker import step_distances
 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
