@@ -299,37 +299,51 @@ def places_cmd(
     db: Path = typer.Option(..., "--db", help="Place database."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
 ) -> None:
-    """List the places stored in a place database, with its preset, options and calibration."""
-    from ..pipeline.mapping import load_map
+    """List the places stored in a place database."""
+    from ..map.database import load_model
 
-    lm = load_map(db)
-    model = lm.model
-    pos = {} if lm.positions is None else {lab: lm.positions[j].tolist() for j, lab in enumerate(lm.labels)}
+    model = load_model(db)
     rows: list[dict[str, Any]] = []
     for p in model.places_.values():
         rows.append(
             {
                 "place": p.label,
                 "observations": len(p.observations),
-                "position": pos.get(p.label),
                 "fingerprint": p.fingerprints[p.medoid].letters if p.fingerprints else "",
                 "mixtures": {t: int(np.count_nonzero(w)) for t, (w, _, _) in p.mixtures.items()},
             }
         )
-    preset = None if lm.preset is None else lm.preset.to_json()
-    calibration = None if lm.calibration is None else lm.calibration.to_json()
     if as_json:
-        console.print_json(json.dumps({"params": _jsonable(model.get_params()), "preset": preset,
-                                       "calibration": calibration, "runs": lm.runs, "places": rows}))  # fmt: skip
+        console.print_json(json.dumps({"params": _jsonable(model.get_params()), "places": rows, **_map_info(db)}))
         return
     t = Table(title=f"{db}: {len(rows)} place(s)")
-    for c in ("place", "observations", "position (m)", "medoid fingerprint", "components per term"):
+    for c in ("place", "observations", "medoid fingerprint", "components per term"):
         t.add_column(c)
     for r in rows:
         comps = " ".join(f"{k}:{v}" for k, v in r["mixtures"].items())
-        where = "-" if r["position"] is None else f"{r['position'][0]:.2f} {r['position'][1]:.2f}"
-        t.add_row(r["place"], str(r["observations"]), where, r["fingerprint"], comps)
+        t.add_row(r["place"], str(r["observations"]), r["fingerprint"], comps)
     console.print(t)
+    _print_map_info(db, model)
+
+
+def _map_info(db: Path) -> dict[str, Any]:
+    """``preset``, ``calibration``, ``positions`` (label -> [x, y] metres) and ``runs`` of a database (None / empty when absent)."""
+    from ..pipeline.mapping import load_map
+
+    lm = load_map(db)
+    pos = {} if lm.positions is None else {lab: lm.positions[j].tolist() for j, lab in enumerate(lm.labels)}
+    return {
+        "preset": None if lm.preset is None else lm.preset.to_json(),
+        "calibration": None if lm.calibration is None else lm.calibration.to_json(),
+        "positions": pos,
+        "runs": lm.runs,
+    }
+
+
+def _print_map_info(db: Path, model: Any) -> None:
+    """The plain-text part of ``places`` after the table: preset, every option, calibration, positions, mapped runs."""
+    info = _map_info(db)
+    preset = info["preset"]
     if preset is None:
         console.print("preset: none stored (a database of an older fingerloc)", markup=False)
     else:
@@ -338,11 +352,16 @@ def places_cmd(
     if preset is not None:
         opts["costs"] = preset["options"].get("costs", opts["costs"])
     console.print("options: " + ", ".join(f"{k}={_short(v)}" for k, v in opts.items()), markup=False, soft_wrap=True)
-    if calibration is not None:
-        console.print("calibration: " + ", ".join(f"{k}={_short(v)}" for k, v in calibration.items()),
+    if info["calibration"] is not None:
+        cal = info["calibration"]
+        console.print("calibration: " + ", ".join(f"{k}={_short(v)}" for k, v in cal.items()), markup=False,
+                      soft_wrap=True)  # fmt: skip
+    if info["positions"]:
+        console.print("positions (m): " + ", ".join(f"{k} ({x:.2f}, {y:.2f})" for k, (x, y) in info["positions"].items()),
                       markup=False, soft_wrap=True)  # fmt: skip
-    for r in lm.runs:
-        console.print(f"mapped from: {r['name']} (first {r['n_mapping']} of {r['n_scans']} scans)", markup=False, soft_wrap=True)
+    for r in info["runs"]:
+        console.print(f"mapped from: {r['name']} (first {r['n_mapping']} of {r['n_scans']} scans)", markup=False,
+                      soft_wrap=True)  # fmt: skip
 
 
 def _short(v: Any) -> str:
