@@ -25,7 +25,7 @@ __all__ = ["map_cmd"]
 
 @app.command("map")
 def map_cmd(
-    runs: list[Path] = typer.Argument(..., metavar="RUN...", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
+    runs: list[Path] = typer.Argument(..., metavar="RUN", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
     db: Path = typer.Option(..., "--db", help="Place database to write (schema 2)."),
     preset: str = typer.Option("auto", "--preset", help="paper | laser2d | panorama | multimodal | auto (from the data)."),
     mapping_part: float | None = typer.Option(None, "--mapping-part", help="Fraction of the run that maps, from its start [0.5]."),
