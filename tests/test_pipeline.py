@@ -5,6 +5,8 @@ import sqlite3
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fingerloc import Observation
 from fingerloc.errors import InvalidParameterError
@@ -208,3 +210,30 @@ def test_learn_into_a_map_keeps_its_preset(rooms, tmp_path, capsys):
     lm = load_map(db)
     assert "new-place" in lm.labels and lm.positions is None  # the new place has no position
     assert lm.preset is not None and lm.preset.name == "laser2d" and len(lm.content_hashes) == 13
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    steps=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=1, max_size=60),
+    part=st.floats(0.05, 1.0),
+)
+def test_places_properties(steps, part):
+    """Centres are more than the spacing apart; every training scan / query is within the radius of its nearest centre."""
+    pos = np.cumsum(np.array(steps, dtype=float), axis=0)
+    sp = places_from_trajectory(pos, mapping_part=part)
+    c = sp.centres
+    if len(c) == 0:  # an empty mapping part makes no place, so nothing trains or is queried
+        assert sp.n_mapping == 0 and sp.n_train == 0 and sp.n_queries == 0
+        return
+    d = np.hypot(c[:, None, 0] - c[None, :, 0], c[:, None, 1] - c[None, :, 1])
+    assert np.all(d[~np.eye(len(c), dtype=bool)] > 2.0)
+    assert np.all(sp.train_idx < sp.n_mapping) and np.all(sp.query_idx >= sp.n_mapping)
+    for idx, lab in ((sp.train_idx, sp.train_labels), (sp.query_idx, sp.query_labels)):
+        if idx.size:
+            dd = np.hypot(pos[idx, None, 0] - c[None, :, 0], pos[idx, None, 1] - c[None, :, 1])
+            assert np.all(dd[np.arange(idx.size), lab] <= 1.0)
+            assert np.all(dd[np.arange(idx.size), lab] <= dd.min(axis=1))
+    # every mapping scan within the radius of a centre trains (none is lost)
+    near = np.hypot(pos[: sp.n_mapping, None, 0] - c[None, :, 0], pos[: sp.n_mapping, None, 1] - c[None, :, 1])
+    assert set(sp.train_idx.tolist()) == set(np.flatnonzero(near.min(axis=1) <= 1.0).tolist())
+    assert sp.centre_scans.tolist() == sorted(sp.centre_scans.tolist())
