@@ -237,3 +237,31 @@ def test_places_properties(steps, part):
     near = np.hypot(pos[: sp.n_mapping, None, 0] - c[None, :, 0], pos[: sp.n_mapping, None, 1] - c[None, :, 1])
     assert set(sp.train_idx.tolist()) == set(np.flatnonzero(near.min(axis=1) <= 1.0).tolist())
     assert sp.centre_scans.tolist() == sorted(sp.centre_scans.tolist())
+
+
+def test_another_run_is_queried_whole(rooms, tmp_path, capsys):
+    """A run other than the mapped one: every scan within the radius is a query, from its first scan."""
+    from ._runs import walk
+
+    db, out = tmp_path / "m.sqlite", tmp_path / "o.json"
+    save_map(make_map(read_run(rooms), calibrate=False), db)
+    other = write_carmen(tmp_path / "other.log", walk(passes=1)[::-1])
+    code, _, err = run_cli(capsys, "localize", other, "--db", db, "--json", out, "-q")
+    assert code == 0, err
+    assert "run the map was made from" not in err
+    recs = json.loads(out.read_text())["observations"]
+    assert len(recs) == 12 and recs[0]["place"] == "3" and recs[-1]["place"] == "0"
+
+
+def test_track_json_lines_uses_learns_calibration(rooms, tmp_path, capsys):
+    train, db, out = tmp_path / "train.jsonl", tmp_path / "l.sqlite", tmp_path / "t.json"
+    code, _, err = run_cli(capsys, "map", rooms, "--db", tmp_path / "m.sqlite", "--json", train, "--no-calibration")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "learn", train, "--db", db)
+    assert code == 0 and "likelihood scale beta" in err
+    from fingerloc.map.database import read_map_info
+
+    beta = read_map_info(db).calibration["beta"]
+    code, _, err = run_cli(capsys, "track", train, "--db", db, "--json", out, "-q")
+    assert code == 0, err
+    assert json.loads(out.read_text())["summary"]["likelihood_scale"] == pytest.approx(beta)
