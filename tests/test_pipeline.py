@@ -265,3 +265,13 @@ def test_track_json_lines_uses_learns_calibration(rooms, tmp_path, capsys):
     code, _, err = run_cli(capsys, "track", train, "--db", db, "--json", out, "-q")
     assert code == 0, err
     assert json.loads(out.read_text())["summary"]["likelihood_scale"] == pytest.approx(beta)
+
+
+def test_bag_flags():
+    from fingerloc.cli.options import bag_options
+
+    assert bag_options(["/front"], "odom:/wheel", None) == {
+        "topic": "/front", "pose_source": "odom", "odom_topic": "/wheel", "base_frame": None,
+    }  # fmt: skip
+    assert bag_options(["/front", "/back"], "tf", "base_footprint")["topic"] == ("/front", "/back")
+    assert bag_options(None, "auto", None)["topic"] is None

@@ -14,6 +14,7 @@ from .app import app, err_console
 from .options import (
     POSE_SOURCE_HELP,
     RUN_KIND_HELP,
+    TOPIC_HELP,
     bag_options,
     check_db_target,
     check_output,
@@ -38,7 +39,7 @@ def map_cmd(
         None, "--queries", help="Also write the queries (later scans within --radius of a place, labelled with the nearest) as JSON Lines here."
     ),
     kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
-    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic."),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
     base_frame: str | None = typer.Option(None, "--base-frame", help="ROS bag: the robot's frame in /tf."),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),

@@ -22,6 +22,7 @@ from .app import err_console
 __all__ = [
     "POSE_SOURCE_HELP",
     "RUN_KIND_HELP",
+    "TOPIC_HELP",
     "bag_options",
     "check_db_target",
     "check_output",
@@ -31,15 +32,22 @@ __all__ = [
 ]
 
 RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; JSON Lines otherwise)."
+TOPIC_HELP = "ROS bag: the LaserScan topic (when there are several); repeat it to merge lidars into one observation per step."
 POSE_SOURCE_HELP = "ROS bag: where poses come from: auto | tf | odom | odom:TOPIC | none."
 
 
-def bag_options(topic: str | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
-    """Keyword options of the bag reader from the command-line flags (checked)."""
+def bag_options(topic: str | list[str] | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
+    """Keyword options of the bag reader from the command-line flags (checked).
+
+    Several ``--topic`` flags go to the reader as a tuple: lidars merged into
+    one observation per time step, where the bag reader supports it.
+    """
     src, _, odom_topic = pose_source.partition(":")
     if src not in ("auto", "tf", "odom", "none") or (odom_topic and src != "odom"):
         raise InvalidParameterError(f"--pose-source must be auto, tf, odom, odom:TOPIC or none, got {pose_source!r}")
-    return {"topic": topic, "pose_source": src, "odom_topic": odom_topic or None, "base_frame": base_frame}
+    topics = [topic] if isinstance(topic, str) else list(topic or [])
+    picked: str | tuple[str, ...] | None = None if not topics else topics[0] if len(topics) == 1 else tuple(topics)
+    return {"topic": picked, "pose_source": src, "odom_topic": odom_topic or None, "base_frame": base_frame}
 
 
 def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[str, Any]) -> Any:

@@ -19,6 +19,7 @@ from .bench import write_json
 from .options import (
     POSE_SOURCE_HELP,
     RUN_KIND_HELP,
+    TOPIC_HELP,
     bag_options,
     check_output,
     model_overrides,
@@ -166,7 +167,7 @@ def localize_cmd(
     json_out: Path | None = typer.Option(None, "--json", help="Write per-observation posteriors as JSON here."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
-    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic."),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
     base_frame: str | None = typer.Option(None, "--base-frame", help="ROS bag: the robot's frame in /tf."),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),

@@ -12,7 +12,15 @@ import typer
 from ..errors import InvalidParameterError
 from .app import app, bench_app, console, err_console
 from .bench import write_json
-from .options import POSE_SOURCE_HELP, RUN_KIND_HELP, bag_options, check_db_target, check_output, read_run_files
+from .options import (
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    TOPIC_HELP,
+    bag_options,
+    check_db_target,
+    check_output,
+    read_run_files,
+)
 
 
 def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
@@ -77,7 +85,7 @@ def track_cmd(
     seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
-    topic: str | None = typer.Option(None, "--topic", help="ROS bag: the LaserScan topic."),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
     pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
     base_frame: str | None = typer.Option(None, "--base-frame", help="ROS bag: the robot's frame in /tf."),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
