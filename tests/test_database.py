@@ -90,7 +90,7 @@ def test_cli_learn_localize_places(tmp_path):
     train = tmp_path / "train.jsonl"
     write_observations(train, [o.with_label(lab) for o, lab in zip(obs, labels, strict=True)])
     db = tmp_path / "places.sqlite"
-    r = _cli("learn", str(train), "--db", str(db), "-k", "3")
+    r = _cli("learn", str(train), "--db", str(db), "-k", "3", "--preset", "paper")
     assert r.returncode == 0, r.stderr
     test, tl = dataset(seed=11, n=2)
     qfile = tmp_path / "q.jsonl"

@@ -8,7 +8,6 @@ from fingerloc.experiments.carmen import make_method, make_split, run_benchmark
 from fingerloc.experiments.markov import (
     FilteredMethod,
     TrackingData,
-    _visit_folds,
     kidnap_experiment,
     mapping_graph,
     step_distances,
@@ -16,6 +15,7 @@ from fingerloc.experiments.markov import (
 )
 from fingerloc.map.filter import TransitionModel
 from fingerloc.map.graph import PlaceGraph
+from fingerloc.pipeline.places import visit_folds
 from tests.test_bench_carmen import ROOMS, _run_cli, _write_log
 
 
@@ -42,7 +42,7 @@ def test_visit_folds_alternate_per_place():
     idx = np.array([0, 1, 2, 5, 6, 9, 10, 11])
     lab = np.array([0, 0, 1, 0, 0, 1, 0, 0])
     # visits: place 0 at 0-1 (0), place 1 at 2 (0), place 0 at 5-6 (1), place 1 at 9 (1), place 0 at 10-11 (0)
-    assert _visit_folds(idx, lab).tolist() == [0, 0, 0, 1, 1, 1, 0, 0]
+    assert visit_folds(idx, lab).tolist() == [0, 0, 0, 1, 1, 1, 0, 0]
 
 
 def test_mapping_graph_counts_consecutive_cells():

@@ -6,10 +6,12 @@ screen and in parameters named ``*_deg``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["TWO_PI", "deg_to_rad", "dist_as", "rad_to_deg360", "wrap", "wrap_deg360"]
+__all__ = ["TWO_PI", "deg_to_rad", "dist_as", "fov_pieces_deg", "rad_to_deg360", "wrap", "wrap_deg360"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -71,3 +73,27 @@ def deg_to_rad(x: ArrayLike) -> NDArray[np.float64]:
 def rad_to_deg360(x: ArrayLike) -> NDArray[np.float64]:
     """Radians to degrees in ``[0, 360)``."""
     return wrap_deg360(np.rad2deg(np.asarray(x, dtype=np.float64)))
+
+
+def fov_pieces_deg(fov: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Disjoint, sorted ``[lo, hi)`` pieces of ``[0, 360)`` covered by ``fov`` (radians)."""
+    pieces: list[tuple[float, float]] = []
+    for start, width in fov:
+        s = float(rad_to_deg360(start))
+        w = float(np.rad2deg(width))
+        if w >= 360.0 - 1e-9:
+            return [(0.0, 360.0)]
+        e = s + w
+        if e <= 360.0:
+            pieces.append((s, e))
+        else:
+            pieces.append((s, 360.0))
+            pieces.append((0.0, e - 360.0))
+    pieces.sort()
+    merged: list[tuple[float, float]] = []
+    for lo, hi in pieces:
+        if merged and lo <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], hi))
+        else:
+            merged.append((lo, hi))
+    return merged

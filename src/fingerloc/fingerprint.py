@@ -43,13 +43,12 @@ corridor), fixed before any benchmark and not tuned per log.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .angles import TWO_PI, rad_to_deg360, wrap, wrap_deg360
+from .angles import TWO_PI, fov_pieces_deg, rad_to_deg360, wrap, wrap_deg360
 from .errors import InvalidParameterError, UnknownLetterError
 from .observation import Observation
 
@@ -217,28 +216,8 @@ def parse_fingerprint(text: str, bearings_deg: ArrayLike | None = None) -> Finge
 # -- field of view in degrees -----------------------------------------------
 
 
-def _seen_pieces_deg(fov: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Disjoint, sorted ``[lo, hi)`` pieces of ``[0, 360)`` covered by ``fov`` (radians)."""
-    pieces: list[tuple[float, float]] = []
-    for start, width in fov:
-        s = float(rad_to_deg360(start))
-        w = float(np.rad2deg(width))
-        if w >= 360.0 - 1e-9:
-            return [(0.0, 360.0)]
-        e = s + w
-        if e <= 360.0:
-            pieces.append((s, e))
-        else:
-            pieces.append((s, 360.0))
-            pieces.append((0.0, e - 360.0))
-    pieces.sort()
-    merged: list[tuple[float, float]] = []
-    for lo, hi in pieces:
-        if merged and lo <= merged[-1][1]:
-            merged[-1] = (merged[-1][0], max(merged[-1][1], hi))
-        else:
-            merged.append((lo, hi))
-    return merged
+#: Disjoint, sorted ``[lo, hi)`` degree pieces of ``[0, 360)`` covered by a field of view (:func:`fingerloc.angles.fov_pieces_deg`).
+_seen_pieces_deg = fov_pieces_deg
 
 
 def _seen_intervals(a: float, b: float, pieces: list[tuple[float, float]]) -> list[tuple[float, float]]:

@@ -307,9 +307,9 @@ class Observation:
 
     def fov_coverage(self) -> float:
         """Covered part of the circle, in ``[0, 1]`` (overlapping ranges counted once)."""
-        from .fingerprint import _seen_pieces_deg  # local: fingerprint imports this module
+        from .angles import fov_pieces_deg
 
-        return float(sum(hi - lo for lo, hi in _seen_pieces_deg(self.fov)) / 360.0)
+        return float(sum(hi - lo for lo, hi in fov_pieces_deg(self.fov)) / 360.0)
 
     def rotated(self, angle: float) -> Observation:
         """The same view seen by a robot turned by ``-angle``: every bearing and the fov move by ``angle`` radians."""

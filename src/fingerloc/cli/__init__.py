@@ -13,7 +13,7 @@ from ..errors import FingerlocError
 from .app import app, bench_app, reproduce_app
 
 # Command modules register themselves on import.
-from . import basic, bench, demo, features, logs, mog, places, reports, robot, track  # noqa: F401  isort: skip
+from . import basic, bench, demo, features, logs, mapping, mog, places, reports, robot, track  # noqa: F401  isort: skip
 
 __all__ = ["app", "bench_app", "main", "reproduce_app"]
 

@@ -1,185 +1,26 @@
 """``fingerloc features``: extract features from sensor files and print or save them.
 
-Each input *kind* has one reader function in :data:`KINDS` that turns a file
-into ``(name, Observation)`` pairs (one per image, or one per scan of a log).
-To add a kind (CARMEN logs, ROS bags), write such a function and register it
-in :data:`KINDS`; options it needs go into :class:`FeatureOptions`.
+The readers (one per input *kind*: a file -> ``(name, Observation)`` pairs)
+live in the library, :mod:`fingerloc.pipeline.files`; this module prints
+and saves what they return.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import typer
 
 from ..angles import deg_to_rad, rad_to_deg360
-from ..errors import DataFormatError, InvalidParameterError
+from ..errors import InvalidParameterError
 from ..fingerprint import hue_letter
 from ..observation import Observation
-from ..sensors import Panorama
+from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind, load_image, panorama_from_file
 from .app import app, bench_app, console, err_console
+from .options import BASE_FRAME_HELP, POSE_SOURCE_HELP, TOPIC_HELP, bag_options
 
 __all__ = ["KINDS", "FeatureOptions", "format_observation", "load_image", "panorama_from_file"]
-
-
-@dataclass(frozen=True, slots=True)
-class FeatureOptions:
-    """Options of ``fingerloc features`` shared by every reader.
-
-    Attributes
-    ----------
-    place : str or None
-        Label of every observation.
-    bearing_offset : float
-        Radians: bearing of the left edge of panorama column 0, or of the
-        omnidirectional image's ``+x`` axis.
-    counter_clockwise : bool
-        Panorama bearings grow with the column index (default: they decrease,
-        as in a photograph taken turning right).
-    center, radii : pairs of float or None
-        Omnidirectional image: mirror centre (x, y) and ring radii, pixels.
-    mirror : bool
-        Omnidirectional image seen from below (bearings clockwise on screen).
-    band : pair of float or None
-        Rows (parts of the height, top = 0) of a panorama to use; ``None``:
-        the middle half of a full 2:1 equirectangular image, else every row.
-    max_width : int
-        Panoramas wider than this are resampled down (area averaging).
-    topic : str or None
-        Topic of a ROS bag (for the ``bag`` kind).
-    topics : tuple of str
-        ROS bag: several scan topics merged into one observation per time
-        step (the first is the reference); overrides ``topic`` when given.
-    base_frame : str or None
-        ROS bag: the robot's frame (default: the root of the static
-        transforms above the lidar frames).
-    pose_source : str
-        ROS bag: ``auto``, ``none``, ``tf``, ``tf:FRAME``, ``odom`` or ``odom:TOPIC``.
-    skip_bad : bool
-        Laser logs: skip malformed lines / messages (their count goes to stderr).
-    beacon_threshold : float or None
-        Laser logs: absolute intensity threshold of a beacon, overriding the
-        detector's per-scan adaptive threshold.
-    """
-
-    place: str | None = None
-    bearing_offset: float = 0.0
-    counter_clockwise: bool = False
-    center: tuple[float, float] | None = None
-    radii: tuple[float, float] | None = None
-    mirror: bool = False
-    band: tuple[float, float] | None = None
-    max_width: int = 1440
-    topic: str | None = None
-    topics: tuple[str, ...] = ()
-    base_frame: str | None = None
-    pose_source: str = "auto"
-    skip_bad: bool = False
-    beacon_threshold: float | None = None
-
-
-Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
-
-
-def load_image(path: Path) -> np.ndarray:
-    """Read an image file (JPEG, PNG, ... via Pillow) as an (h, w, 3) ``uint8`` RGB array.
-
-    Raises
-    ------
-    DataFormatError
-        Naming the path, when the file is missing or not an image.
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            im.load()
-            rgb = im.convert("RGB")
-    except FileNotFoundError as err:
-        raise DataFormatError("no such file", path=path) from err
-    except UnidentifiedImageError as err:
-        raise DataFormatError("not an image file Pillow can read (JPEG, PNG, ...)", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
-        raise DataFormatError(f"cannot read image: {err}", path=path) from err
-    return np.asarray(rgb, dtype=np.uint8)
-
-
-def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
-    h, w = img.shape[:2]
-    if w <= max_width:
-        return img
-    from PIL import Image
-
-    new_h = max(2, round(h * max_width / w))
-    return np.asarray(Image.fromarray(img).resize((max_width, new_h), Image.Resampling.BOX), dtype=np.uint8)
-
-
-def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
-    """A :class:`Panorama` from an equirectangular image file (see :class:`FeatureOptions`)."""
-    img = load_image(path)
-    h, w = img.shape[:2]
-    if w < 64 or h < 8:
-        raise DataFormatError(f"image too small for a 360 deg panorama: {w}x{h} pixels", path=path)
-    band = opts.band
-    if band is None and abs(w / h - 2.0) < 0.05:
-        band = (0.25, 0.75)  # full equirectangular: elevations -45..+45 deg
-    if band is not None:
-        lo, hi = round(band[0] * h), round(band[1] * h)
-        img = img[lo:hi]
-    img = _shrink(img, opts.max_width)
-    meta: dict[str, object] = {"source": str(path)}
-    return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
-
-
-def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    from ..features.vision import observation_from_views
-
-    pano = panorama_from_file(path, opts)
-    yield str(path), observation_from_views(panorama=pano, label=opts.place)
-
-
-def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    from ..features.vision import observation_from_views, unwarp_omni
-
-    if opts.center is None or opts.radii is None:
-        raise InvalidParameterError("--kind omni needs --center X Y and --radii R_IN R_OUT (pixels)")
-    img = load_image(path)
-    width = int(np.clip(round(np.pi * sum(opts.radii) / 360.0) * 360, 360, max(360, opts.max_width)))
-    pano = unwarp_omni(
-        img,
-        opts.center,
-        opts.radii[0],
-        opts.radii[1],
-        width=int(width),
-        bearing_offset=opts.bearing_offset,
-        mirror=opts.mirror,
-    )
-    yield str(path), observation_from_views(panorama=pano, label=opts.place)
-
-
-def _read_carmen(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    from .logs import iter_carmen_observations
-
-    return iter_carmen_observations(path, opts)
-
-
-def _read_bag(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    from .logs import iter_bag_observations
-
-    return iter_bag_observations(path, opts)
-
-
-#: Input kinds: name -> reader. Laser log readers (``carmen``, ``bag``, in :mod:`.logs`)
-#: yield one ``(name, observation_from_scan(scan, label=opts.place))`` per scan.
-KINDS: dict[str, Reader] = {
-    "panorama": _read_panorama,
-    "omni": _read_omni,
-    "carmen": _read_carmen,
-    "bag": _read_bag,
-}
 
 
 def format_observation(name: str, obs: Observation) -> str:
@@ -236,27 +77,9 @@ def features_cmd(
         show_default=False,
     ),
     place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
-    topic: list[str] | None = typer.Option(
-        None,
-        "--topic",
-        metavar="TOPIC",
-        help="ROS bag: the LaserScan topic (when there are several). Repeat it to merge lidars into one "
-        "observation per time step (the first topic's stamps; others paired within half its scan period).",
-        show_default=False,
-    ),
-    base_frame: str | None = typer.Option(
-        None,
-        "--base-frame",
-        metavar="FRAME",
-        help="ROS bag: the robot's frame (default: the root of the static transforms above the lidars).",
-        show_default=False,
-    ),
-    pose_source: str = typer.Option(
-        "auto",
-        "--pose-source",
-        metavar="SOURCE",
-        help="ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC].",
-    ),
+    topic: list[str] | None = typer.Option(None, "--topic", metavar="TOPIC", help=TOPIC_HELP, show_default=False),
+    base_frame: str | None = typer.Option(None, "--base-frame", metavar="FRAME", help=BASE_FRAME_HELP, show_default=False),
+    pose_source: str = typer.Option("auto", "--pose-source", metavar="SOURCE", help=POSE_SOURCE_HELP),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Laser logs: skip malformed lines and report how many."),
     beacon_threshold: float | None = typer.Option(
         None,
@@ -273,13 +96,11 @@ def features_cmd(
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
         raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
-    if pose_source != "auto":
-        from ..io.rosbag import parse_pose_source
-
-        parse_pose_source(pose_source)
     if radii is not None and not (0.0 <= radii[0] < radii[1]):
         raise InvalidParameterError(f"--radii must satisfy 0 <= R_IN < R_OUT, got {radii[0]} {radii[1]}")
+    bag = bag_options(topic, pose_source, base_frame)
     opts = FeatureOptions(
+        notify=lambda s: err_console.print(s, soft_wrap=True, markup=False),
         place=place,
         bearing_offset=float(deg_to_rad(bearing_offset_deg)),
         counter_clockwise=counter_clockwise,
@@ -287,14 +108,13 @@ def features_cmd(
         radii=radii,
         mirror=mirror,
         band=band,
-        topic=topic[0] if topic and len(topic) == 1 else None,
-        topics=tuple(topic) if topic and len(topic) > 1 else (),
-        base_frame=base_frame,
-        pose_source=pose_source,
+        topic=bag["topic"],
+        base_frame=bag["base_frame"],
+        pose_source=bag["pose_source"],
         skip_bad=skip_bad,
         beacon_threshold=beacon_threshold,
     )
-    from .logs import LASER_KINDS, detect_kind, format_scan_line
+    from .logs import format_scan_line
 
     observations: list[Observation] = []
     for path in files:

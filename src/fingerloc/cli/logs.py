@@ -1,112 +1,28 @@
 """Real laser logs on the command line (issue 7).
 
 * ``fingerloc bench carmen``: the real-log place-recognition benchmark;
-* the ``carmen`` and ``bag`` input kinds of ``fingerloc features``
-  (:func:`iter_carmen_observations`, :func:`iter_bag_observations`,
-  :func:`detect_kind`, :func:`format_scan_line`), which
-  :mod:`fingerloc.cli.features` dispatches to.
+* :func:`format_scan_line`, how ``fingerloc features`` prints a laser scan's
+  features (the readers themselves are the library's,
+  :mod:`fingerloc.pipeline.readers` and :mod:`fingerloc.pipeline.files`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 from ..errors import InvalidParameterError
+from ..pipeline.files import LASER_KINDS
+from ..pipeline.readers import detect_kind
 from .app import bench_app, console, err_console
 from .bench import write_json
 
 if TYPE_CHECKING:
     from ..observation import Observation
-    from .features import FeatureOptions
 
-#: Input kinds of ``fingerloc features`` that are laser logs (one observation per scan).
-LASER_KINDS: tuple[str, ...] = ("carmen", "bag")
-
-
-def detect_kind(path: Path) -> str | None:
-    """``"carmen"`` or ``"bag"`` from a path's name (or a ROS 2 bag folder); ``None`` otherwise."""
-    from ..io.carmen import is_carmen_path
-    from ..io.rosbag import is_bag_path
-
-    if is_bag_path(path):
-        return "bag"
-    if is_carmen_path(path):
-        return "carmen"
-    return None
-
-
-def _feature_params(opts: FeatureOptions) -> dict[str, Any]:
-    thr = getattr(opts, "beacon_threshold", None)
-    return {} if thr is None else {"beacon_threshold": float(thr)}
-
-
-def iter_carmen_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    """One laser-only observation per scan of a CARMEN log, named ``file:line MESSAGE``.
-
-    Reads ``FLASER``/``RLASER`` (or ``ROBOTLASER1/2`` in logs without them);
-    ``opts.skip_bad`` skips malformed lines (their count goes to stderr);
-    ``opts.beacon_threshold`` overrides the beacon detector's adaptive threshold.
-    """
-    from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser
-
-    skip_bad = bool(getattr(opts, "skip_bad", False))
-    params = _feature_params(opts)
-    info = inspect_log(path)
-    st = ReadStats()
-    for rec, scan in iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st):
-        yield f"{path.name}:{rec.line} {rec.message}", observation_from_scan(scan, label=opts.place, **params)
-    if st.skipped:
-        err_console.print(
-            f"{path}: skipped {st.skipped} malformed line(s); first: {st.first_errors[0]}", soft_wrap=True, markup=False
-        )
-
-
-def iter_bag_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    """One laser-only observation per scan (or per merged time step) of a ROS bag.
-
-    ``opts.topic`` / ``opts.topics`` pick the scan topic(s), ``opts.base_frame``
-    and ``opts.pose_source`` the frames (see :func:`fingerloc.io.rosbag.iter_bag_scans`);
-    what the reader resolved (base frame and why, mounts, pose source) goes to stderr.
-    """
-    from ..features.laser import observation_from_scan
-    from ..io.rosbag import BagPlan, BagReadStats, iter_bag_scans
-
-    params = _feature_params(opts)
-    st = BagReadStats()
-    topics = tuple(getattr(opts, "topics", ()) or ())
-
-    def report(plan: BagPlan) -> None:
-        err_console.print(f"{path}: {plan.describe()}", soft_wrap=True, markup=False)
-
-    scans = iter_bag_scans(
-        path,
-        topic=topics or opts.topic,
-        base_frame=getattr(opts, "base_frame", None),
-        pose_source=getattr(opts, "pose_source", "auto"),
-        skip_bad=bool(getattr(opts, "skip_bad", False)),
-        stats=st,
-        on_plan=report,
-    )
-    for k, scan in enumerate(scans, start=1):
-        t = "" if scan.timestamp is None else f" t={scan.timestamp:.3f}"
-        yield f"{path.name}#{k}{t}", observation_from_scan(scan, label=opts.place, **params)
-    if st.skipped:
-        err_console.print(
-            f"{path}: skipped {st.skipped} bad scan message(s); first: {st.first_errors[0]}",
-            soft_wrap=True,
-            markup=False,
-        )
-    dropped = [
-        f"{st.unpaired} time step(s) without a scan on every topic" if st.unpaired else "",
-        f"{st.unmounted} scan(s) whose lidar mount was missing in /tf at their stamp" if st.unmounted else "",
-    ]
-    if any(dropped):
-        err_console.print(f"{path}: dropped {' and '.join(d for d in dropped if d)}", soft_wrap=True, markup=False)
+__all__ = ["LASER_KINDS", "carmen_cmd", "detect_kind", "format_scan_line", "print_benchmark"]
 
 
 def format_scan_line(name: str, obs: Observation) -> str:
@@ -169,9 +85,6 @@ def carmen_cmd(
     ),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines and report how many."),
     list_methods: bool = typer.Option(False, "--list-methods", help="List the registered methods and exit."),
-    report: Path | None = typer.Option(
-        None, "--report", help="Write a report folder here: per log a map and a localize report of --plot-method."
-    ),
 ) -> None:
     """Place recognition on CARMEN logs with the fixed protocol of issue 7.
 
@@ -179,17 +92,15 @@ def carmen_cmd(
     every 2 m (strictly) of the mapping pass, training and query scans within
     1 m (inclusive) of a place centre.
     """
-    from ..experiments.carmen import DEFAULT_METHODS, METHODS, plot_benchmark, run_benchmark
+    from ..experiments.carmen import DEFAULT_METHODS, METHODS, load_methods, plot_benchmark, run_benchmark
 
+    load_methods()
     if list_methods:
         for name in METHODS:
             console.print(f"{name}{'' if name in DEFAULT_METHODS else '  (run only when named)'}")
         raise typer.Exit()
     if not logs:
         raise InvalidParameterError("bench carmen needs at least one LOG (e.g. ../shared/data/carmen/*.log.gz)")
-    from .reports import carmen_report, check_report
-
-    check_report(report)
     with err_console.status("benchmarking...") as status:
         run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
     js = run.to_json()
@@ -204,5 +115,3 @@ def carmen_cmd(
             chosen = next((m for m in run.method_names if m.startswith("fingerprint")), None)
         plot_benchmark(run, plot, method=chosen)
         err_console.print(f"wrote {plot}", soft_wrap=True, markup=False)
-    if report is not None:
-        carmen_report(report, run, plot_method or next((m for m in run.method_names if m.startswith("fingerprint")), None))

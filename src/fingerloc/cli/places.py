@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -15,124 +14,146 @@ from rich.table import Table
 
 from ..errors import InvalidParameterError
 from ..io.jsonl import read_observations
-from ..model import TERMS, PlaceModel
 from .app import app, console, err_console
 from .bench import write_json
-
-
-def _parse_terms(text: str) -> tuple[str, ...]:
-    terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
-    for t in terms:
-        if t not in TERMS:
-            raise InvalidParameterError(f"--terms: unknown term {t!r} (expected some of {', '.join(TERMS)})")
-    return terms
-
-
-def _costs(name: str) -> Any:
-    if name == "unit":
-        return None
-    if name == "feature":
-        from ..align import CostModel
-
-        return CostModel.feature_aware()
-    raise InvalidParameterError(f"--costs must be 'unit' or 'feature', got {name!r}")
-
-
-def _parse_weights(text: str) -> str | dict[str, float]:
-    """``fit`` or ``TERM=W,...`` -> the ``weights`` argument of PlaceModel."""
-    if text.strip() == "fit":
-        return "fit"
-    out: dict[str, float] = {}
-    for part in text.split(","):
-        name, sep, value = part.partition("=")
-        try:
-            w = float(value)
-        except ValueError:
-            w = float("nan")
-        if not sep or not name.strip() or not (math.isfinite(w) and w >= 0):
-            raise InvalidParameterError(f"--weights: expected 'fit' or TERM=W,... with W >= 0, got {part!r}")
-        out[name.strip()] = w
-    return out
+from .options import (
+    BASE_FRAME_HELP,
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    TOPIC_HELP,
+    bag_options,
+    check_output,
+    model_overrides,
+    read_run_files,
+    stored_options,
+)
 
 
 @app.command("learn")
 def learn_cmd(
     data: Path = typer.Argument(..., help="Labelled observations, JSON Lines ('place' on every line)."),
     db: Path = typer.Option(..., "--db", help="Place database (SQLite); created, or extended if it exists."),
+    preset: str | None = typer.Option(
+        None,
+        "--preset",
+        help="paper | laser2d | panorama | multimodal | auto [auto for a new database: picked from the data; "
+        "the database's own when it exists]. Explicit options below override it.",
+    ),
     components: int | None = typer.Option(None, "-k", "--components", help="Mixture components per place and feature type [5]."),
     terms: str | None = typer.Option(
-        None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [VE,CP,Ex,B,Fp]."
+        None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [the preset's]."
     ),
     laser_letters: bool | None = typer.Option(
         None, "--laser-letters/--no-laser-letters", help="Write wall segments and line ends into the fingerprint."
     ),
-    fp_likelihood: str | None = typer.Option(None, help="'paper' (1/(cost+1)) or 'exp' (exp(-lambda cost)) [paper]."),
+    fp_likelihood: str | None = typer.Option(None, help="'paper' (1/(cost+1)) or 'exp' (exp(-lambda cost)) [the preset's]."),
     fp_reference: str | None = typer.Option(None, help="'all', 'medoid' or 'consensus' [all]."),
     cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Align over all rotations (unknown heading)."),
-    costs: str | None = typer.Option(None, help="Alignment costs: 'unit' (Levenshtein) or 'feature' [unit]."),
+    costs: str | None = typer.Option(None, help="Alignment costs: 'unit' (Levenshtein) or 'feature' [the preset's]."),
     unknown_prior: float | None = typer.Option(None, help="Prior probability of an unknown place [0]."),
     weights: str | None = typer.Option(
         None,
         help="Per-term weights: 'fit' (learned from held-out training views) or TERM=W,... e.g. VE=0.5,Fp=2 [all 1].",
     ),
     seed: int | None = typer.Option(None, help="Seed of the mixtures' initialisation [0]."),
+    calibrate: bool = typer.Option(
+        True,
+        "--calibrate/--no-calibration",
+        help="New database: fit the filters' likelihood scale beta on held-out views (file order = visiting order).",
+    ),
 ) -> None:
     """Learn places from labelled observations into a place database.
 
-    When the database exists, new places are added and places named again
-    are extended; the other places are not refit. The order of the
-    observations in the file adds transitions to the stored place graph
-    (used by ``fingerloc track``). Options then default to the
-    database's own, and an option that differs from them is an error.
+    A new database is learned with --preset (default auto: laser features
+    only -> laser2d, image features only -> panorama, both -> multimodal);
+    the preset and every resolved option are stored and shown by 'fingerloc
+    places'. When the database exists, new places are added and places named
+    again are extended; the other places are not refit; observations already
+    stored (same content hash) are skipped. The order of the observations in
+    the file adds transitions to the stored place graph (used by
+    'fingerloc track'). Options then default to the database's own, and an
+    option that differs from them is an error.
     """
-    from ..map.database import load_model, read_graph_edges, save_model
+    from ..map.database import MapInfo, observation_hash, read_graph_edges, read_map_info, save_model
     from ..map.graph import PlaceGraph
+    from ..pipeline.mapping import load_map
+    from ..pipeline.presets import PRESET_NAMES, empty_terms, resolve_preset
+    from ..pipeline.tracker import calibrate_labelled
 
-    given: dict[str, Any] = {
-        "n_components": components,
-        "terms": None if terms is None else _parse_terms(terms),
-        "fp_likelihood": fp_likelihood,
-        "fp_reference": fp_reference,
-        "cyclic": cyclic,
-        "laser_letters": laser_letters,
-        "costs": None if costs is None else _costs(costs),
-        "unknown_prior": unknown_prior,
-        "weights": None if weights is None else _parse_weights(weights),
-        "random_state": seed,
-    }
-    given = {k: v for k, v in given.items() if v is not None}
+    if preset is not None and preset not in PRESET_NAMES:
+        raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
+    given = model_overrides(components=components, terms=terms, laser_letters=laser_letters,
+                            fp_likelihood=fp_likelihood, fp_reference=fp_reference, cyclic=cyclic, costs=costs,
+                            unknown_prior=unknown_prior, weights=weights, seed=seed)  # fmt: skip
+    check_output(db, "--db")
     obs = read_observations(data)
     missing = [i + 1 for i, o in enumerate(obs) if not o.label]
     if missing:
         raise InvalidParameterError(f"{data}: observation {missing[0]} has no 'place' label; learn needs labels")
     t0 = time.perf_counter()
     edges: dict[tuple[str, str], int] = {}
+    hashes = [observation_hash(o) for o in obs]
     if db.exists():
-        model = load_model(db)
+        lm = load_map(db)
+        model = lm.model
         edges = read_graph_edges(db)
-        stored = model.get_params()
+        stored = stored_options(model)
+        stored_preset = lm.preset
+        if preset is not None and stored_preset is not None and preset not in ("auto", stored_preset.name):
+            raise InvalidParameterError(f"{db} was learned with preset {stored_preset.name!r}; got --preset {preset} (use a new --db)")
+        if preset is not None and stored_preset is None and preset != "auto":
+            resolved = resolve_preset(preset, obs)
+            for k, v in resolved.options.items():
+                if k in stored and k not in given and stored[k] != v:
+                    raise InvalidParameterError(f"{db} was learned with {k}={stored[k]!r}, not preset {preset} (use a new --db)")
         for k, v in given.items():
             sv = stored[k]
-            if k == "costs":
-                same = (sv is None and v is None) or (
-                    sv is not None and v is not None and np.array_equal(sv.substitution, v.substitution)
-                    and np.array_equal(sv.indel, v.indel)
-                )
-            else:
-                same = (tuple(sv) == tuple(v)) if k == "terms" else (sv == v)
-            if not same:
+            if sv != v:
                 raise InvalidParameterError(f"{db} was learned with {k}={sv!r}; got {v!r} (use a new --db)")
+        known = set(lm.content_hashes)
+        fresh = []
+        for i, h in enumerate(hashes):
+            if h not in known:
+                fresh.append(i)
+                known.add(h)
+        dup = len(obs) - len(fresh)
+        new_obs = [obs[i] for i in fresh]
         before = set(model.places_)
-        model.add_places(obs)
-        verb = f"added {len(set(model.places_) - before)} place(s), extended {len(before & {o.label for o in obs})}"
+        if new_obs:
+            model.add_places(new_obs)
+        verb = (
+            f"added {len(set(model.places_) - before)} place(s), "
+            f"extended {len(before & {o.label for o in new_obs})}"
+        )
+        if dup:
+            verb += f", skipped {dup} observation(s) already stored"
+        old = read_map_info(db)
+        info = MapInfo(
+            preset=old.preset,
+            positions=old.positions,
+            calibration=old.calibration,
+            content_hashes=set(lm.content_hashes) | {hashes[i] for i in fresh},
+            runs=old.runs,
+        )
     else:
-        model = PlaceModel(**given).fit(obs)
-        verb = f"learned {len(model.places_)} place(s)"
+        resolved = resolve_preset("auto" if preset is None else preset, obs, given)
+        err_console.print(resolved.reason, markup=False)
+        empty = empty_terms(resolved.options, obs)
+        if empty:
+            err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
+                              "places apart (see --preset / --terms)", markup=False)  # fmt: skip
+        model = resolved.model().fit(obs)
+        verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
+        cal = None
+        if calibrate and len(model.places_) > 1:
+            cal = calibrate_labelled(resolved.options, obs).to_json()
+            verb += f" (likelihood scale beta {cal['beta']:.3g} from {cal['calibration_rows']} held-out views)"
+        info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes), calibration=cal)
     # The place graph: transitions between consecutive observations of the file, added to the stored ones.
     graph = PlaceGraph([str(c) for c in model.classes_], edges)
     for a, b in itertools.pairwise(obs):
         graph.add_transition(str(a.label), str(b.label))
-    size = save_model(model, db, graph_edges=graph.edges())
+    size = save_model(model, db, graph_edges=graph.edges(), info=info)
     err_console.print(
         f"{verb} from {len(obs)} observation(s) in {time.perf_counter() - t0:.2f} s; "
         f"{db}: {len(model.places_)} place(s), {size} bytes"
@@ -141,24 +162,40 @@ def learn_cmd(
 
 @app.command("localize")
 def localize_cmd(
-    data: Path = typer.Argument(..., help="Observations to localize, JSON Lines."),
-    db: Path = typer.Option(..., "--db", help="Place database written by 'fingerloc learn'."),
+    data: Path = typer.Argument(..., help="Observations to localize: JSON Lines, a CARMEN log or a ROS bag."),
+    db: Path = typer.Option(..., "--db", help="Place database written by 'fingerloc learn' or 'fingerloc map'."),
     top: int = typer.Option(3, help="Places to print per observation."),
     json_out: Path | None = typer.Option(None, "--json", help="Write per-observation posteriors as JSON here."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary (no per-observation table)."),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
     ),
+    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
+    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
+    base_frame: str | None = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
 ) -> None:
-    """Answer "where am I?" for each observation: the posterior over the learned places."""
-    from ..map.database import load_model
+    """Answer "where am I?" for each observation: the posterior over the learned places.
+
+    A CARMEN log or a bag is read with the database's preset. When its scans
+    have poses and the database has place positions ('fingerloc map'),
+    every scan within the map's radius of a place is a query labelled with
+    its nearest place (on the very run the map was made from: only the scans
+    after its mapping part), so the summary gives top-1 and mean rank.
+    """
+    from ..pipeline.mapping import load_map
     from .reports import check_report, localize_report
 
     if top < 1:
         raise InvalidParameterError(f"--top must be >= 1, got {top}")
+    check_output(json_out, "--json")
     check_report(report)
-    model = load_model(db)
-    obs = read_observations(data)
+    bag = bag_options(topic, pose_source, base_frame)
+    lm = load_map(db)
+    model = lm.model
+    run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
+    obs, names = queries_of_run(run, lm)
     classes = [str(c) for c in model.classes_]
     terms = model.term_log_likelihoods(obs)
     logp = model.predict_log_proba(obs)
@@ -179,6 +216,7 @@ def localize_cmd(
         h = None if np.isnan(headings[i]) else float(headings[i])
         rec: dict[str, Any] = {
             "index": i,
+            "name": names[i],
             "place": o.label,
             "best": best,
             "posterior": {c: float(post[i, j]) for j, c in enumerate(classes)},
@@ -207,9 +245,46 @@ def localize_cmd(
         )
         if not quiet:
             _print_confusion(records, classes)
-    write_json(json_out, {"observations": records, "summary": summary})
+    preset = None if lm.preset is None else lm.preset.name
+    write_json(json_out, {"observations": records, "summary": summary, "preset": preset})
     if report is not None:
         localize_report(report, model=model, observations=obs, log_proba=logp, ranks=ranks, data=data, db=db)
+
+
+def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
+    """The observations ``localize`` answers for a run, with their names.
+
+    JSON Lines: every observation as it is. A laser log: its scans through
+    the database's preset; with poses and stored place positions, only the
+    scans within the stored radius of a place, labelled with the nearest
+    (on the run the map was made from, only those after its mapping part).
+    """
+    from ..pipeline.places import nearest_within
+
+    if run.records is not None:
+        return list(run.records), list(run.names)
+    features = {} if lm.preset is None else lm.preset.features
+    poses = run.poses
+    if poses is None or lm.positions is None or lm.calibration is None:
+        why = "its scans have no poses" if poses is None else "the database has no place positions"
+        err_console.print(f"{run.paths[0]}: {why}: every scan is a query, unlabelled", markup=False)
+        return run.observations(features=features), list(run.names)
+    start = 0
+    mapped = lm.mapped_run(run.key)
+    if mapped is not None:
+        start = int(mapped["n_mapping"])
+        err_console.print(
+            f"{run.paths[0]} is the run the map was made from: querying its scans after the mapping part "
+            f"(from scan {start} of {len(run)})",
+            markup=False,
+        )
+    idx, near = nearest_within(poses[start:, :2], lm.positions, lm.calibration.radius)
+    idx = idx + start
+    obs = [o.with_label(lm.labels[j]) for o, j in zip(run.observations(idx, features=features), near.tolist(), strict=True)]
+    err_console.print(
+        f"{idx.size} scan(s) within {lm.calibration.radius:g} m of a place are the queries", markup=False
+    )
+    return obs, [run.names[i] for i in idx.tolist()]
 
 
 def _print_confusion(records: list[dict[str, Any]], classes: list[str]) -> None:
@@ -260,7 +335,7 @@ def places_cmd(
             }
         )
     if as_json:
-        console.print_json(json.dumps({"params": _jsonable(model.get_params()), "places": rows}))
+        console.print_json(json.dumps({"params": _jsonable(model.get_params()), "places": rows, **_map_info(db)}))
         return
     t = Table(title=f"{db}: {len(rows)} place(s)")
     for c in ("place", "observations", "medoid fingerprint", "components per term"):
@@ -269,6 +344,55 @@ def places_cmd(
         comps = " ".join(f"{k}:{v}" for k, v in r["mixtures"].items())
         t.add_row(r["place"], str(r["observations"]), r["fingerprint"], comps)
     console.print(t)
+    _print_map_info(db, model)
+
+
+def _map_info(db: Path) -> dict[str, Any]:
+    """``preset``, ``calibration``, ``positions`` (label -> [x, y] metres) and ``runs`` of a database (None / empty when absent)."""
+    from ..pipeline.mapping import load_map
+
+    lm = load_map(db)
+    pos = {} if lm.positions is None else {lab: lm.positions[j].tolist() for j, lab in enumerate(lm.labels)}
+    return {
+        "preset": None if lm.preset is None else lm.preset.to_json(),
+        "calibration": None if lm.calibration is None else lm.calibration.to_json(),
+        "positions": pos,
+        "runs": lm.runs,
+    }
+
+
+def _print_map_info(db: Path, model: Any) -> None:
+    """The plain-text part of ``places`` after the table: preset, every option, calibration, positions, mapped runs."""
+    info = _map_info(db)
+    preset = info["preset"]
+    if preset is None:
+        console.print("preset: none stored (a database of an older fingerloc)", markup=False)
+    else:
+        console.print(f"preset: {preset['name']} ({preset['reason']})", markup=False, soft_wrap=True)
+    opts = _jsonable(model.get_params())
+    if preset is not None:
+        opts["costs"] = preset["options"].get("costs", opts["costs"])
+    console.print("options: " + ", ".join(f"{k}={_short(v)}" for k, v in opts.items()), markup=False, soft_wrap=True)
+    if info["calibration"] is not None:
+        cal = info["calibration"]
+        console.print("calibration: " + ", ".join(f"{k}={_short(v)}" for k, v in cal.items()), markup=False,
+                      soft_wrap=True)  # fmt: skip
+    if info["positions"]:
+        console.print("positions (m): " + ", ".join(f"{k} ({x:.2f}, {y:.2f})" for k, (x, y) in info["positions"].items()),
+                      markup=False, soft_wrap=True)  # fmt: skip
+    for r in info["runs"]:
+        console.print(f"mapped from: {r['name']} (first {r['n_mapping']} of {r['n_scans']} scans)", markup=False,
+                      soft_wrap=True)  # fmt: skip
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, (list, tuple)):
+        return ",".join(str(x) for x in v)
+    if isinstance(v, dict) and len(json.dumps(v)) > 60:
+        return "{...}"
+    return str(v)
 
 
 def _jsonable(params: dict[str, Any]) -> dict[str, Any]:

@@ -12,10 +12,20 @@ import typer
 from ..errors import InvalidParameterError
 from .app import app, bench_app, console, err_console
 from .bench import write_json
+from .options import (
+    BASE_FRAME_HELP,
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    TOPIC_HELP,
+    bag_options,
+    check_db_target,
+    check_output,
+    read_run_files,
+)
 
 
 def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
-    from ..experiments.carmen import rank_metrics, true_place_ranks
+    from ..experiments.protocol import rank_metrics, true_place_ranks
 
     known = truth >= 0
     if not np.any(known):
@@ -26,26 +36,28 @@ def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[
 
 @app.command("track")
 def track_cmd(
-    data: Path = typer.Argument(..., help="Observations in order: JSON Lines, or a CARMEN log (its query pass)."),
-    db: Path = typer.Option(..., "--db", help="Place database (with the place graph); for a CARMEN log see --map."),
+    data: Path = typer.Argument(..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag."),
+    db: Path = typer.Option(..., "--db", help="Place database ('fingerloc map', or 'learn' with the place graph)."),
     json_out: Path | None = typer.Option(None, "--json", help="Write every step's posterior summary as JSON here."),
     map_log: bool = typer.Option(
         False,
         "--map",
-        help="CARMEN log: learn the places and the graph from its mapping pass (benchmark protocol) into --db first.",
+        help="CARMEN log or bag: first make the map from its mapping part into --db ('fingerloc map' with its "
+        "defaults), then track the rest.",
     ),
+    overwrite: bool = typer.Option(False, "--overwrite", help="With --map: replace --db if it exists."),
     observe: str = typer.Option(
         "queries",
-        help="CARMEN log: 'queries' (scans within a place's radius observe, the others only predict, as in "
-        "'bench carmen') or 'all'.",
+        help="Log or bag with poses: 'queries' (scans within a place's radius observe, the others only predict, as "
+        "in 'bench carmen') or 'all'.",
     ),
     scale: float | None = typer.Option(
-        None, help="Likelihood scale beta [JSON Lines: 1; CARMEN with --map: fit on the mapping pass]."
+        None, help="Likelihood scale beta [the database's calibration; JSON Lines without one: 1]."
     ),
     metres_per_move: float | None = typer.Option(
         None,
         "--metres-per-move",
-        help="Odometry: mean metres per place change [CARMEN: from the mapping pass; JSON Lines: from --graph-from poses, else off].",
+        help="Odometry: mean metres per place change [the database's calibration; JSON Lines: from --graph-from poses, else off].",
     ),
     uniform_mix: float | None = typer.Option(None, help="Uniform mixing per step [1 / (counted steps + 2)]."),
     alpha: float = typer.Option(1.0, help="Additive smoothing of the transition counts."),
@@ -59,22 +71,28 @@ def track_cmd(
         "places",
         "--filter",
         help="'places': discrete filter over the places; 'pose': particle filter over the robot's pose with the "
-        "odometry increments (needs poses: a CARMEN log, or JSON Lines with --graph-from, both with poses).",
+        "odometry increments (needs poses, and place positions: a database made by 'fingerloc map', or "
+        "JSON Lines with --graph-from, both with poses).",
     ),
-    odometry_error: float = typer.Option(
-        0.0,
+    odometry_error: float | None = typer.Option(
+        None,
         "--odometry-error",
         help="Pose filter: simulate wheel-odometry errors on the poses' increments, times this factor (0 = the "
-        "poses' own increments).",
+        "poses' own increments) [CARMEN logs: 1, their poses are corrected ones, as in 'bench carmen'; else 0].",
     ),
     radius: float | None = typer.Option(
-        None, help="Pose filter, JSON Lines: metres within which a pose is at a place [half the median spacing]."
+        None, help="Pose filter, JSON Lines with --graph-from: metres within which a pose is at a place [half the median spacing]."
     ),
     seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
     ),
+    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
+    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
+    base_frame: str | None = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
@@ -83,7 +101,9 @@ def track_cmd(
     rank of the true place. ``--filter places`` (default) is the discrete
     Bayes filter on the place graph; ``--filter pose`` the particle filter of
     ``fingerloc.map.pose_filter``, which follows the odometry's direction and
-    turn, not only the distance.
+    turn, not only the distance. With a database made by 'fingerloc map',
+    both use its calibration (likelihood scale, metres per place change,
+    tempering, kidnapping probability).
     """
     from ..map.filter import TransitionModel, run_filter
     from .reports import check_report, track_report
@@ -93,45 +113,61 @@ def track_cmd(
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
     if filter_kind not in ("places", "pose"):
         raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
-    if not (math.isfinite(odometry_error) and odometry_error >= 0):
+    if odometry_error is not None and not (math.isfinite(odometry_error) and odometry_error >= 0):
         raise InvalidParameterError(f"--odometry-error must be a finite factor >= 0, got {odometry_error!r}")
     if radius is not None and not (math.isfinite(radius) and radius > 0):
         raise InvalidParameterError(f"--radius must be a positive number of metres, got {radius!r}")
     if scale is not None and not (math.isfinite(scale) and scale > 0):
         raise InvalidParameterError(f"--scale must be a positive number, got {scale!r}")
-    from .logs import detect_kind
+    if metres_per_move is not None and not (math.isfinite(metres_per_move) and metres_per_move > 0):
+        raise InvalidParameterError(f"--metres-per-move must be a positive number of metres, got {metres_per_move!r}")
+    if not (math.isfinite(alpha) and alpha >= 0):
+        raise InvalidParameterError(f"--alpha must be a finite number >= 0, got {alpha!r}")
+    if uniform_mix is not None and not (0 <= uniform_mix < 1):
+        raise InvalidParameterError(f"--uniform-mix must be in [0, 1), got {uniform_mix!r}")
+    check_output(json_out, "--json")
+    bag = bag_options(topic, pose_source, base_frame)
+    from ..pipeline.readers import detect_kind
 
-    kind = detect_kind(data)
-    if kind == "bag":
-        raise InvalidParameterError(f"{data}: track reads JSON Lines or CARMEN logs, not ROS bags")
-    names: list[str]
-    if kind == "carmen":
+    raw_kind = (detect_kind(data) if kind == "auto" else kind) or "jsonl"
+    if map_log:
+        if raw_kind == "jsonl":
+            raise InvalidParameterError("--map needs a CARMEN log or a bag (map JSON Lines with 'fingerloc map')")
         if graph_from is not None:
-            raise InvalidParameterError("--graph-from is for JSON Lines; a CARMEN log's graph comes from --map")
-        ll, truth, dist, graph, classes, beta, metres, names, geo = _carmen_steps(
-            data, db, map_log=map_log, observe=observe, scale=scale
-        )
-        if metres_per_move is not None:
-            metres = metres_per_move
+            raise InvalidParameterError("--graph-from is for JSON Lines; with --map the graph comes from the run")
+        check_db_target(db, overwrite)
+    elif overwrite:
+        raise InvalidParameterError("--overwrite goes with --map")
+    names: list[str]
+    if raw_kind != "jsonl" or (graph_from is None and _has_map(db)):
+        ll, truth, poses, classes, tracker, names, factor = _run_steps(
+            data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe,
+            scale=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix,
+            odometry_error=odometry_error, filter_kind=filter_kind,
+        )  # fmt: skip
+        res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed)
+        beta = tracker.calibration.beta
+        metres = tracker.calibration.metres_per_move
+        transition = tracker.transition_
+        odometry_error = factor
     else:
-        if map_log:
-            raise InvalidParameterError("--map needs a CARMEN log (learn JSON Lines places with 'fingerloc learn')")
         ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
             data, db, scale=scale, graph_from=graph_from
         )
         if metres_per_move is not None:
             metres = metres_per_move
-    if graph.graph.number_of_edges() == 0:
-        err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
-        transition = TransitionModel.uniform(len(classes))
-    else:
-        transition = TransitionModel.from_graph(
-            graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres
-        )
-    if filter_kind == "pose":
-        res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
-    else:
-        res = run_filter(beta * ll, transition, distances=dist)
+        if graph.graph.number_of_edges() == 0:
+            err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
+            transition = TransitionModel.uniform(len(classes))
+        else:
+            transition = TransitionModel.from_graph(
+                graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres
+            )
+        odometry_error = 0.0 if odometry_error is None else odometry_error
+        if filter_kind == "pose":
+            res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
+        else:
+            res = run_filter(beta * ll, transition, distances=dist)
     single = np.where(np.isnan(ll), 0.0, ll)
     steps: list[dict[str, Any]] = []
     for t in range(ll.shape[0]):
@@ -219,11 +255,11 @@ def _pose_filter_run(
 
 
 def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
-    from ..experiments.markov import step_distances
     from ..io.jsonl import read_observations
-    from ..map.database import load_model, save_model
+    from ..map.database import load_model, read_map_info, save_model
     from ..map.filter import metres_per_move
     from ..map.graph import PlaceGraph, load_graph
+    from ..pipeline.tracker import step_distances
 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
@@ -238,7 +274,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                 f"{graph_from}:{bad + 1}: place {seq[bad]!r} is not in {db} (every line needs a learned 'place')"
             )
         g = PlaceGraph.from_sequence(classes, [str(lab) for lab in seq])
-        save_model(model, db, graph_edges=g.edges())
+        save_model(model, db, graph_edges=g.edges(), info=read_map_info(db))  # keep the preset, hashes...
         err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
         if len(train) > 1 and all(o.pose is not None for o in train):
             col = {c: j for j, c in enumerate(classes)}
@@ -255,7 +291,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
-    ll = np.asarray(model.joint_log_likelihood(obs), dtype=np.float64)
+    ll = np.asarray(model.predict_log_proba(obs), dtype=np.float64)  # what beta is calibrated on
     col = {c: j for j, c in enumerate(classes)}
     truth = np.array([col.get(o.label, -1) if o.label else -1 for o in obs], dtype=np.int64)
     dist = None
@@ -265,68 +301,101 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     elif "centres" in geo:
         geo = {"why": f"{data}: the pose filter needs a pose on every observation"}
     names = [f"{data.name}:{i + 1}" for i in range(len(obs))]
-    return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names, geo
-
-
-def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
-    from ..experiments.carmen import PLACE_RADIUS_M, load_log_scans, make_method, make_split
-    from ..experiments.markov import FilteredMethod, field_of_view, mapping_graph, step_distances
-    from ..map.database import load_model, save_model
-    from ..map.graph import load_graph
-
-    scans, _ = load_log_scans(data)
-    pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
-    split = make_split(pos)
-    qscans = scans[split.n_mapping :]
-    base = make_method("fingerprint")
-    if map_log:
-        fm = FilteredMethod("fingerprint")
-        fm.set_context(scans, split)
-        with err_console.status(f"{data.name}: learning {split.n_places} places from the mapping pass..."):
-            fm.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
-        model = fm.base_.model_  # type: ignore[attr-defined]
-        size = save_model(model, db, graph_edges=fm.graph_.edges())
-        err_console.print(f"{db}: {len(model.classes_)} places and the place graph, {size} bytes", markup=False)
-        beta = fm.scale_ if scale is None else scale
-        base = fm.base_
-        metres = fm.transition_.metres_per_move
-    else:
-        model = load_model(db)
-        base.model_ = model  # type: ignore[attr-defined]
-        base.n_places_ = len(model.classes_)  # type: ignore[attr-defined]
-        beta = 1.0 if scale is None else scale
-        metres = mapping_graph(pos, split)[1]
-    classes = [str(c) for c in model.classes_]
-    graph = load_graph(db, classes)
-    observed = (
-        np.ones(len(qscans), dtype=bool)
-        if observe == "all"
-        else np.isin(np.arange(len(qscans)), split.query_idx - split.n_mapping)
-    )
-    idx = np.flatnonzero(observed)
-    ll = np.full((len(qscans), len(classes)), np.nan)
-    with err_console.status(f"{data.name}: scoring {idx.size} scans..."):
-        s = np.asarray(base.score([qscans[i] for i in idx.tolist()]), dtype=np.float64)
-    # the method's columns are places 0..P-1; the database's classes are their labels
-    order = [int(c) if c.isdigit() else -1 for c in classes]
-    if sorted(order) != list(range(len(classes))) or s.shape[1] != len(classes):
-        raise InvalidParameterError(f"{db}: its places are not the log's places (learn them with --map)")
-    ll[idx] = s[:, order]
-    truth = np.full(len(qscans), -1, dtype=np.int64)
-    if len(classes) == split.n_places:
-        inv = {p: j for j, p in enumerate(order)}
-        truth[split.query_idx - split.n_mapping] = [inv[int(q)] for q in split.query_labels.tolist()]
-    dist = step_distances(pos[split.n_mapping :])
-    names = [f"{data.name}#{split.n_mapping + i}" for i in range(len(qscans))]
-    geo = {
-        "poses": np.array([s.pose for s in qscans], dtype=np.float64),
-        "centres": split.centres[order] if sorted(order) == list(range(split.n_places)) else None,
-        "why": f"{db}: its places are not the log's places (learn them with --map)",
-        "radius": PLACE_RADIUS_M,
-        "n_train": split.n_train,
-        "fov": field_of_view(scans[: split.n_mapping]),
-    }
+    beta = scale
+    if beta is None:
+        cal = read_map_info(db).calibration
+        beta = 1.0 if cal is None else float(cal.get("beta", 1.0))  # learn's calibration on its training views
     return ll, truth, dist, graph, classes, beta, metres, names, geo
+
+
+def _has_map(db: Path) -> bool:
+    """True when the database holds place positions and a calibration (made by 'fingerloc map')."""
+    from ..map.database import read_map_info
+
+    info = read_map_info(db)
+    return bool(info.positions) and info.calibration is not None
+
+
+def _run_steps(
+    data: Path,
+    db: Path,
+    *,
+    kind: str,
+    bag: dict[str, Any],
+    skip_bad: bool,
+    map_log: bool,
+    observe: str,
+    scale: float | None,
+    metres_per_move: float | None,
+    alpha: float,
+    uniform_mix: float | None,
+    odometry_error: float | None,
+    filter_kind: str,
+) -> tuple[Any, ...]:
+    """A run tracked with a map's stored places, positions and calibration (the library's tracker)."""
+    import dataclasses
+
+    from ..pipeline.mapping import load_map, make_map, save_map
+    from ..pipeline.places import nearest_within
+    from ..pipeline.tracker import Tracker, posterior_columns
+
+    run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
+    if map_log:
+        with err_console.status("mapping...") as status:
+            pm = make_map(run, on_step=lambda s: status.update(s))
+        err_console.print(pm.preset.reason, markup=False)
+        size = save_map(pm, db)
+        err_console.print(f"{db}: {pm.split.n_places} places, the place graph and the calibration, {size} bytes",
+                          markup=False)  # fmt: skip
+    lm = load_map(db)
+    if lm.positions is None or lm.calibration is None:
+        raise InvalidParameterError(
+            f"{db}: no place positions or calibration stored; make the database with 'fingerloc map' (or track "
+            "JSON Lines with --graph-from)"
+        )
+    poses = run.poses
+    features = {} if lm.preset is None else lm.preset.features
+    p = len(lm.labels)
+    if run.records is not None and (poses is None or all(o.label for o in run.records)):
+        # JSON Lines: every observation observes; the truth is its label
+        col = {lab: j for j, lab in enumerate(lm.labels)}
+        truth = np.array([col.get(str(o.label), -1) if o.label else -1 for o in run.records], dtype=np.int64)
+        ll = posterior_columns(lm.model, list(run.records), p, lm.labels)
+        start = 0
+    else:
+        if poses is None:
+            raise InvalidParameterError(f"{data}: tracking a raw run needs a pose on every scan")
+        start = 0
+        mapped = lm.mapped_run(run.key)
+        if mapped is not None:
+            start = int(mapped["n_mapping"])
+            err_console.print(f"{data} is the run the map was made from: tracking its scans after the mapping "
+                              f"part (from scan {start} of {len(run)})", markup=False)  # fmt: skip
+        poses = poses[start:]
+        near_idx, near = nearest_within(poses[:, :2], lm.positions, lm.calibration.radius)
+        n = poses.shape[0]
+        truth = np.full(n, -1, dtype=np.int64)
+        truth[near_idx] = near
+        observed = near_idx if observe == "queries" else np.arange(n)
+        ll = np.full((n, p), np.nan)
+        with err_console.status(f"scoring {observed.size} scans..."):
+            obs = run.observations(observed + start, features=features)
+            ll[observed] = posterior_columns(lm.model, obs, p, lm.labels)
+    cal = lm.calibration
+    if scale is not None:
+        cal = dataclasses.replace(cal, beta=scale)
+    if metres_per_move is not None:
+        cal = dataclasses.replace(cal, metres_per_move=metres_per_move)
+    cal = dataclasses.replace(cal, alpha=alpha)
+    tracker = Tracker(lm.positions, lm.graph, cal, uniform_mix=uniform_mix)
+    factor = odometry_error
+    if factor is None:
+        factor = 1.0 if run.kind == "carmen" and filter_kind == "pose" else 0.0
+        if factor:
+            err_console.print("CARMEN poses are corrected ones: simulating wheel-odometry errors (--odometry-error 1)",
+                              markup=False)  # fmt: skip
+    names = run.names[start:]
+    return ll, truth, poses, list(lm.labels), tracker, names, factor
 
 
 @bench_app.command("kidnap")

@@ -30,18 +30,34 @@ Positions are the robot's (corrected) pose ``(x, y)`` in each ``FLASER`` line.
 from __future__ import annotations
 
 import math
-import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
+from ..errors import EmptyInputError, InvalidParameterError
+from ..pipeline.presets import model_options
 from ..sensors import Scan
+from .protocol import (
+    DEFAULT_METHODS,
+    METHODS,
+    PLACE_RADIUS_M,
+    PLACE_SPACING_M,
+    Method,
+    Split,
+    load_log_scans,
+    load_methods,
+    log_name,
+    make_method,
+    make_split,
+    rank_metrics,
+    register_method,
+    true_place_ranks,
+)
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -56,6 +72,7 @@ __all__ = [
     "ScanContextBaseline",
     "Split",
     "load_log_scans",
+    "load_methods",
     "log_name",
     "make_method",
     "make_split",
@@ -67,224 +84,8 @@ __all__ = [
     "true_place_ranks",
 ]
 
-#: D: a mapping scan strictly farther than this from every centre makes a new place, metres.
-PLACE_SPACING_M = 2.0
-#: R: scans within this distance (inclusive) of a centre train / query it, metres.
-PLACE_RADIUS_M = 1.0
-
 FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
-
-
-# ---------------------------------------------------------------------------------------------------
-# Protocol
-# ---------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Split:
-    """Places, training scans and queries of one log (indices into the log's scan list).
-
-    Attributes
-    ----------
-    centres : ndarray, shape (n_places, 2)
-        Place centres, metres, in creation order (place ``j`` is row ``j``).
-    centre_scans : ndarray of int, shape (n_places,)
-        Index of the scan that created each place.
-    train_idx, train_labels : ndarray of int, shape (n_train,)
-        Training scans (mapping pass, in order) and their place.
-    query_idx, query_labels : ndarray of int, shape (n_queries,)
-        Query scans (query pass, in order) and their true place.
-    n_scans, n_mapping : int
-        Scans in the log, and in its mapping pass (``n_scans // 2``).
-    """
-
-    centres: FArray
-    centre_scans: IArray
-    train_idx: IArray
-    train_labels: IArray
-    query_idx: IArray
-    query_labels: IArray
-    n_scans: int
-    n_mapping: int
-
-    @property
-    def n_places(self) -> int:
-        """Number of places."""
-        return int(self.centres.shape[0])
-
-    @property
-    def n_train(self) -> int:
-        """Number of training scans."""
-        return int(self.train_idx.size)
-
-    @property
-    def n_queries(self) -> int:
-        """Number of queries."""
-        return int(self.query_idx.size)
-
-
-def make_split(
-    positions: Any,
-    *,
-    place_spacing: float = PLACE_SPACING_M,
-    radius: float = PLACE_RADIUS_M,
-) -> Split:
-    """Apply the benchmark's protocol to a trajectory (module docstring, steps 1-3).
-
-    Parameters
-    ----------
-    positions : array_like, shape (n, 2)
-        Robot positions of the scans in file order, metres.
-    place_spacing : float, default 2.0
-        ``D``, metres (a new place needs a distance strictly greater).
-    radius : float, default 1.0
-        ``R``, metres (inclusive).
-
-    Returns
-    -------
-    Split
-    """
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 2 or pos.shape[1] != 2:
-        raise InvalidParameterError(f"positions must have shape (n, 2), got {pos.shape}")
-    if not np.all(np.isfinite(pos)):
-        raise InvalidParameterError("positions must be finite")
-    if not (place_spacing > 0 and math.isfinite(place_spacing)):
-        raise InvalidParameterError(f"place_spacing must be a positive number of metres, got {place_spacing!r}")
-    if not (radius > 0 and math.isfinite(radius)):
-        raise InvalidParameterError(f"radius must be a positive number of metres, got {radius!r}")
-    n = pos.shape[0]
-    n_map = n // 2
-    centres: list[FArray] = []
-    creators: list[int] = []
-    for i in range(n_map):
-        p = pos[i]
-        if not centres or float(np.min(np.hypot(*(np.asarray(centres) - p).T))) > place_spacing:
-            centres.append(p)
-            creators.append(i)
-    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
-
-    def assign(idx: IArray) -> tuple[IArray, IArray]:
-        if c.shape[0] == 0 or idx.size == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        d = np.hypot(pos[idx, None, 0] - c[None, :, 0], pos[idx, None, 1] - c[None, :, 1])
-        near = np.argmin(d, axis=1)  # first (lowest index) of equal distances
-        ok = d[np.arange(idx.size), near] <= radius
-        return idx[ok].astype(np.int64), near[ok].astype(np.int64)
-
-    tr_idx, tr_lab = assign(np.arange(n_map, dtype=np.int64))
-    q_idx, q_lab = assign(np.arange(n_map, n, dtype=np.int64))
-    return Split(
-        centres=c,
-        centre_scans=np.asarray(creators, dtype=np.int64),
-        train_idx=tr_idx,
-        train_labels=tr_lab,
-        query_idx=q_idx,
-        query_labels=q_lab,
-        n_scans=n,
-        n_mapping=n_map,
-    )
-
-
-# ---------------------------------------------------------------------------------------------------
-# Metrics
-# ---------------------------------------------------------------------------------------------------
-
-
-def true_place_ranks(scores: Any, labels: Any) -> IArray:
-    """Rank (1 = best) of each query's true place; ties count against.
-
-    ``rank_i = #{j : scores[i, j] >= scores[i, labels[i]]}``: a place scoring
-    the same as the true one ranks before it. NaN scores count as ``-inf``.
-
-    Parameters
-    ----------
-    scores : array_like, shape (n_queries, n_places)
-        Higher is better.
-    labels : array_like of int, shape (n_queries,)
-
-    Returns
-    -------
-    ndarray of int, shape (n_queries,)
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    y = np.asarray(labels, dtype=np.int64).reshape(-1)
-    if s.ndim != 2 or s.shape[0] != y.size:
-        raise InvalidParameterError(f"scores must have shape (n_queries, n_places) = ({y.size}, ...), got {s.shape}")
-    if y.size and (y.min() < 0 or y.max() >= s.shape[1]):
-        raise InvalidParameterError(f"labels must be place indices in [0, {s.shape[1]}), got {y.min()}..{y.max()}")
-    s = np.where(np.isnan(s), -np.inf, s)
-    true = s[np.arange(y.size), y]
-    return (s >= true[:, None]).sum(axis=1).astype(np.int64)
-
-
-def rank_metrics(ranks: Any) -> dict[str, float]:
-    """``top1`` (fraction at rank 1), ``mean_rank`` and ``recall5`` (fraction at rank <= 5) of true-place ranks."""
-    r = np.asarray(ranks, dtype=np.float64).reshape(-1)
-    if r.size == 0:
-        return {"top1": float("nan"), "mean_rank": float("nan"), "recall5": float("nan")}
-    return {"top1": float(np.mean(r == 1)), "mean_rank": float(np.mean(r)), "recall5": float(np.mean(r <= 5))}
-
-
-# ---------------------------------------------------------------------------------------------------
-# Methods
-# ---------------------------------------------------------------------------------------------------
-
-
-@runtime_checkable
-class Method(Protocol):
-    """A place-recognition method under test.
-
-    ``fit`` learns places ``0 .. n_places - 1`` from training scans (every
-    place has at least one); ``score`` returns an ``(n_queries, n_places)``
-    array, higher = more likely that place (any monotone scale: log-posterior,
-    similarity, negative distance).
-    """
-
-    name: str
-
-    def fit(self, scans: Sequence[Scan], labels: IArray) -> object: ...
-
-    def score(self, scans: Sequence[Scan]) -> FArray: ...
-
-
-#: name -> factory making a fresh, unfitted method.
-METHODS: dict[str, Callable[[], Method]] = {}
-
-
-#: Names run when no method is asked for (registration order).
-DEFAULT_METHODS: list[str] = []
-
-
-def register_method(name: str, *, default: bool = True) -> Callable[[Callable[[], Method]], Callable[[], Method]]:
-    """Register a method factory under ``name`` (a decorator).
-
-    Names starting with ``fingerprint`` are fingerprint programs, names
-    starting with ``baseline-`` scan-descriptor baselines. ``default=False``
-    keeps a method out of the default run (it runs when named).
-    """
-    if not re.fullmatch(r"[a-z0-9][a-z0-9._-]*", name):
-        raise InvalidParameterError(f"method name must be lower-case letters, digits, '.', '_' or '-', got {name!r}")
-
-    def deco(factory: Callable[[], Method]) -> Callable[[], Method]:
-        METHODS[name] = factory
-        if default and name not in DEFAULT_METHODS:
-            DEFAULT_METHODS.append(name)
-        elif not default and name in DEFAULT_METHODS:
-            DEFAULT_METHODS.remove(name)
-        return factory
-
-    return deco
-
-
-def make_method(name: str) -> Method:
-    """A fresh method by registered name."""
-    if name not in METHODS:
-        raise InvalidParameterError(f"unknown method {name!r} (known: {', '.join(METHODS)})")
-    m = METHODS[name]()
-    m.name = name
-    return m
 
 
 def _max_per_place(sim: FArray, labels: IArray, n_places: int) -> FArray:
@@ -491,21 +292,18 @@ class FingerprintMethod:
     def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
         """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
         from ..model import PlaceModel
+        from ..pipeline.places import place_label
 
         y = _check_fit_input(scans, labels)
         self.n_places_ = int(y.max()) + 1
-        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [str(v) for v in y.tolist()])
+        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
         return self
 
     def score(self, scans: Sequence[Scan]) -> FArray:
         """Log-posterior of each place, shape (n_queries, n_places)."""
-        out = np.full((len(scans), self.n_places_), -np.inf)
-        if not scans:
-            return out
-        lp = np.asarray(self.model_.predict_log_proba(self._observations(scans)), dtype=np.float64)
-        cols = np.array([int(c) for c in self.model_.classes_], dtype=np.int64)
-        out[:, cols] = lp
-        return out
+        from ..pipeline.tracker import posterior_columns
+
+        return posterior_columns(self.model_, self._observations(scans) if scans else [], self.n_places_)
 
 
 @register_method("baseline-scancontext")
@@ -524,7 +322,10 @@ def _histogram() -> Method:
 
 
 def best_fingerprint_params() -> dict[str, Any]:
-    """The fingerprint program's configuration for 2D laser logs (the benchmark's ``fingerprint`` method).
+    """The fingerprint program's configuration for 2D laser logs: the library's ``laser2d`` preset.
+
+    Every :class:`~fingerloc.model.PlaceModel` argument of
+    :func:`fingerloc.pipeline.presets.model_options` ``("laser2d")``:
 
     * ``terms=("Fp", "R")``: the fingerprint string and the range term. The
       mixtures' terms (Ex, and VE/CP/B which a 2D laser without remissions
@@ -540,15 +341,7 @@ def best_fingerprint_params() -> dict[str, Any]:
       the training scans, so the string and the range term are weighed by how
       well each separates the training places.
     """
-    from ..align import CostModel
-
-    return {
-        "terms": ("Fp", "R"),
-        "laser_letters": True,
-        "costs": CostModel.feature_aware(),
-        "cyclic": True,
-        "fp_likelihood": "exp",
-    }
+    return model_options("laser2d")
 
 
 @register_method("fingerprint")
@@ -580,36 +373,6 @@ def _fingerprint_paper() -> Method:
 # ---------------------------------------------------------------------------------------------------
 # Runner
 # ---------------------------------------------------------------------------------------------------
-
-
-def log_name(path: str | Path) -> str:
-    """The benchmark's name of a log: the file name without ``-corrected.log.gz`` (or ``.log.gz``, ``.log``...)."""
-    name = Path(path).name
-    for suffix in ("-corrected.log.gz", "-corrected.log", ".log.gz", ".clf.gz", ".log", ".clf", ".gz"):
-        if name.endswith(suffix) and len(name) > len(suffix):
-            return name[: -len(suffix)]
-    return name
-
-
-def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Scan], int]:
-    """The front-laser scans of a CARMEN log in file order, and the number of skipped bad lines.
-
-    ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
-    must carry a pose.
-    """
-    from ..io.carmen import ReadStats, inspect_log, iter_scans
-
-    info = inspect_log(path)
-    msg = "FLASER" if info.counts.get("FLASER", 0) else "ROBOTLASER1"
-    if not info.counts.get(msg, 0):
-        raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
-    st = ReadStats()
-    scans = list(iter_scans(path, skip_bad=skip_bad, messages=(msg,), stats=st))
-    if not scans:
-        raise EmptyInputError("no front-laser scan could be read", path=path)
-    if any(s.pose is None for s in scans):
-        raise DataFormatError("a scan has no pose", path=path)
-    return scans, st.skipped
 
 
 @dataclass(slots=True)
@@ -761,6 +524,7 @@ def run_benchmark(
     """
     if not paths:
         raise InvalidParameterError("at least one log is needed")
+    load_methods()  # every module's registrations (the filtered methods of .markov)
     names = list(DEFAULT_METHODS) if not methods else list(dict.fromkeys(methods))
     for n in names:
         if n not in METHODS:
@@ -919,7 +683,3 @@ def _register_speed() -> None:
 
 
 _register_speed()
-
-
-# Methods defined in other modules register themselves on import.
-from . import markov as _markov  # noqa: E402, F401  isort: skip

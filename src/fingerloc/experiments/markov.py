@@ -54,10 +54,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
-from ..map.filter import FilterResult, MarkovFilter, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
-from ..map.graph import PlaceGraph, nearest_place_sequence
+from ..map.filter import FilterResult, TransitionModel, run_filter
+from ..map.graph import PlaceGraph
+from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
+from ..pipeline.tracker import Calibration, FitScore, Tracker, fit_scale, run_pose_steps, step_distances
+from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
-from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_method, true_place_ranks
+from .protocol import METHODS, Method, Split, load_methods, make_split, rank_metrics, register_method, true_place_ranks
 
 __all__ = [
     "FilteredMethod",
@@ -80,24 +83,18 @@ IArray = NDArray[np.int64]
 #: Total-variation distance below which two posteriors count as merged (kidnapping forgotten).
 MERGED_TV = 0.1
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
-MIN_CALIBRATION_ROWS = 10
+MIN_CALIBRATION_ROWS = _MIN_CALIBRATION_ROWS
 
 
 def _positions(scans: Sequence[Scan]) -> FArray:
     return _full_poses(scans)[:, :2]
 
 
-def step_distances(positions: Any) -> FArray:
-    """Metres travelled from each step to the next, shape (n,) (entry 0 is 0)."""
-    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
-    d = np.zeros(pos.shape[0])
-    if pos.shape[0] > 1:
-        d[1:] = np.hypot(*np.diff(pos, axis=0).T)
-    return d
-
-
 def mapping_graph(positions: Any, split: Split) -> tuple[PlaceGraph, float]:
     """The place graph and ``L`` (metres per place change) of a log's mapping pass.
+
+    The library's :func:`fingerloc.pipeline.tracker.mapping_graph` on the
+    mapping pass, places ``"0" .. "P-1"``.
 
     Parameters
     ----------
@@ -108,54 +105,21 @@ def mapping_graph(positions: Any, split: Split) -> tuple[PlaceGraph, float]:
     Returns
     -------
     graph : PlaceGraph
-        Places ``"0" .. "P-1"``; counts from the nearest centre of each
-        consecutive pair of mapping scans.
     metres_per_move : float
     """
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)[: split.n_mapping]
-    near = nearest_place_sequence(pos, split.centres)
-    places = [str(j) for j in range(split.n_places)]
-    g = PlaceGraph.from_sequence(places, [str(j) for j in near.tolist()])
-    return g, metres_per_move(pos, near) if pos.shape[0] > 1 else 1.0
+    return _mapping_graph(pos, split.centres)
 
 
-def _visit_folds(train_idx: IArray, labels: IArray) -> IArray:
-    """Fold (0 / 1) of each training scan: alternate visits of its place (a visit = consecutive scans of one place)."""
-    fold = np.zeros(labels.size, dtype=np.int64)
-    visits: dict[int, int] = {}
-    prev_lab, prev_idx = -1, -10
-    for k, (i, lab) in enumerate(zip(train_idx.tolist(), labels.tolist(), strict=True)):
-        if lab != prev_lab or i != prev_idx + 1:
-            visits[lab] = visits.get(lab, -1) + 1
-        fold[k] = visits[lab] % 2
-        prev_lab, prev_idx = lab, i
-    return fold
+def _method_fit_score(factory: Callable[[], Method], scans: Sequence[Scan]) -> FitScore:
+    """The library's :data:`~fingerloc.pipeline.tracker.FitScore` of a benchmark method over scans."""
 
-
-def _held_out_scores(
-    factory: Callable[[], Method], scans: Sequence[Scan], labels: IArray, fold: IArray, n_places: int
-) -> tuple[FArray, IArray]:
-    """Scores of each fold's scans by the base method fit on the other fold, shape (n_rows, n_places)."""
-    rows: list[FArray] = []
-    ys: list[IArray] = []
-    for f in (0, 1):
-        tr = np.flatnonzero(fold != f)
-        te = np.flatnonzero(fold == f)
-        if tr.size == 0 or te.size == 0:
-            continue
-        present = np.unique(labels[tr])
-        remap = np.full(n_places, -1, dtype=np.int64)
-        remap[present] = np.arange(present.size)
+    def fit_score(tr: IArray, y: IArray, te: IArray) -> FArray:
         m = factory()
-        m.fit([scans[i] for i in tr.tolist()], remap[labels[tr]])
-        s = np.asarray(m.score([scans[i] for i in te.tolist()]), dtype=np.float64)
-        full = np.full((te.size, n_places), -np.inf)
-        full[:, present] = s
-        rows.append(full)
-        ys.append(labels[te])
-    if not rows:
-        return np.zeros((0, n_places)), np.zeros(0, np.int64)
-    return np.concatenate(rows), np.concatenate(ys)
+        m.fit([scans[i] for i in tr.tolist()], y)
+        return np.asarray(m.score([scans[i] for i in te.tolist()]), dtype=np.float64)
+
+    return fit_score
 
 
 class FilteredMethod:
@@ -199,6 +163,7 @@ class FilteredMethod:
         self._context: tuple[list[Scan], Split] | None = None
 
     def _factory(self) -> Callable[[], Method]:
+        load_methods()
         if self.base not in METHODS:
             raise InvalidParameterError(f"unknown base method {self.base!r} (known: {', '.join(METHODS)})")
         return METHODS[self.base]
@@ -228,16 +193,14 @@ class FilteredMethod:
         )
         self.scale_ = 1.0
         self.calibration_rows_ = 0
-        if self.calibrate:
-            fold = _visit_folds(split.train_idx, y) if len(scans) == split.n_train else np.arange(y.size) % 2
-            s, yy = _held_out_scores(factory, scans, y, fold, split.n_places)
-            usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
-            if usable < MIN_CALIBRATION_ROWS:
-                s, yy = _held_out_scores(factory, scans, y, np.arange(y.size) % 2, split.n_places)
-                usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
-            if usable:
-                self.scale_ = fit_likelihood_scale(s, yy)
-            self.calibration_rows_ = usable
+        if self.calibrate:  # the library's calibration (fingerloc.pipeline.tracker.fit_scale)
+            self.scale_, self.calibration_rows_ = fit_scale(
+                _method_fit_score(factory, scans),
+                split.train_idx,
+                y,
+                split.n_places,
+                by_visits=len(scans) == split.n_train,
+            )
         return self
 
     def step_log_likelihoods(self, query_scores: Any) -> tuple[FArray, FArray]:
@@ -378,38 +341,45 @@ class PoseFilteredMethod(FilteredMethod):
         self.seed = seed
 
     def fit(self, scans: Sequence[Scan], labels: Any) -> PoseFilteredMethod:
-        """Fit the base method and ``beta`` (:meth:`FilteredMethod.fit`), then set up the pose filter."""
-        from ..map.pose_filter import PoseFilter, wheel_odometry
-        from .carmen import PLACE_RADIUS_M, PLACE_SPACING_M
+        """Fit the base method and ``beta`` (:meth:`FilteredMethod.fit`), then set up the library's tracker."""
+        from ..map.pose_filter import wheel_odometry
+        from ..pipeline.places import PLACE_RADIUS_M, PLACE_SPACING_M
 
         super().fit(scans, labels)
         all_scans, split = self._need_context()
         poses = _full_poses(all_scans)
         self.kidnap_ = 1.0 / (len(scans) + 2) if self.kidnap is None else self.kidnap
-        self.filter_ = PoseFilter(
-            split.centres,
-            PLACE_RADIUS_M,
-            n_particles=self.n_particles,
-            kidnap=self.kidnap_,
-            outlier=self.outlier,
-            random_state=self.seed,
-        )
-        factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
-        self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         self.temper_metres_ = PLACE_SPACING_M
         self.temper_radians_ = field_of_view(all_scans[: split.n_mapping])
+        metres = self.transition_.metres_per_move
+        self.calibration_ = Calibration(
+            beta=self.scale_,
+            metres_per_move=1.0 if metres is None else metres,
+            temper_metres=self.temper_metres_,
+            temper_radians=self.temper_radians_,
+            kidnap=self.kidnap_,
+            radius=PLACE_RADIUS_M,
+            spacing=PLACE_SPACING_M,
+            alpha=self.alpha,
+            n_train=len(scans),
+            calibration_rows=self.calibration_rows_,
+        )
+        self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles,
+                                outlier=self.outlier)  # fmt: skip
+        self.filter_ = self.tracker_.pose_filter(self.seed)
+        factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
+        self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         return self
 
     def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
-        from ..map.pose_filter import run_pose_filter
-
-        return run_pose_filter(
+        return run_pose_steps(
             log_likelihood,
-            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            increments,
             self.filter_,
+            self.transition_,
             temper=(self.temper_metres_, self.temper_radians_) if self.temper else None,
-            place_filter=MarkovFilter(self.transition_) if self.relocalize else None,
+            relocalize=self.relocalize,
         )
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
@@ -719,7 +689,7 @@ def run_kidnap(
     probability ``kidnap`` per observation if given) instead of the discrete
     filter over places.
     """
-    from .carmen import load_log_scans, log_name
+    from .protocol import load_log_scans, log_name
 
     out: dict[str, Any] = {"logs": {}, "params": {"base": base, "n_trials": n_trials, "stretch": stretch,
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,

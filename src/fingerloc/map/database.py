@@ -13,6 +13,18 @@ Layout (schema version 1)::
              PRIMARY KEY (place_id, term))
     graph_edges(src TEXT, dst TEXT, count INTEGER, PRIMARY KEY (src, dst))
 
+Schema version 2 adds the map of a recorded run (:class:`MapInfo`, written by
+``fingerloc map``), in its own tables and meta keys::
+
+    place_positions(label TEXT PRIMARY KEY, idx INTEGER, x REAL, y REAL)
+                                                   -- place centres (metres), idx = creation order
+    content_hashes(hash TEXT PRIMARY KEY)          -- observation_hash of every stored observation
+    meta: preset (JSON: name, reason, every resolved option), calibration (JSON:
+          the filters' parameters), runs (JSON: the mapped runs' keys and mapping parts)
+
+Version 1 files still load (they have none of these). Learning an observation
+whose content hash is stored again does not duplicate it.
+
 Arrays are little-endian float64 blobs (radians). A save writes a complete new
 file next to the target in one transaction, syncs it, and renames it over the
 target: a crash mid-write leaves the old file as it was.
@@ -20,12 +32,14 @@ target: a crash mid-write leaves the old file as it was.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sqlite3
 import tempfile
 from collections.abc import Iterator, Mapping
 from contextlib import closing, contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +50,21 @@ from ..errors import DatabaseError, DataFormatError, FingerlocError
 from ..io.jsonl import observation_from_record, observation_to_record
 from ..model import PlaceModel
 
-__all__ = ["FORMAT", "SCHEMA_VERSION", "load_model", "read_graph_edges", "save_model"]
+__all__ = [
+    "FORMAT",
+    "SCHEMA_VERSION",
+    "MapInfo",
+    "load_model",
+    "observation_hash",
+    "read_graph_edges",
+    "read_map_info",
+    "save_model",
+]
 
 FORMAT = "fingerloc-places"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Schema versions this fingerloc reads.
+READABLE_VERSIONS = ("1", "2")
 
 _SCHEMA = """
 CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -54,6 +79,97 @@ CREATE TABLE mixtures(place_id INTEGER NOT NULL REFERENCES places(id), term TEXT
                       PRIMARY KEY (place_id, term));
 CREATE TABLE graph_edges(src TEXT NOT NULL, dst TEXT NOT NULL, count INTEGER NOT NULL, PRIMARY KEY (src, dst));
 """
+
+# Schema version 2: the map of a recorded run (MapInfo), in its own tables.
+_SCHEMA_MAP = """
+CREATE TABLE place_positions(label TEXT PRIMARY KEY, idx INTEGER NOT NULL, x REAL NOT NULL, y REAL NOT NULL);
+CREATE TABLE content_hashes(hash TEXT PRIMARY KEY);
+"""
+
+
+@dataclass(slots=True)
+class MapInfo:
+    """What a place database holds besides the model (schema version 2).
+
+    Attributes
+    ----------
+    preset : dict or None
+        The resolved preset (``fingerloc.pipeline.presets.ResolvedPreset.to_json``).
+    positions : dict of str -> (x, y)
+        Place centres in the run's frame, metres, in creation order.
+    calibration : dict or None
+        The filters' parameters calibrated on the mapping part
+        (``fingerloc.pipeline.tracker.Calibration.to_json``).
+    content_hashes : set of str
+        :func:`observation_hash` of every stored observation.
+    runs : list of dict
+        The mapped runs: ``{"name", "key", "n_scans", "n_mapping"}``.
+    """
+
+    preset: dict[str, Any] | None = None
+    positions: dict[str, tuple[float, float]] = field(default_factory=dict)
+    calibration: dict[str, Any] | None = None
+    content_hashes: set[str] = field(default_factory=set)
+    runs: list[dict[str, Any]] = field(default_factory=list)
+
+
+def observation_hash(obs: Any) -> str:
+    """A content hash of an observation, its place label left out (SHA-256 hex).
+
+    The hash of the observation's JSON Lines record (bearings in degrees
+    rounded to 9 digits, keys sorted) without ``place``: two observations
+    with the same features, field of view, pose, timestamp and scan hash
+    alike, whatever place they are labelled with.
+    """
+    rec = observation_to_record(obs, ndigits=9)
+    rec.pop("place", None)
+    text = json.dumps(rec, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _write_map_info(con: sqlite3.Connection, info: MapInfo | None) -> None:
+    for statement in _SCHEMA_MAP.strip().split(";\n"):
+        if statement.strip():
+            con.execute(statement)  # inside the save's transaction (executescript would commit it)
+    if info is None:
+        return
+    meta = {
+        "preset": info.preset,
+        "calibration": info.calibration,
+        "runs": info.runs,
+    }
+    con.executemany("INSERT INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in meta.items() if v])
+    con.executemany(
+        "INSERT INTO place_positions VALUES (?, ?, ?, ?)",
+        [(str(lab), k, float(x), float(y)) for k, (lab, (x, y)) in enumerate(info.positions.items())],
+    )
+    con.executemany("INSERT INTO content_hashes VALUES (?)", [(h,) for h in sorted(info.content_hashes)])
+
+
+def read_map_info(path: str | Path) -> MapInfo:
+    """The map information of a place database (empty for a schema version 1 file).
+
+    Raises
+    ------
+    DatabaseError
+        When the file is not a readable place database or its map information is corrupt.
+    """
+    with _open(path) as con:
+        meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+        if meta.get("schema_version") == "1":
+            return MapInfo()
+        try:
+            info = MapInfo(
+                preset=json.loads(meta["preset"]) if "preset" in meta else None,
+                calibration=json.loads(meta["calibration"]) if "calibration" in meta else None,
+                runs=list(json.loads(meta["runs"])) if "runs" in meta else [],
+            )
+        except (TypeError, ValueError) as err:
+            raise DatabaseError(f"{path}: corrupt map information in the place database ({err})") from err
+        for lab, x, y in con.execute("SELECT label, x, y FROM place_positions ORDER BY idx"):
+            info.positions[str(lab)] = (float(x), float(y))
+        info.content_hashes = {str(h) for (h,) in con.execute("SELECT hash FROM content_hashes")}
+    return info
 
 
 def _blob(a: np.ndarray) -> bytes:
@@ -93,6 +209,7 @@ def save_model(
     path: str | Path,
     *,
     graph_edges: Mapping[tuple[str, str], int] | None = None,
+    info: MapInfo | None = None,
 ) -> int:
     """Write a fitted model to a place database, atomically.
 
@@ -109,6 +226,8 @@ def save_model(
         The database file; replaced as a whole if it exists.
     graph_edges : mapping (src, dst) -> count, optional
         Transitions of the place graph to store with the places.
+    info : MapInfo, optional
+        Place positions, calibration, preset, content hashes (schema version 2).
 
     Returns
     -------
@@ -178,6 +297,7 @@ def save_model(
                             con.execute("INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, name, _blob(w), _blob(m), _blob(sg)))
                 for (src, dst), count in (graph_edges or {}).items():
                     con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
+                _write_map_info(con, info)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, target)
@@ -207,10 +327,10 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
             meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
             if meta.get("format") != FORMAT:
                 raise DatabaseError(f"{p}: not a fingerloc place database (format {meta.get('format')!r})")
-            if meta.get("schema_version") != str(SCHEMA_VERSION):
+            if meta.get("schema_version") not in READABLE_VERSIONS:
                 raise DatabaseError(
                     f"{p}: place database schema version {meta.get('schema_version')!r} is not supported "
-                    f"(this fingerloc reads version {SCHEMA_VERSION})"
+                    f"(this fingerloc reads versions {', '.join(READABLE_VERSIONS)})"
                 )
             yield con
         except sqlite3.Error as err:

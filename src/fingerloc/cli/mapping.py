@@ -1,0 +1,121 @@
+"""``fingerloc map``: places from a recorded run's poses, learned with the sensor's preset (issue 12).
+
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import typer
+
+from ..errors import InvalidParameterError
+from .app import app, err_console
+from .options import (
+    BASE_FRAME_HELP,
+    POSE_SOURCE_HELP,
+    RUN_KIND_HELP,
+    TOPIC_HELP,
+    bag_options,
+    check_db_target,
+    check_output,
+    model_overrides,
+    read_run_files,
+)
+
+__all__ = ["map_cmd"]
+
+@app.command("map")
+def map_cmd(
+    runs: list[Path] = typer.Argument(..., metavar="RUN", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
+    db: Path = typer.Option(..., "--db", help="Place database to write (schema 2)."),
+    preset: str = typer.Option("auto", "--preset", help="paper | laser2d | panorama | multimodal | auto (from the data)."),
+    mapping_part: float | None = typer.Option(None, "--mapping-part", help="Fraction of the run that maps, from its start [0.5]."),
+    until: float | None = typer.Option(None, "--until", help="The mapping part: scans within this many seconds of the first (instead of --mapping-part)."),
+    spacing: float = typer.Option(2.0, "--spacing", help="A mapping scan farther than this (metres) from every place makes a new place."),
+    radius: float = typer.Option(1.0, "--radius", help="Scans within this distance (metres, inclusive) of a place train it (nearest place)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace --db if it exists."),
+    json_out: Path | None = typer.Option(None, "--json", help="Also write the labelled training observations (JSON Lines) here."),
+    queries_out: Path | None = typer.Option(
+        None, "--queries", help="Also write the queries (later scans within --radius of a place, labelled with the nearest) as JSON Lines here."
+    ),
+    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
+    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
+    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
+    base_frame: str | None = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP),
+    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
+    components: int | None = typer.Option(None, "-k", "--components", help="Mixture components (overrides the preset)."),
+    terms: str | None = typer.Option(None, help="Terms, comma-separated (overrides the preset)."),
+    laser_letters: bool | None = typer.Option(None, "--laser-letters/--no-laser-letters", help="Overrides the preset."),
+    fp_likelihood: str | None = typer.Option(None, help="'paper' or 'exp' (overrides the preset)."),
+    cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Overrides the preset."),
+    costs: str | None = typer.Option(None, help="'unit' or 'feature' (overrides the preset)."),
+    no_calibration: bool = typer.Option(False, "--no-calibration", help="Do not fit the likelihood scale beta (beta = 1; faster)."),
+) -> None:
+    """Make a place map from a recorded run's poses.
+
+    The first part of the run maps (--mapping-part, default the first half,
+    or --until SECONDS): a place for every mapping scan farther than
+    --spacing from every existing place; every mapping scan within --radius
+    of a place trains its nearest place. The places are learned with the
+    preset, and the database also stores the place positions, the place
+    graph (visiting order) and the filters' calibration, so that
+    'fingerloc localize' and 'fingerloc track' need only the database.
+    """
+    from ..pipeline.mapping import make_map, save_map
+    from ..pipeline.presets import PRESET_NAMES, empty_terms
+
+    if preset not in PRESET_NAMES:
+        raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")
+    if mapping_part is not None and until is not None:
+        raise InvalidParameterError("give --mapping-part or --until, not both")
+    if mapping_part is not None and not (0 < mapping_part <= 1):
+        raise InvalidParameterError(f"--mapping-part must be a fraction in (0, 1], got {mapping_part!r}")
+    if until is not None and not (math.isfinite(until) and until >= 0):
+        raise InvalidParameterError(f"--until must be a number of seconds >= 0, got {until!r}")
+    for flag, v in (("--spacing", spacing), ("--radius", radius)):
+        if not (math.isfinite(v) and v > 0):
+            raise InvalidParameterError(f"{flag} must be a positive number of metres, got {v!r}")
+    overrides = model_overrides(components=components, terms=terms, laser_letters=laser_letters,
+                                fp_likelihood=fp_likelihood, cyclic=cyclic, costs=costs)  # fmt: skip
+    check_db_target(db, overwrite)
+    check_output(json_out, "--json")
+    check_output(queries_out, "--queries")
+    bag = bag_options(topic, pose_source, base_frame)
+    run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    with err_console.status("mapping...") as status:
+        pm = make_map(
+            run,
+            preset=preset,
+            overrides=overrides,
+            mapping_part=0.5 if mapping_part is None else mapping_part,
+            until=until,
+            spacing=spacing,
+            radius=radius,
+            calibrate=not no_calibration,
+            on_step=lambda s: status.update(s),
+        )
+    err_console.print(pm.preset.reason, markup=False)
+    empty = empty_terms(pm.preset.options, pm.training)
+    if empty:
+        err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
+                          "places apart (see --preset / --terms)", markup=False)  # fmt: skip
+    size = save_map(pm, db)
+    sp, cal = pm.split, pm.calibration
+    err_console.print(
+        f"{db}: {sp.n_places} place(s) from {sp.n_train} training scan(s) of the first {sp.n_mapping} of "
+        f"{sp.n_scans}; preset {pm.preset.name}; beta {cal.beta:.3g}, {cal.metres_per_move:.2f} m per place "
+        f"change, kidnap {cal.kidnap:.3g}; {size} bytes",
+        markup=False,
+        soft_wrap=True,
+    )
+    from ..io.jsonl import write_observations
+
+    if json_out is not None:
+        n = write_observations(json_out, pm.training)
+        err_console.print(f"wrote {n} labelled observations to {json_out}", markup=False)
+    if queries_out is not None:
+        features = pm.preset.features
+        q = run.observations(sp.query_idx, features=features)
+        n = write_observations(queries_out, [o.with_label(pm.labels[j]) for o, j in zip(q, sp.query_labels.tolist(), strict=True)])
+        err_console.print(f"wrote {n} labelled queries to {queries_out}", markup=False)

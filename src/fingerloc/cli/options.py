@@ -1,0 +1,159 @@
+"""Options and checks shared by the commands that read runs and write place databases.
+
+* model options (``-k``, ``--terms``, ``--costs``...) -> the JSON-form overrides
+  of a preset (:func:`model_overrides`);
+* the raw-run flags (``--kind``, ``--topic``, ``--pose-source``,
+  ``--base-frame``, ``--skip-bad``) -> the library's readers;
+* checks done before the first write (:func:`check_output`, :func:`check_db_target`).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..model import TERMS
+from .app import err_console
+
+__all__ = [
+    "BASE_FRAME_HELP",
+    "POSE_SOURCE_HELP",
+    "RUN_KIND_HELP",
+    "TOPIC_HELP",
+    "bag_options",
+    "check_db_target",
+    "check_output",
+    "model_overrides",
+    "read_run_files",
+    "stored_options",
+]
+
+RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; JSON Lines otherwise)."
+TOPIC_HELP = "ROS bag: the LaserScan topic (when there are several); repeat it to merge lidars into one observation per step."
+POSE_SOURCE_HELP = "ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC]."
+BASE_FRAME_HELP = "ROS bag: the robot's frame (default: the root of the static transforms above the lidars)."
+
+
+def bag_options(topic: str | list[str] | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
+    """Keyword options of the bag reader from the command-line flags (checked before anything is read).
+
+    Several ``--topic`` flags go to the reader as a tuple: lidars merged into
+    one observation per time step (:func:`fingerloc.io.rosbag.iter_bag_scans`).
+    """
+    from ..io.rosbag import parse_pose_source
+
+    parse_pose_source(pose_source)  # names --pose-source in its message
+    topics = [topic] if isinstance(topic, str) else list(topic or [])
+    picked: str | tuple[str, ...] | None = None if not topics else topics[0] if len(topics) == 1 else tuple(topics)
+    return {"topic": picked, "pose_source": pose_source, "base_frame": base_frame}
+
+
+def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[str, Any]) -> Any:
+    """Read run files as one run (:func:`fingerloc.pipeline.readers.read_runs`), noting skipped lines."""
+    from ..pipeline.readers import read_runs
+
+    with err_console.status("reading..."):
+        run = read_runs(paths, kind=kind, skip_bad=skip_bad, bag_options=bag)
+    if run.skipped:
+        err_console.print(f"skipped {run.skipped} malformed line(s) / message(s)", markup=False)
+    return run
+
+
+def check_output(path: Path | None, flag: str) -> None:
+    """An output file's folder must exist and the path must not be a folder (checked before any write)."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise InvalidParameterError(f"{flag}: {path} is a directory")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InvalidParameterError(f"{flag}: directory {parent} does not exist")
+
+
+def check_db_target(db: Path, overwrite: bool) -> None:
+    """A database about to be written as a whole: refuse to replace one without ``--overwrite``."""
+    check_output(db, "--db")
+    if db.exists() and not overwrite:
+        raise InvalidParameterError(f"--db: {db} exists; give --overwrite to replace it (or another --db)")
+
+
+def _parse_terms(text: str) -> tuple[str, ...]:
+    terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
+    for t in terms:
+        if t not in TERMS:
+            raise InvalidParameterError(f"--terms: unknown term {t!r} (expected some of {', '.join(TERMS)})")
+    return terms
+
+
+def _costs(name: str) -> str:
+    if name not in ("unit", "feature"):
+        raise InvalidParameterError(f"--costs must be 'unit' or 'feature', got {name!r}")
+    return name
+
+
+def model_overrides(
+    *,
+    components: int | None = None,
+    terms: str | None = None,
+    laser_letters: bool | None = None,
+    fp_likelihood: str | None = None,
+    fp_reference: str | None = None,
+    cyclic: bool | None = None,
+    costs: str | None = None,
+    unknown_prior: float | None = None,
+    weights: str | None = None,
+    seed: int | None = None,
+) -> dict[str, Any]:
+    """The model options given on the command line (JSON form, see fingerloc.pipeline.presets); unset ones left out."""
+    given: dict[str, Any] = {
+        "n_components": components,
+        "terms": None if terms is None else list(_parse_terms(terms)),
+        "fp_likelihood": fp_likelihood,
+        "fp_reference": fp_reference,
+        "cyclic": cyclic,
+        "laser_letters": laser_letters,
+        "costs": None if costs is None else _costs(costs),
+        "unknown_prior": unknown_prior,
+        "weights": None if weights is None else _parse_weights(weights),
+        "random_state": seed,
+    }
+    return {k: v for k, v in given.items() if v is not None}
+
+
+def stored_options(model: Any) -> dict[str, Any]:
+    """A loaded model's options in JSON form (costs by name when they are one of the named ones)."""
+    from ..align import CostModel
+
+    params = model.get_params()
+    c = params["costs"]
+    if c is None:
+        params["costs"] = "unit"
+    else:
+        f = CostModel.feature_aware()
+        same = np.array_equal(c.substitution, f.substitution) and np.array_equal(c.indel, f.indel)
+        params["costs"] = "feature" if same else "custom"
+    params["terms"] = list(params["terms"])
+    return params
+
+
+def _parse_weights(text: str) -> str | dict[str, float]:
+    """``fit`` or ``TERM=W,...`` -> the ``weights`` argument of PlaceModel."""
+    if text.strip() == "fit":
+        return "fit"
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        name, sep, value = part.partition("=")
+        try:
+            w = float(value)
+        except ValueError:
+            w = float("nan")
+        if not sep or not name.strip() or not (math.isfinite(w) and w >= 0):
+            raise InvalidParameterError(f"--weights: expected 'fit' or TERM=W,... with W >= 0, got {part!r}")
+        out[name.strip()] = w
+    return out
+
+

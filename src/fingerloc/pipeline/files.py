@@ -1,0 +1,186 @@
+"""Sensor files -> observations, one reader per input kind (``fingerloc features``).
+
+Each input *kind* has one reader function in :data:`KINDS` that turns a file
+into ``(name, Observation)`` pairs (one per image, or one per scan of a log).
+To add a kind, write such a function and register it in :data:`KINDS`;
+options it needs go into :class:`FeatureOptions`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataFormatError, InvalidParameterError
+from ..observation import Observation
+from ..sensors import Panorama
+from .readers import detect_kind, iter_bag_observations, iter_carmen_observations
+
+__all__ = ["KINDS", "LASER_KINDS", "FeatureOptions", "Reader", "detect_kind", "load_image", "panorama_from_file"]
+
+#: Input kinds that are laser logs (one observation per scan).
+LASER_KINDS: tuple[str, ...] = ("carmen", "bag")
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureOptions:
+    """Options of ``fingerloc features`` shared by every reader.
+
+    Attributes
+    ----------
+    place : str or None
+        Label of every observation.
+    bearing_offset : float
+        Radians: bearing of the left edge of panorama column 0, or of the
+        omnidirectional image's ``+x`` axis.
+    counter_clockwise : bool
+        Panorama bearings grow with the column index (default: they decrease,
+        as in a photograph taken turning right).
+    center, radii : pairs of float or None
+        Omnidirectional image: mirror centre (x, y) and ring radii, pixels.
+    mirror : bool
+        Omnidirectional image seen from below (bearings clockwise on screen).
+    band : pair of float or None
+        Rows (parts of the height, top = 0) of a panorama to use; ``None``:
+        the middle half of a full 2:1 equirectangular image, else every row.
+    max_width : int
+        Panoramas wider than this are resampled down (area averaging).
+    topic : str, tuple of str or None
+        ROS bag: the scan topic; several topics are merged into one
+        observation per time step (:func:`fingerloc.io.rosbag.iter_bag_scans`).
+    base_frame : str or None
+        ROS bag: the robot's frame (default: the root of the static transforms above the lidars).
+    pose_source : str
+        ROS bag: ``auto``, ``none``, ``tf``, ``tf:FRAME``, ``odom`` or ``odom:TOPIC``.
+    skip_bad : bool
+        Laser logs: skip malformed lines / messages (their count goes to stderr).
+    beacon_threshold : float or None
+        Laser logs: absolute intensity threshold of a beacon, overriding the
+        detector's per-scan adaptive threshold.
+    notify : callable or None
+        Laser logs: gets a note on skipped lines.
+    """
+
+    place: str | None = None
+    bearing_offset: float = 0.0
+    counter_clockwise: bool = False
+    center: tuple[float, float] | None = None
+    radii: tuple[float, float] | None = None
+    mirror: bool = False
+    band: tuple[float, float] | None = None
+    max_width: int = 1440
+    topic: str | tuple[str, ...] | None = None
+    base_frame: str | None = None
+    pose_source: str = "auto"
+    skip_bad: bool = False
+    beacon_threshold: float | None = None
+    notify: Callable[[str], None] | None = None
+
+
+Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
+
+
+def load_image(path: Path) -> np.ndarray:
+    """Read an image file (JPEG, PNG, ... via Pillow) as an (h, w, 3) ``uint8`` RGB array.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the path, when the file is missing or not an image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+            rgb = im.convert("RGB")
+    except FileNotFoundError as err:
+        raise DataFormatError("no such file", path=path) from err
+    except UnidentifiedImageError as err:
+        raise DataFormatError("not an image file Pillow can read (JPEG, PNG, ...)", path=path) from err
+    except (OSError, ValueError, SyntaxError) as err:
+        raise DataFormatError(f"cannot read image: {err}", path=path) from err
+    return np.asarray(rgb, dtype=np.uint8)
+
+
+def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
+    h, w = img.shape[:2]
+    if w <= max_width:
+        return img
+    from PIL import Image
+
+    new_h = max(2, round(h * max_width / w))
+    return np.asarray(Image.fromarray(img).resize((max_width, new_h), Image.Resampling.BOX), dtype=np.uint8)
+
+
+def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
+    """A :class:`Panorama` from an equirectangular image file (see :class:`FeatureOptions`)."""
+    img = load_image(path)
+    h, w = img.shape[:2]
+    if w < 64 or h < 8:
+        raise DataFormatError(f"image too small for a 360 deg panorama: {w}x{h} pixels", path=path)
+    band = opts.band
+    if band is None and abs(w / h - 2.0) < 0.05:
+        band = (0.25, 0.75)  # full equirectangular: elevations -45..+45 deg
+    if band is not None:
+        lo, hi = round(band[0] * h), round(band[1] * h)
+        img = img[lo:hi]
+    img = _shrink(img, opts.max_width)
+    meta: dict[str, object] = {"source": str(path)}
+    return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
+
+
+def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from ..features.vision import observation_from_views
+
+    pano = panorama_from_file(path, opts)
+    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+
+
+def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    from ..features.vision import observation_from_views, unwarp_omni
+
+    if opts.center is None or opts.radii is None:
+        raise InvalidParameterError("--kind omni needs --center X Y and --radii R_IN R_OUT (pixels)")
+    img = load_image(path)
+    width = int(np.clip(round(np.pi * sum(opts.radii) / 360.0) * 360, 360, max(360, opts.max_width)))
+    pano = unwarp_omni(
+        img,
+        opts.center,
+        opts.radii[0],
+        opts.radii[1],
+        width=int(width),
+        bearing_offset=opts.bearing_offset,
+        mirror=opts.mirror,
+    )
+    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+
+
+def _features(opts: FeatureOptions) -> dict[str, Any]:
+    return {} if opts.beacon_threshold is None else {"beacon_threshold": float(opts.beacon_threshold)}
+
+
+def _read_carmen(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    return iter_carmen_observations(path, place=opts.place, skip_bad=opts.skip_bad, notify=opts.notify, **_features(opts))
+
+
+def _read_bag(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
+    return iter_bag_observations(path, place=opts.place, skip_bad=opts.skip_bad, notify=opts.notify,
+                                 bag_options={"topic": opts.topic, "base_frame": opts.base_frame,
+                                              "pose_source": opts.pose_source}, **_features(opts))  # fmt: skip
+
+
+#: Input kinds: name -> reader. Laser log readers (``carmen``, ``bag``, :mod:`.readers`)
+#: yield one ``(name, observation_from_scan(scan, label=opts.place))`` per scan.
+KINDS: dict[str, Reader] = {
+    "panorama": _read_panorama,
+    "omni": _read_omni,
+    "carmen": _read_carmen,
+    "bag": _read_bag,
+}
+
+

@@ -1,0 +1,219 @@
+"""A place map from a recorded run: places, model, graph and calibration in one call (``fingerloc map``).
+
+:func:`make_map` applies :func:`~fingerloc.pipeline.places.places_from_trajectory`
+to a run's poses, labels the training scans with their nearest place
+(:func:`~fingerloc.pipeline.places.place_label`), learns them with a preset,
+builds the place graph from the mapping part's visiting order and calibrates
+the filters on the mapping part (:mod:`fingerloc.pipeline.tracker`).
+:func:`save_map` writes it all to a place database (schema version 2);
+:func:`load_map` reads it back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..map.graph import PlaceGraph
+from ..observation import Observation
+from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
+from .presets import ResolvedPreset, resolve_preset
+from .readers import Run
+from .tracker import Calibration, Tracker, fit_scale, mapping_graph, model_fit_score
+
+__all__ = ["LoadedMap", "PlaceMap", "load_map", "make_map", "save_map"]
+
+
+@dataclass(slots=True)
+class PlaceMap:
+    """The result of :func:`make_map`.
+
+    Attributes
+    ----------
+    model : PlaceModel
+        Fitted on the training observations.
+    split : PlaceSplit
+        Places, training scans and queries (indices into the run).
+    labels : list of str
+        Place labels, in creation order (place ``j`` is ``labels[j]``).
+    training : list of Observation
+        The training observations, labelled, in run order.
+    preset : ResolvedPreset
+    calibration : Calibration
+    graph : PlaceGraph
+        Places in creation order.
+    run_name, run_key : str
+        The run's files and content hash (:attr:`Run.key`).
+    """
+
+    model: Any
+    split: PlaceSplit
+    labels: list[str]
+    training: list[Observation]
+    preset: ResolvedPreset
+    calibration: Calibration
+    graph: PlaceGraph
+    run_name: str
+    run_key: str
+
+    @property
+    def positions(self) -> dict[str, tuple[float, float]]:
+        """Place centres by label, creation order."""
+        return {lab: (float(x), float(y)) for lab, (x, y) in zip(self.labels, self.split.centres, strict=True)}
+
+
+def make_map(
+    run: Run,
+    *,
+    preset: str = "auto",
+    overrides: Mapping[str, Any] | None = None,
+    mapping_part: float | None = 0.5,
+    until: float | None = None,
+    spacing: float = PLACE_SPACING_M,
+    radius: float = PLACE_RADIUS_M,
+    calibrate: bool = True,
+    on_step: Callable[[str], None] | None = None,
+) -> PlaceMap:
+    """Places from a run's poses, learned with a preset, with the filters' calibration.
+
+    Parameters
+    ----------
+    run : Run
+        Every item needs a pose.
+    preset : str, default "auto"
+        A name of :data:`~fingerloc.pipeline.presets.PRESET_NAMES`.
+    overrides : mapping, optional
+        Explicit model options (JSON form) over the preset's.
+    mapping_part, until, spacing, radius
+        :func:`~fingerloc.pipeline.places.places_from_trajectory`.
+    calibrate : bool, default True
+        Fit ``beta`` on the mapping part (two more model fits); False keeps ``beta = 1``.
+    on_step : callable, optional
+        Called with a short text before each stage.
+
+    Returns
+    -------
+    PlaceMap
+    """
+    poses = run.poses
+    if poses is None:
+        raise InvalidParameterError(f"{run.paths[0]}: map needs a pose on every scan / observation")
+    note = on_step or (lambda s: None)
+    split = places_from_trajectory(
+        poses[:, :2], mapping_part=mapping_part, until=until, timestamps=run.timestamps, spacing=spacing, radius=radius
+    )
+    if split.n_places == 0 or split.n_train == 0:
+        raise InvalidParameterError(f"{run.paths[0]}: the mapping part holds no scan (mapping part {split.n_mapping} of {split.n_scans})")
+    labels = [place_label(j) for j in range(split.n_places)]
+    note(f"extracting features of {split.n_train} training scans")
+    raw = run.observations(split.train_idx)
+    resolved = resolve_preset(preset, raw, overrides)
+    if resolved.features:
+        raw = run.observations(split.train_idx, features=resolved.features)
+    training = [o.with_label(labels[j]) for o, j in zip(raw, split.train_labels.tolist(), strict=True)]
+    note(f"learning {split.n_places} places ({resolved.name})")
+    model = resolved.model().fit(training)
+    graph, metres = mapping_graph(poses[: split.n_mapping, :2], split.centres, labels)
+    beta, rows = 1.0, 0
+    if calibrate:
+        note("calibrating the filters on the mapping part")
+        beta, rows = fit_scale(
+            model_fit_score(resolved.options, raw), split.train_idx, split.train_labels, split.n_places
+        )
+    cal = Calibration(
+        beta=float(beta),
+        metres_per_move=float(metres),
+        temper_metres=float(spacing),
+        temper_radians=run.field_of_view(np.arange(split.n_mapping)),
+        kidnap=1.0 / (split.n_train + 2),
+        radius=float(radius),
+        spacing=float(spacing),
+        n_train=split.n_train,
+        calibration_rows=rows,
+    )
+    name = " ".join(str(p) for p in run.paths)
+    return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key)
+
+
+def save_map(place_map: PlaceMap, path: str | Path) -> int:
+    """Write a :class:`PlaceMap` to a place database (replacing the file); returns its size in bytes."""
+    from ..map.database import MapInfo, observation_hash, save_model
+
+    pm = place_map
+    info = MapInfo(
+        preset=pm.preset.to_json(),
+        positions=pm.positions,
+        calibration=pm.calibration.to_json(),
+        content_hashes={observation_hash(o) for o in pm.training},
+        runs=[{"name": pm.run_name, "key": pm.run_key, "n_scans": pm.split.n_scans, "n_mapping": pm.split.n_mapping}],
+    )
+    return save_model(pm.model, path, graph_edges=pm.graph.edges(), info=info)
+
+
+@dataclass(slots=True)
+class LoadedMap:
+    """A place database read back: the model and, when it was made by ``map``, the map information.
+
+    Attributes
+    ----------
+    model : PlaceModel
+    labels : list of str
+        Places in creation order when positions are stored, else the model's order.
+    positions : ndarray, shape (P, 2) or None
+        ``None`` when the database stores none, or not for every place (places
+        added by ``learn`` after ``map``).
+    preset : ResolvedPreset or None
+    calibration : Calibration or None
+    graph : PlaceGraph
+        Places in ``labels`` order.
+    runs : list of dict
+    content_hashes : set of str
+    """
+
+    model: Any
+    labels: list[str]
+    positions: Any
+    preset: ResolvedPreset | None
+    calibration: Calibration | None
+    graph: PlaceGraph
+    runs: list[dict[str, Any]]
+    content_hashes: set[str]
+
+    def tracker(self, **options: Any) -> Tracker:
+        """A :class:`Tracker` with the stored positions and calibration."""
+        if self.positions is None or self.calibration is None:
+            raise InvalidParameterError("the database holds no place positions or calibration (make it with 'fingerloc map')")
+        return Tracker(self.positions, self.graph, self.calibration, **options)
+
+    def mapped_run(self, key: str) -> dict[str, Any] | None:
+        """The stored mapped run with this content key, if any."""
+        return next((r for r in self.runs if r.get("key") == key), None)
+
+
+def load_map(path: str | Path) -> LoadedMap:
+    """Read a place database with its map information (any readable schema version)."""
+    from ..map.database import load_model, read_map_info
+    from ..map.graph import load_graph
+
+    model = load_model(path)
+    info = read_map_info(path)
+    classes = [str(c) for c in model.classes_]
+    positions = None
+    labels = classes
+    if info.positions and set(info.positions) == set(classes):  # places learned later have no position
+        labels = list(info.positions)
+        positions = np.array([info.positions[lab] for lab in labels], dtype=np.float64).reshape(-1, 2)
+    preset = None if info.preset is None else ResolvedPreset.from_json(info.preset)
+    cal = None if info.calibration is None else Calibration.from_json(info.calibration)
+    graph = load_graph(path, labels)
+    hashes = info.content_hashes
+    if not hashes:  # version 1: hash the stored observations
+        from ..map.database import observation_hash
+
+        hashes = {observation_hash(o) for p in model.places_.values() for o in p.observations}
+    return LoadedMap(model, labels, positions, preset, cal, graph, info.runs, hashes)

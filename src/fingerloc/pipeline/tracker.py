@@ -1,0 +1,435 @@
+"""The filters' calibration on a mapping run, and the calibrated tracker (issue 12).
+
+Everything a filter needs is taken from the **mapping part** of a run only
+(nothing is tuned on the queries):
+
+* the place graph: the nearest place centre (its Voronoi cell) of every
+  mapping scan, in order; consecutive scans count a stay or a passage
+  (:meth:`fingerloc.map.graph.PlaceGraph.from_sequence`);
+* ``metres_per_move``: metres travelled per change of place along the mapping part;
+* the likelihood scale ``beta`` (:func:`fingerloc.map.filter.fit_likelihood_scale`):
+  the model is fit on half of the training scans and scores the other half,
+  two ways round (halves = alternate *visits* of each place,
+  :func:`~fingerloc.pipeline.places.visit_folds`; fewer than
+  :data:`MIN_CALIBRATION_ROWS` usable rows -> alternate scans); ``beta``
+  maximises the held-out log-probability of the right place;
+* the pose filter's kidnapping probability per observation ``1 / (n_train + 2)``
+  (Laplace's rule over the mapping part's observations) and its tempering:
+  an observation counts fully after the robot travelled the place spacing or
+  turned by the sensor's median field of view, in proportion before.
+
+:class:`Tracker` runs either filter along a run with these parameters: the
+discrete filter over the place graph (``"places"``) or the pose particle
+filter (``"pose"``), which follows the odometry's increments. The real-log
+benchmark's filtered methods call the same functions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidParameterError
+from ..map.filter import FilterResult, MarkovFilter, TransitionModel, fit_likelihood_scale, run_filter
+from ..map.filter import metres_per_move as _metres_per_move
+from ..map.graph import PlaceGraph, nearest_place_sequence
+from .places import visit_folds
+
+if TYPE_CHECKING:
+    from ..map.pose_filter import PoseFilter
+    from ..observation import Observation
+
+__all__ = [
+    "FILTERS",
+    "MIN_CALIBRATION_ROWS",
+    "Calibration",
+    "FitScore",
+    "Tracker",
+    "calibrate_labelled",
+    "fit_scale",
+    "held_out_scores",
+    "mapping_graph",
+    "model_fit_score",
+    "posterior_columns",
+    "run_pose_steps",
+    "step_distances",
+]
+
+FArray = NDArray[np.float64]
+IArray = NDArray[np.int64]
+
+#: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
+MIN_CALIBRATION_ROWS = 10
+#: The filters a tracker runs.
+FILTERS: tuple[str, ...] = ("places", "pose")
+
+#: ``fit_score(train_rows, train_labels, test_rows) -> scores (n_test, k)``: fit a place
+#: recogniser on rows with labels ``0 .. k - 1`` (every one used) and score the test rows.
+FitScore = Callable[[IArray, IArray, IArray], FArray]
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """The filters' parameters, calibrated on a run's mapping part (module docstring).
+
+    Attributes
+    ----------
+    beta : float
+        Likelihood scale: the filters use ``beta * log P(place | observation)``.
+    metres_per_move : float
+        Mean metres travelled per change of place (discrete filter's odometry).
+    temper_metres, temper_radians : float
+        An observation counts fully after this much travel or turn (pose filter).
+    kidnap : float
+        Kidnapping probability per observation (pose filter).
+    radius : float
+        Metres: a pose within it of a centre is at that place.
+    spacing : float
+        Metres between places (the map's scale).
+    alpha : float
+        Additive smoothing of the graph's transition counts.
+    n_train : int
+        Training observations of the mapping part.
+    calibration_rows : int
+        Held-out rows ``beta`` was fit on (0: ``beta = 1``).
+    """
+
+    beta: float = 1.0
+    metres_per_move: float = 1.0
+    temper_metres: float = 2.0
+    temper_radians: float = math.pi
+    kidnap: float = 0.005
+    radius: float = 1.0
+    spacing: float = 2.0
+    alpha: float = 1.0
+    n_train: int = 0
+    calibration_rows: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready dict of every field."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Calibration:
+        """Inverse of :meth:`to_json` (unknown keys are ignored)."""
+        names = set(cls.__dataclass_fields__)
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except TypeError as err:
+            raise InvalidParameterError(f"invalid stored calibration ({err})") from err
+
+
+def step_distances(positions: Any) -> FArray:
+    """Metres travelled from each step to the next, shape (n,) (entry 0 is 0)."""
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    d = np.zeros(pos.shape[0])
+    if pos.shape[0] > 1:
+        d[1:] = np.hypot(*np.diff(pos, axis=0).T)
+    return d
+
+
+def mapping_graph(positions: Any, centres: Any, labels: Sequence[str] | None = None) -> tuple[PlaceGraph, float]:
+    """The place graph and ``metres_per_move`` of a mapping part.
+
+    Parameters
+    ----------
+    positions : array_like, shape (n, 2)
+        The mapping part's positions in order, metres.
+    centres : array_like, shape (P, 2)
+        Place centres, metres.
+    labels : sequence of str, optional
+        Place names (default ``"0" .. "P-1"``).
+
+    Returns
+    -------
+    graph : PlaceGraph
+    metres_per_move : float
+    """
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    places = [str(j) for j in range(c.shape[0])] if labels is None else [str(x) for x in labels]
+    near = nearest_place_sequence(pos, c)
+    g = PlaceGraph.from_sequence(places, [places[j] for j in near.tolist()])
+    return g, _metres_per_move(pos, near) if pos.shape[0] > 1 else 1.0
+
+
+def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int) -> tuple[FArray, IArray]:
+    """Scores of each fold's rows by a recogniser fit on the other fold, shape (n_rows, n_places).
+
+    Places absent from a training fold score ``-inf``.
+    """
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
+    rows: list[FArray] = []
+    ys: list[IArray] = []
+    for f in (0, 1):
+        tr = np.flatnonzero(f_ != f)
+        te = np.flatnonzero(f_ == f)
+        if tr.size == 0 or te.size == 0:
+            continue
+        present = np.unique(y[tr])
+        remap = np.full(n_places, -1, dtype=np.int64)
+        remap[present] = np.arange(present.size)
+        s = np.asarray(fit_score(tr, remap[y[tr]], te), dtype=np.float64)
+        full = np.full((te.size, n_places), -np.inf)
+        full[:, present] = s
+        rows.append(full)
+        ys.append(y[te])
+    if not rows:
+        return np.zeros((0, n_places)), np.zeros(0, np.int64)
+    return np.concatenate(rows), np.concatenate(ys)
+
+
+def fit_scale(
+    fit_score: FitScore, train_idx: Any, labels: Any, n_places: int, *, by_visits: bool = True
+) -> tuple[float, int]:
+    """``beta`` from held-out scores of the training rows, and the number of usable rows (module docstring).
+
+    Parameters
+    ----------
+    fit_score : FitScore
+        Row indices are positions in ``labels`` (0 .. n_train - 1).
+    train_idx : array_like of int, shape (n_train,)
+        The training rows' indices in the run (for the visits).
+    labels : array_like of int, shape (n_train,)
+    n_places : int
+    by_visits : bool, default True
+        Folds by alternate visits; False: alternate rows.
+    """
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    fold = visit_folds(train_idx, y) if by_visits else np.arange(y.size) % 2
+    s, yy = held_out_scores(fit_score, y, fold, n_places)
+    usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+    if usable < MIN_CALIBRATION_ROWS:
+        s, yy = held_out_scores(fit_score, y, np.arange(y.size) % 2, n_places)
+        usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+    return (fit_likelihood_scale(s, yy) if usable else 1.0), usable
+
+
+def model_fit_score(options: Mapping[str, Any], observations: Sequence[Observation]) -> FitScore:
+    """A :data:`FitScore` over ``observations`` with a :class:`~fingerloc.model.PlaceModel` of these options.
+
+    Places are labelled ``"0" .. "k-1"``; the scores are the model's
+    log-posterior, column ``j`` = place ``j``.
+    """
+    from .presets import model_from_options
+
+    def fit_score(tr: IArray, y: IArray, te: IArray) -> FArray:
+        model = model_from_options(options).fit([observations[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
+        return posterior_columns(model, [observations[i] for i in te.tolist()], int(y.max()) + 1)
+
+    return fit_score
+
+
+def posterior_columns(model: Any, observations: Sequence[Observation], n_places: int, labels: Sequence[str] | None = None) -> FArray:
+    """``log P(place | observation)`` with columns in a given place order, shape (n, n_places).
+
+    ``labels[j]`` is the label of column ``j`` (default ``str(j)``); places
+    the model does not hold score ``-inf``.
+    """
+    out = np.full((len(observations), n_places), -np.inf)
+    if not observations:
+        return out
+    names = [str(j) for j in range(n_places)] if labels is None else [str(x) for x in labels]
+    col = {lab: j for j, lab in enumerate(names)}
+    lp = np.asarray(model.predict_log_proba(list(observations)), dtype=np.float64)
+    for k, c in enumerate(model.classes_):
+        j = col.get(str(c))
+        if j is not None:
+            out[:, j] = lp[:, k]
+    return out
+
+
+def run_pose_steps(
+    log_likelihood: Any,
+    increments: Any,
+    pose_filter: PoseFilter,
+    transition: TransitionModel,
+    *,
+    temper: tuple[float, float] | None,
+    relocalize: bool = True,
+) -> FilterResult:
+    """The pose filter along steps, with the discrete filter alongside for relocalization.
+
+    Parameters
+    ----------
+    log_likelihood : array_like, shape (n_steps, P)
+        Scaled rows (NaN = prediction only).
+    increments : array_like, shape (n_steps, 3)
+        Odometry from the previous step (row 0 unused).
+    pose_filter : PoseFilter
+        Reset first (its random generator carries on).
+    transition : TransitionModel
+        Of the discrete filter run alongside (``relocalize``).
+    temper : (metres, radians) or None
+    relocalize : bool, default True
+    """
+    from ..map.pose_filter import run_pose_filter
+
+    return run_pose_filter(
+        log_likelihood,
+        np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+        pose_filter,
+        temper=temper,
+        place_filter=MarkovFilter(transition) if relocalize else None,
+    )
+
+
+def calibrate_labelled(options: Mapping[str, Any], observations: Sequence[Observation]) -> Calibration:
+    """The likelihood scale of labelled observations in visiting order (``fingerloc learn``).
+
+    The file order stands for the visiting order: folds by alternate visits
+    (:func:`fit_scale`), a model with ``options`` fit on one fold scoring the
+    other. Only ``beta``, ``calibration_rows``, ``n_train`` and ``kidnap``
+    are set; the rest keeps the defaults (no positions are known).
+    """
+    labels = [str(o.label) for o in observations]
+    order = list(dict.fromkeys(labels))
+    col = {lab: j for j, lab in enumerate(order)}
+    y = np.array([col[lab] for lab in labels], dtype=np.int64)
+    beta, rows = fit_scale(model_fit_score(options, observations), np.arange(y.size), y, len(order))
+    return Calibration(beta=float(beta), kidnap=1.0 / (y.size + 2), n_train=int(y.size), calibration_rows=rows)
+
+
+class Tracker:
+    """Either filter along a run, with a map's calibration.
+
+    Parameters
+    ----------
+    centres : array_like, shape (P, 2)
+        Place centres, metres (column ``j`` of every log-likelihood is place ``j``).
+    graph : PlaceGraph
+        The place graph (its places in the same order as ``centres``).
+    calibration : Calibration
+    n_particles : int, default 3000
+        Pose filter.
+    outlier : float, default 0.1
+        Pose filter: weight of the noise part of the place likelihood.
+    uniform_mix : float, optional
+        Uniform mixing per step of the transition model (default
+        ``1 / (counted steps + 2)``, :meth:`~fingerloc.map.filter.TransitionModel.from_graph`).
+
+    Attributes
+    ----------
+    transition_ : TransitionModel
+    """
+
+    def __init__(
+        self,
+        centres: Any,
+        graph: PlaceGraph,
+        calibration: Calibration,
+        *,
+        n_particles: int = 3000,
+        outlier: float = 0.1,
+        uniform_mix: float | None = None,
+    ) -> None:
+        self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+        self.graph = graph
+        self.calibration = calibration
+        self.n_particles = n_particles
+        self.outlier = outlier
+        if graph.graph.number_of_edges() == 0:
+            self.transition_ = TransitionModel.uniform(self.centres.shape[0])
+        else:
+            self.transition_ = TransitionModel.from_graph(
+                graph, alpha=calibration.alpha, uniform_mix=uniform_mix, metres_per_move=calibration.metres_per_move
+            )
+
+    def pose_filter(self, seed: int = 0, *, kidnap: float | None = None) -> PoseFilter:
+        """A fresh pose filter over the places (seeded)."""
+        from ..map.pose_filter import PoseFilter
+
+        return PoseFilter(
+            self.centres,
+            self.calibration.radius,
+            n_particles=self.n_particles,
+            kidnap=self.calibration.kidnap if kidnap is None else kidnap,
+            outlier=self.outlier,
+            random_state=seed,
+        )
+
+    def scaled(self, log_posterior: Any) -> FArray:
+        """``beta * log P(place | observation)``; NaN rows (no observation) stay NaN, NaN entries become ``-inf``."""
+        s = np.asarray(log_posterior, dtype=np.float64)
+        empty = np.all(np.isnan(s), axis=1, keepdims=True) if s.ndim == 2 else np.zeros((0, 1), bool)
+        out = self.calibration.beta * np.where(np.isnan(s), -np.inf, s)
+        return np.where(empty, np.nan, out)
+
+    def run_places(self, log_likelihood: Any, distances: Any = None) -> FilterResult:
+        """The discrete filter over the place graph (already scaled rows; NaN = prediction only)."""
+        return run_filter(log_likelihood, self.transition_, distances=distances)
+
+    def run_pose(
+        self,
+        log_likelihood: Any,
+        increments: Any,
+        pose_filter: PoseFilter,
+        *,
+        temper: bool = True,
+        relocalize: bool = True,
+    ) -> FilterResult:
+        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused)."""
+        c = self.calibration
+        return run_pose_steps(
+            log_likelihood,
+            increments,
+            pose_filter,
+            self.transition_,
+            temper=(c.temper_metres, c.temper_radians) if temper else None,
+            relocalize=relocalize,
+        )
+
+    def run(
+        self,
+        log_posterior: Any,
+        poses: Any = None,
+        *,
+        filter: str = "pose",
+        odometry_error: float = 0.0,
+        seed: int = 0,
+        temper: bool = True,
+        relocalize: bool = True,
+    ) -> FilterResult:
+        """Track along a run.
+
+        Parameters
+        ----------
+        log_posterior : array_like, shape (n_steps, P)
+            The single-shot ``log P(place | observation)`` per step (a NaN
+            row: no observation, prediction only). Scaled by ``beta`` here.
+        poses : array_like, shape (n_steps, 3), optional
+            The steps' poses (metres, radians); needed by the pose filter,
+            and by the discrete filter's odometry.
+        filter : {"pose", "places"}
+        odometry_error : float, default 0
+            Pose filter: simulated wheel-odometry errors on the poses'
+            increments, times this factor (0 = the poses' own increments).
+        seed : int, default 0
+            Seeds the particles (``seed``) and the simulated odometry (``seed + 1``).
+
+        Returns
+        -------
+        FilterResult
+        """
+        if filter not in FILTERS:
+            raise InvalidParameterError(f"filter must be one of {', '.join(FILTERS)}, got {filter!r}")
+        ll = self.scaled(log_posterior)
+        p = None if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if p is not None and p.shape[0] != ll.shape[0]:
+            raise InvalidParameterError(f"poses must have one row per step ({ll.shape[0]}), got {p.shape[0]}")
+        if filter == "places":
+            return self.run_places(ll, None if p is None else step_distances(p[:, :2]))
+        if p is None:
+            raise InvalidParameterError("the pose filter needs a pose at every step")
+        from ..map.pose_filter import wheel_odometry
+
+        inc = wheel_odometry(p, odometry_error, random_state=seed + 1)
+        return self.run_pose(
+            ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize
+        )
