@@ -1,6 +1,7 @@
 """The library layer: presets, places from a trajectory, schema v2, map / localize / track on raw runs."""
 
 import json
+import math
 import sqlite3
 
 import numpy as np
@@ -276,3 +277,36 @@ def test_bag_flags():
         bag_options(None, "gps", None)
     assert bag_options(["/front", "/back"], "tf", "base_footprint")["topic"] == ("/front", "/back")
     assert bag_options(None, "auto", None)["topic"] is None
+
+
+def test_map_and_pose_track_on_a_bag_with_two_lidars_back_to_back(tmp_path, capsys):
+    """Issue 12: front lidar + upside-down back lidar merged into one 360 deg observation per step."""
+    from fingerloc.map.database import load_model
+
+    from ._bags import bag_path, write_robot_bag
+
+    def loop(t):  # two laps of a 1.6 m circle around the room's centre, 20 s a lap, facing along the path
+        a = 2 * math.pi * (t - 10.0) / 20.0
+        return (4.0 + 1.6 * math.cos(a), 3.0 + 1.6 * math.sin(a), a + math.pi / 2)
+
+    front = tuple(10.0 + 0.5 * k for k in range(81))
+    back = tuple(t + 0.02 for t in front)
+    bag = write_robot_bag(bag_path(tmp_path, False, "loop"), False, front_stamps=front, back_stamps=back, pose=loop)
+    db, t = tmp_path / "m.sqlite", tmp_path / "t.json"
+    topics = ["--topic", "/scan_front", "--topic", "/scan_back"]
+    code, _, err = run_cli(capsys, "map", bag, "--db", db, *topics, "--no-calibration")
+    assert code == 0, err
+    model = load_model(db)
+    # the first lap (40 scans, 10 m) makes a place every 2 m: brute force on the true positions
+    centres: list[tuple[float, float]] = []
+    for tt in front[:40]:
+        x, y, _ = loop(tt)
+        if all(math.hypot(x - cx, y - cy) > 2.0 for cx, cy in centres):
+            centres.append((x, y))
+    assert len(model.classes_) == len(centres)
+    views = [o for p in model.places_.values() for o in p.observations]
+    assert views and all(o.full_fov for o in views)  # both lidars in every stored view
+    code, _, err = run_cli(capsys, "track", bag, "--db", db, *topics, "--filter", "pose", "--json", t, "-q")
+    assert code == 0, err
+    s = json.loads(t.read_text())["summary"]
+    assert s["steps"] == 41 and s["filtered"]["labelled"] > 20
