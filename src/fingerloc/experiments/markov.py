@@ -54,7 +54,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
-from ..map.filter import FilterResult, MarkovFilter, TransitionModel, fit_likelihood_scale, metres_per_move, run_filter
+from ..map.filter import (
+    FilterResult,
+    MarkovFilter,
+    TransitionModel,
+    fit_likelihood_scale,
+    fit_outlier_weight,
+    metres_per_move,
+    run_filter,
+)
 from ..map.graph import PlaceGraph, nearest_place_sequence
 from ..sensors import Scan
 from .carmen import METHODS, Method, Split, make_split, rank_metrics, register_method, true_place_ranks
@@ -79,6 +87,8 @@ IArray = NDArray[np.int64]
 
 #: Total-variation distance below which two posteriors count as merged (kidnapping forgotten).
 MERGED_TV = 0.1
+#: A pose at no place weighs this / P at an observation when ``rho`` is fitted (the pose filter's old default rho).
+DEFAULT_OFF_PLACE = 0.1
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10
 
@@ -228,6 +238,8 @@ class FilteredMethod:
         )
         self.scale_ = 1.0
         self.calibration_rows_ = 0
+        self.calibration_scores_: FArray = np.zeros((0, split.n_places))
+        self.calibration_labels_: IArray = np.zeros(0, np.int64)
         if self.calibrate:
             fold = _visit_folds(split.train_idx, y) if len(scans) == split.n_train else np.arange(y.size) % 2
             s, yy = _held_out_scores(factory, scans, y, fold, split.n_places)
@@ -238,6 +250,7 @@ class FilteredMethod:
             if usable:
                 self.scale_ = fit_likelihood_scale(s, yy)
             self.calibration_rows_ = usable
+            self.calibration_scores_, self.calibration_labels_ = s, yy
         return self
 
     def step_log_likelihoods(self, query_scores: Any) -> tuple[FArray, FArray]:
@@ -343,6 +356,27 @@ class PoseFilteredMethod(FilteredMethod):
         kidnapped robot is looked for (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
     kidnap : float, optional
         Kidnapping probability per observation; default ``1 / (n_train + 2)``.
+    observe : bool, default True
+        False: the sensor's rows are replaced by uniform ones at the observed
+        steps (``odometry-only``): what the odometry and the place layout
+        alone give. The filter still learns at each query that the robot is
+        at *some* place (the benchmark observes only there).
+    start_at_first_observation : bool, default True
+        Draw the particles from the first observation (prior times its
+        likelihood) instead of carrying the start prior blindly
+        (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
+    reset_threshold : float, optional
+        Sensor resetting after this many nats of disagreement (CUSUM) with
+        the place filter; ``None`` = off.
+    gap_metres : float, optional
+        Odometry steps longer than this re-initialise at the next observation.
+    off_place : float, optional
+        The filter's likelihood weight of a pose at no place (default
+        ``outlier``); with ``outlier="fit"`` it stays 0.1.
+
+    ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
+    mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
+    same held-out rows as ``beta``).
     """
 
     name = "pose-filtered"
@@ -353,15 +387,27 @@ class PoseFilteredMethod(FilteredMethod):
         *,
         odometry: str = "simulated",
         n_particles: int = 3000,
-        outlier: float = 0.1,
+        outlier: float | str = 0.1,
         seed: int = 0,
         calibrate: bool = True,
         temper: bool = True,
         odometry_error: float = 1.0,
         relocalize: bool = True,
         kidnap: float | None = None,
+        observe: bool = True,
+        start_at_first_observation: bool = True,
+        reset_threshold: float | None = None,
+        gap_metres: float | None = None,
+        off_place: float | None = None,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        if isinstance(outlier, str) and outlier != "fit":
+            raise InvalidParameterError(f"outlier must be a probability or 'fit', got {outlier!r}")
+        self.observe = observe
+        self.start_at_first_observation = start_at_first_observation
+        self.reset_threshold = reset_threshold
+        self.gap_metres = gap_metres
+        self.off_place = off_place
         if kidnap is not None and not (math.isfinite(kidnap) and 0 <= kidnap < 1):
             raise InvalidParameterError(f"kidnap must be a probability in [0, 1), got {kidnap!r}")
         self.kidnap = kidnap
@@ -386,12 +432,22 @@ class PoseFilteredMethod(FilteredMethod):
         all_scans, split = self._need_context()
         poses = _full_poses(all_scans)
         self.kidnap_ = 1.0 / (len(scans) + 2) if self.kidnap is None else self.kidnap
+        off_place = self.off_place
+        if self.outlier == "fit":
+            usable = self.calibration_labels_.size > 0
+            self.outlier_ = (
+                fit_outlier_weight(self.scale_ * self.calibration_scores_, self.calibration_labels_) if usable else 0.1
+            )
+            off_place = DEFAULT_OFF_PLACE if off_place is None else off_place
+        else:
+            self.outlier_ = float(self.outlier)
         self.filter_ = PoseFilter(
             split.centres,
             PLACE_RADIUS_M,
             n_particles=self.n_particles,
             kidnap=self.kidnap_,
-            outlier=self.outlier,
+            outlier=self.outlier_,
+            off_place=off_place,
             random_state=self.seed,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
@@ -404,12 +460,18 @@ class PoseFilteredMethod(FilteredMethod):
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
         from ..map.pose_filter import run_pose_filter
 
+        ll = np.asarray(log_likelihood, dtype=np.float64)
+        if not self.observe:  # the sensor switched off: uniform rows where it observed
+            ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, 0.0)
         return run_pose_filter(
-            log_likelihood,
+            ll,
             np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
             self.filter_,
             temper=(self.temper_metres_, self.temper_radians_) if self.temper else None,
             place_filter=MarkovFilter(self.transition_) if self.relocalize else None,
+            start_at_first_observation=self.start_at_first_observation,
+            reset_threshold=self.reset_threshold,
+            gap_metres=self.gap_metres,
         )
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
@@ -446,9 +508,40 @@ def _fingerprint_odometry_untempered() -> Method:
     return PoseFilteredMethod("fingerprint", temper=False)
 
 
-@register_method("baseline-histogram-odometry", default=False)
+@register_method("odometry-only")
+def _odometry_only() -> Method:
+    # What the odometry and the place layout give without the sensor (uniform rows at the queries).
+    return PoseFilteredMethod("fingerprint", observe=False)
+
+
+@register_method("histogram-odometry")
 def _histogram_odometry() -> Method:
+    # The histogram baseline's likelihood under the same pose filter.
     return PoseFilteredMethod("baseline-histogram")
+
+
+@register_method("baseline-histogram-odometry", default=False)
+def _baseline_histogram_odometry() -> Method:
+    # The former name of histogram-odometry, kept for scripts.
+    return PoseFilteredMethod("baseline-histogram")
+
+
+@register_method("fingerprint-odometry-reliability", default=False)
+def _fingerprint_odometry_reliability() -> Method:
+    # rho fitted to the front end's held-out reliability on the mapping pass (off-place weight kept at 0.1).
+    return PoseFilteredMethod("fingerprint", outlier="fit")
+
+
+@register_method("fingerprint-odometry-eager", default=False)
+def _fingerprint_odometry_eager() -> Method:
+    # Ablation: the start prior carried by dead reckoning to the first observation (the former default).
+    return PoseFilteredMethod("fingerprint", start_at_first_observation=False)
+
+
+@register_method("fingerprint-odometry-reset", default=False)
+def _fingerprint_odometry_reset() -> Method:
+    # Sensor resetting when the place filter has out-explained the particles by 8 nats (CUSUM).
+    return PoseFilteredMethod("fingerprint", reset_threshold=8.0)
 
 
 # ---------------------------------------------------------------------------------------------------
