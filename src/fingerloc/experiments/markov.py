@@ -462,7 +462,7 @@ class PoseFilteredMethod(FilteredMethod):
 
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
-            ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, 0.0)
+            ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
         return run_pose_filter(
             ll,
             np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
