@@ -224,3 +224,31 @@ def test_odometry_only_ignores_the_sensor(rooms_log):  # noqa: F811
         ll[split.query_idx - split.n_mapping] = np.random.default_rng(int(shift)).normal(size=(split.n_queries, split.n_places))
         outs.append(m.run_steps(ll, np.vstack([np.zeros((1, 3)), m.increments_])).log_posterior)
     assert np.array_equal(outs[0], outs[1])
+
+
+def test_tuning_on_the_mapping_pass_never_sees_the_queries(rooms_log):  # noqa: F811
+    """rho and the tempering distance are chosen along the mapping pass: scrambling the query pass's scans
+    changes nothing of the choice."""
+    from dataclasses import replace
+
+    from fingerloc.experiments.carmen import load_log_scans, make_split
+    from fingerloc.experiments.markov import tune_grid
+
+    scans, _ = load_log_scans(rooms_log)
+    split = make_split(np.array([s.pose[:2] for s in scans]))
+    rng = np.random.default_rng(0)
+    scrambled = scans[: split.n_mapping] + [
+        replace(s, ranges=rng.permutation(np.asarray(s.ranges))) for s in scans[split.n_mapping :]
+    ]
+    chosen = []
+    for log in (scans, scrambled):
+        m = PoseFilteredMethod("baseline-histogram", n_particles=300)
+        m.set_context(log, split)
+        m.fit([log[i] for i in split.train_idx.tolist()], split.train_labels.copy())
+        assert len(m.tuning_) == len(tune_grid(0.5))
+        assert (m.outlier_, m.temper_metres_) in {(t["outlier"], t["temper_metres"]) for t in m.tuning_}
+        best = max(t["top1"] for t in m.tuning_)
+        first_best = next(t for t in m.tuning_ if t["top1"] == best)
+        assert (m.outlier_, m.temper_metres_) == (first_best["outlier"], first_best["temper_metres"])
+        chosen.append(m.tuning_)
+    assert chosen[0] == chosen[1]

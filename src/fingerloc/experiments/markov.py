@@ -89,6 +89,13 @@ IArray = NDArray[np.int64]
 MERGED_TV = 0.1
 #: A pose at no place weighs this / P at an observation when ``rho`` is fitted (the pose filter's old default rho).
 DEFAULT_OFF_PLACE = 0.1
+
+
+def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
+    """(rho, tempering metres) pairs tried by ``PoseFilteredMethod(tune=True)``, the former default first."""
+    return [(rho, m) for rho in (0.1, 0.3, fitted_outlier) for m in (2.0, 1.0, 4.0)]
+
+
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10
 
@@ -240,17 +247,23 @@ class FilteredMethod:
         self.calibration_rows_ = 0
         self.calibration_scores_: FArray = np.zeros((0, split.n_places))
         self.calibration_labels_: IArray = np.zeros(0, np.int64)
+        self.calibration_index_: IArray = np.zeros(0, np.int64)
         if self.calibrate:
             fold = _visit_folds(split.train_idx, y) if len(scans) == split.n_train else np.arange(y.size) % 2
             s, yy = _held_out_scores(factory, scans, y, fold, split.n_places)
             usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
             if usable < MIN_CALIBRATION_ROWS:
-                s, yy = _held_out_scores(factory, scans, y, np.arange(y.size) % 2, split.n_places)
+                fold = np.arange(y.size) % 2
+                s, yy = _held_out_scores(factory, scans, y, fold, split.n_places)
                 usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
             if usable:
                 self.scale_ = fit_likelihood_scale(s, yy)
             self.calibration_rows_ = usable
             self.calibration_scores_, self.calibration_labels_ = s, yy
+            # row k of the held-out scores is training scan calibration_index_[k] (the order of _held_out_scores)
+            both = np.unique(fold).size > 1
+            self.calibration_index_ = np.concatenate([np.flatnonzero(fold == 0), np.flatnonzero(fold == 1)]) if both \
+                else np.zeros(0, np.int64)  # fmt: skip
         return self
 
     def step_log_likelihoods(self, query_scores: Any) -> tuple[FArray, FArray]:
@@ -377,6 +390,14 @@ class PoseFilteredMethod(FilteredMethod):
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
     same held-out rows as ``beta``).
+
+    ``tune=True`` (the default) chooses ``rho`` (0.1, 0.3 or the fitted one) and the
+    tempering distance (1, 2 or 4 m) by running the filter along the
+    *mapping* pass with the held-out scores of ``beta``'s calibration (each
+    training scan scored by the method fit on the other visits), a
+    simulated odometry of its own seed, and keeping the pair with the best
+    top-1 at the training scans (ties: the earlier pair of
+    :func:`tune_grid`). Nothing is taken from the query pass.
     """
 
     name = "pose-filtered"
@@ -399,8 +420,10 @@ class PoseFilteredMethod(FilteredMethod):
         reset_threshold: float | None = None,
         gap_metres: float | None = None,
         off_place: float | None = None,
+        tune: bool = True,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.tune = tune
         if isinstance(outlier, str) and outlier != "fit":
             raise InvalidParameterError(f"outlier must be a probability or 'fit', got {outlier!r}")
         self.observe = observe
@@ -454,7 +477,39 @@ class PoseFilteredMethod(FilteredMethod):
         self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         self.temper_metres_ = PLACE_SPACING_M
         self.temper_radians_ = field_of_view(all_scans[: split.n_mapping])
+        self.tuning_: list[dict[str, float]] = []
+        if self.tune and self.observe and self.calibration_index_.size:
+            self._tune_on_mapping_pass(poses[: split.n_mapping], split, factor, off_place)
         return self
+
+    def _tune_on_mapping_pass(self, poses: FArray, split: Split, factor: float, off_place: float | None) -> None:
+        """Choose ``rho`` and the tempering distance along the mapping pass (class docstring)."""
+        from ..map.pose_filter import PoseFilter, run_pose_filter, wheel_odometry
+        from .carmen import PLACE_RADIUS_M
+
+        rows = split.train_idx[self.calibration_index_]
+        ll = np.full((split.n_mapping, split.n_places), np.nan)
+        ll[rows] = self.scale_ * np.where(np.isnan(self.calibration_scores_), -np.inf, self.calibration_scores_)
+        truth = np.full(split.n_mapping, -1, dtype=np.int64)
+        truth[rows] = self.calibration_labels_
+        inc = wheel_odometry(poses, factor, random_state=self.seed + 2)
+        fitted = fit_outlier_weight(ll[rows], truth[rows])
+        best = (-1.0, self.outlier_, self.temper_metres_)
+        for rho, metres in tune_grid(fitted):
+            f = PoseFilter(split.centres, PLACE_RADIUS_M, n_particles=self.n_particles, kidnap=self.kidnap_,
+                           outlier=rho, off_place=DEFAULT_OFF_PLACE, random_state=self.seed + 2)  # fmt: skip
+            res = run_pose_filter(ll, inc, f, temper=(metres, self.temper_radians_) if self.temper else None,
+                                  place_filter=MarkovFilter(self.transition_) if self.relocalize else None,
+                                  start_at_first_observation=self.start_at_first_observation)  # fmt: skip
+            top1 = float(np.mean(res.best[rows] == truth[rows]))
+            self.tuning_.append({"outlier": rho, "temper_metres": metres, "top1": top1})
+            if top1 > best[0]:
+                best = (top1, rho, metres)
+        _, rho, self.temper_metres_ = best
+        self.outlier_ = rho
+        self.filter_ = PoseFilter(split.centres, PLACE_RADIUS_M, n_particles=self.n_particles, kidnap=self.kidnap_,
+                                  outlier=rho, off_place=DEFAULT_OFF_PLACE if off_place is None else off_place,
+                                  random_state=self.seed)  # fmt: skip
 
     def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
@@ -860,3 +915,24 @@ def tracking_ranks(data: TrackingData) -> tuple[IArray, IArray]:
         np.where(np.isnan(data.log_likelihood[q]), -np.inf, data.log_likelihood[q]), data.truth[q]
     )
     return single, true_place_ranks(res.log_posterior[q], data.truth[q])
+
+
+def _register_odometry_error_variants() -> None:
+    """``fingerprint-odometry-x2`` / ``-x4`` and ``odometry-only-exact`` / ``-x2`` / ``-x4``: the simulated errors times 0, 2, 4."""
+    def make(observe: bool, factor: float) -> Callable[[], Method]:
+        return lambda: PoseFilteredMethod("fingerprint", observe=observe, odometry_error=factor)
+
+    for factor in (2.0, 4.0):
+        register_method(f"fingerprint-odometry-x{factor:g}", default=False)(make(True, factor))
+        register_method(f"odometry-only-x{factor:g}", default=False)(make(False, factor))
+    register_method("odometry-only-exact", default=False)(
+        lambda: PoseFilteredMethod("fingerprint", observe=False, odometry="exact")
+    )
+    # Ablations: rho = 0.1 and 2 m tempering fixed (the former defaults), not chosen on the mapping pass.
+    register_method("fingerprint-odometry-untuned", default=False)(lambda: PoseFilteredMethod("fingerprint", tune=False))
+    register_method("histogram-odometry-untuned", default=False)(
+        lambda: PoseFilteredMethod("baseline-histogram", tune=False)
+    )
+
+
+_register_odometry_error_variants()

@@ -636,6 +636,7 @@ def run_pose_filter(
     reset_fraction: float = 0.5,
     start_at_first_observation: bool = False,
     gap_metres: float | None = None,
+    answer_untempered: bool = False,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -691,6 +692,12 @@ def run_pose_filter(
         (a jump of the poses, a pause of the recording while the robot was
         moved): the next observation re-initialises the particles as
         ``start_at_first_observation`` does. ``None``: no gap detection.
+    answer_untempered : bool, default False
+        The answer at an observed step weighs the particles' predicted
+        place posterior by the step's *whole* robust likelihood (the
+        tempering still governs what the particles keep for later): the
+        weight discounts evidence that repeats earlier views, which the
+        particles already carry, not the current view itself.
 
     Returns
     -------
@@ -756,7 +763,12 @@ def run_pose_filter(
             out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0)
             lost, cusum = False, 0.0
             continue
+        predicted = pose_filter.place_log_posterior() if answer_untempered else None
         out[t] = pose_filter.update(row, float(wts[t]), prior)
+        if predicted is not None:
+            full = predicted + pose_filter.place_likelihood(row)
+            if np.any(np.isfinite(full)):
+                out[t] = full - logsumexp(full)
         if reset_threshold is not None and cusum < -thr:
             out[t] = pose_filter.reseed(theirs - logsumexp(theirs), frac)
             cusum, resets = 0.0, resets + 1
