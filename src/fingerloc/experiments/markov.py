@@ -11,9 +11,14 @@
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :class:`PoseFilteredMethod`: the same front end followed by the pose
   particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
-  not only distances), registered as ``fingerprint-odometry``; ablations
-  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``, and
-  ``baseline-histogram-odometry``, run only when named.
+  not only distances), registered as ``fingerprint-odometry``, beside
+  ``odometry-only`` (the sensor switched off) and ``histogram-odometry`` (the
+  histogram baseline under the same filter), all three run by default;
+  ablations ``fingerprint-odometry-exact`` / ``-x2`` / ``-x4`` (odometry
+  errors x 0 / 2 / 4), ``odometry-only-exact`` / ``-x2`` / ``-x4``,
+  ``fingerprint-odometry-untempered``, ``-untuned``, ``-eager``,
+  ``-reliability``, ``-reset``, ``histogram-odometry-untuned`` and the old
+  name ``baseline-histogram-odometry``, run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover (either filter).
 
@@ -336,11 +341,12 @@ class PoseFilteredMethod(FilteredMethod):
     ``beta``), but the filter tracks the robot's pose in the mapping frame
     with the odometry *increments* (direction and turn, not only distance).
     Set from the mapping pass only: the place centres and the protocol's
-    radius; the filter starts uniform over the places (as the discrete
-    filter), near their centres with any heading; the kidnapping
+    radius; the particles are drawn from the first observation (uniform
+    prior over the places times its likelihood, any heading); the kidnapping
     probability per observation is ``1 / (n_train + 2)`` (Laplace's rule
     over the mapping pass's observations, as the discrete filter's mixing
-    term); ``outlier`` and the motion noise are the filter's defaults.
+    term); the motion noise is the filter's default; ``outlier`` and the
+    tempering distance are chosen along the mapping pass (``tune``, below).
     Observations are tempered (:func:`~fingerloc.map.pose_filter.observation_weights`):
     one counts fully after the robot has travelled the place spacing (2 m,
     the map's own scale: views closer than that are one place) or turned by

@@ -33,6 +33,14 @@ cell), mixed with the kidnapping term below.
   their exact total weight, then everything is resampled back to ``N``
   (systematic resampling).
 
+* **Lost and found** (:func:`run_pose_filter` options): the particles can be
+  drawn from the first observation instead of a start prior carried blindly
+  (a run that starts far from every place), re-drawn after a gap in the log
+  (an odometry step longer than ``gap_metres``), and partly re-seeded from
+  the place filter's posterior when it has explained the views better for
+  long (sensor resetting, :meth:`PoseFilter.reseed`; Lenser and Veloso 2000,
+  Thrun, Fox, Burgard and Dellaert 2001).
+
 Everything is in log space; a likelihood of zero never makes a NaN.
 """
 
