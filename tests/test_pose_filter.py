@@ -243,7 +243,9 @@ def _chain_pose_data(p=30, per_place=3):
 
     class Fitted(PoseFilteredMethod):
         def __init__(self) -> None:
-            super().__init__("fingerprint")
+            # the kidnapping path as it was pinned (the start from the first observation changes the random
+            # stream; over seeds 0-2 both starts recover in 4-6 of the 6 trials within 20 steps)
+            super().__init__("fingerprint", start_at_first_observation=False)
             self.transition_ = TransitionModel.from_graph(g, metres_per_move=3.0)
             self.filter_ = PoseFilter(centres, 1.5, n_particles=1000, kidnap=0.01, random_state=0)
             self.temper_metres_, self.temper_radians_ = 2.0, math.pi

@@ -54,10 +54,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
-from ..map.filter import FilterResult, TransitionModel, run_filter
+from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
-from ..pipeline.tracker import Calibration, FitScore, Tracker, fit_scale, run_pose_steps, step_distances
+from ..pipeline.tracker import (
+    Calibration,
+    FitScore,
+    HeldOut,
+    Tracker,
+    held_out_calibration,
+    run_pose_steps,
+    step_distances,
+    tune_pose_filter,
+)
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
 from .protocol import METHODS, Method, Split, load_methods, make_split, rank_metrics, register_method, true_place_ranks
@@ -82,6 +91,9 @@ IArray = NDArray[np.int64]
 
 #: Total-variation distance below which two posteriors count as merged (kidnapping forgotten).
 MERGED_TV = 0.1
+#: A pose at no place weighs this / P at an observation when ``rho`` is fitted (the pose filter's old default rho).
+DEFAULT_OFF_PLACE = 0.1
+
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = _MIN_CALIBRATION_ROWS
 
@@ -193,14 +205,16 @@ class FilteredMethod:
         )
         self.scale_ = 1.0
         self.calibration_rows_ = 0
-        if self.calibrate:  # the library's calibration (fingerloc.pipeline.tracker.fit_scale)
-            self.scale_, self.calibration_rows_ = fit_scale(
+        self.held_out_: HeldOut | None = None
+        if self.calibrate:  # the library's calibration (fingerloc.pipeline.tracker.held_out_calibration)
+            self.held_out_ = held_out_calibration(
                 _method_fit_score(factory, scans),
                 split.train_idx,
                 y,
                 split.n_places,
                 by_visits=len(scans) == split.n_train,
             )
+            self.scale_, self.calibration_rows_ = self.held_out_.beta, self.held_out_.rows
         return self
 
     def step_log_likelihoods(self, query_scores: Any) -> tuple[FArray, FArray]:
@@ -273,11 +287,12 @@ class PoseFilteredMethod(FilteredMethod):
     ``beta``), but the filter tracks the robot's pose in the mapping frame
     with the odometry *increments* (direction and turn, not only distance).
     Set from the mapping pass only: the place centres and the protocol's
-    radius; the filter starts uniform over the places (as the discrete
-    filter), near their centres with any heading; the kidnapping
+    radius; the particles are drawn from the first observation (uniform
+    prior over the places times its likelihood, any heading); the kidnapping
     probability per observation is ``1 / (n_train + 2)`` (Laplace's rule
     over the mapping pass's observations, as the discrete filter's mixing
-    term); ``outlier`` and the motion noise are the filter's defaults.
+    term); the motion noise is the filter's default; ``outlier`` and the
+    tempering distance are chosen along the mapping pass (``tune``, below).
     Observations are tempered (:func:`~fingerloc.map.pose_filter.observation_weights`):
     one counts fully after the robot has travelled the place spacing (2 m,
     the map's own scale: views closer than that are one place) or turned by
@@ -306,6 +321,32 @@ class PoseFilteredMethod(FilteredMethod):
         kidnapped robot is looked for (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
     kidnap : float, optional
         Kidnapping probability per observation; default ``1 / (n_train + 2)``.
+    observe : bool, default True
+        False: the sensor's rows are replaced by uniform ones at the observed
+        steps (``odometry-only``): what the odometry and the place layout
+        alone give. The filter still learns at each query that the robot is
+        at *some* place (the benchmark observes only there).
+    start_at_first_observation : bool, default True
+        Draw the particles from the first observation (prior times its
+        likelihood) instead of carrying the start prior blindly
+        (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
+    reset_threshold : float, optional
+        Sensor resetting after this many nats of disagreement (CUSUM) with
+        the place filter; ``None`` = off.
+    gap_metres : float, optional
+        Odometry steps longer than this re-initialise at the next observation.
+    off_place : float, optional
+        The filter's likelihood weight of a pose at no place (default
+        ``outlier``); with ``outlier="fit"`` it stays 0.1.
+
+    ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
+    mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
+    same held-out rows as ``beta``).
+
+    ``tune=True`` (the default) chooses ``rho`` (0.1, 0.3 or the fitted one)
+    and the tempering distance (1, 2 or 4 m) along the *mapping* pass with
+    the library's :func:`~fingerloc.pipeline.tracker.tune_pose_filter` (the
+    same as ``fingerloc map``). Nothing is taken from the query pass.
     """
 
     name = "pose-filtered"
@@ -316,15 +357,29 @@ class PoseFilteredMethod(FilteredMethod):
         *,
         odometry: str = "simulated",
         n_particles: int = 3000,
-        outlier: float = 0.1,
+        outlier: float | str = 0.1,
         seed: int = 0,
         calibrate: bool = True,
         temper: bool = True,
         odometry_error: float = 1.0,
         relocalize: bool = True,
         kidnap: float | None = None,
+        observe: bool = True,
+        start_at_first_observation: bool = True,
+        reset_threshold: float | None = None,
+        gap_metres: float | None = None,
+        off_place: float | None = None,
+        tune: bool = True,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.tune = tune
+        if isinstance(outlier, str) and outlier != "fit":
+            raise InvalidParameterError(f"outlier must be a probability or 'fit', got {outlier!r}")
+        self.observe = observe
+        self.start_at_first_observation = start_at_first_observation
+        self.reset_threshold = reset_threshold
+        self.gap_metres = gap_metres
+        self.off_place = off_place
         if kidnap is not None and not (math.isfinite(kidnap) and 0 <= kidnap < 1):
             raise InvalidParameterError(f"kidnap must be a probability in [0, 1), got {kidnap!r}")
         self.kidnap = kidnap
@@ -349,37 +404,62 @@ class PoseFilteredMethod(FilteredMethod):
         all_scans, split = self._need_context()
         poses = _full_poses(all_scans)
         self.kidnap_ = 1.0 / (len(scans) + 2) if self.kidnap is None else self.kidnap
-        self.temper_metres_ = PLACE_SPACING_M
-        self.temper_radians_ = field_of_view(all_scans[: split.n_mapping])
+        held = self.held_out_
+        if self.outlier == "fit":
+            usable = held is not None and held.labels.size > 0
+            outlier = fit_outlier_weight(self.scale_ * held.scores, held.labels) if held is not None and usable else 0.1
+            off_place = DEFAULT_OFF_PLACE if self.off_place is None else self.off_place
+        else:
+            outlier = float(self.outlier)
+            off_place = outlier if self.off_place is None else self.off_place
         metres = self.transition_.metres_per_move
         self.calibration_ = Calibration(
             beta=self.scale_,
             metres_per_move=1.0 if metres is None else metres,
-            temper_metres=self.temper_metres_,
-            temper_radians=self.temper_radians_,
+            temper_metres=PLACE_SPACING_M,
+            temper_radians=field_of_view(all_scans[: split.n_mapping]),
             kidnap=self.kidnap_,
             radius=PLACE_RADIUS_M,
             spacing=PLACE_SPACING_M,
             alpha=self.alpha,
             n_train=len(scans),
             calibration_rows=self.calibration_rows_,
+            outlier=outlier,
+            off_place=off_place,
+            start_at_first_observation=self.start_at_first_observation,
+            gap_metres=self.gap_metres,
         )
-        self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles,
-                                outlier=self.outlier)  # fmt: skip
-        self.filter_ = self.tracker_.pose_filter(self.seed)
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
+        self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
+        self.tuning_: list[dict[str, float]] = []
+        if self.tune and self.observe and held is not None:
+            self.calibration_, self.tuning_ = tune_pose_filter(
+                self.tracker_, held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
+                seed=self.seed, temper=self.temper, relocalize=self.relocalize,
+            )  # fmt: skip
+            self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
+        self.outlier_ = self.calibration_.outlier
+        self.temper_metres_ = self.calibration_.temper_metres
+        self.temper_radians_ = self.calibration_.temper_radians
+        self.filter_ = self.tracker_.pose_filter(self.seed)
         self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         return self
 
     def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
+        ll = np.asarray(log_likelihood, dtype=np.float64)
+        if not self.observe:  # the sensor switched off: uniform rows where it observed
+            ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
         return run_pose_steps(
-            log_likelihood,
+            ll,
             increments,
             self.filter_,
             self.transition_,
             temper=(self.temper_metres_, self.temper_radians_) if self.temper else None,
             relocalize=self.relocalize,
+            start_at_first_observation=self.start_at_first_observation,
+            gap_metres=self.gap_metres,
+            reset_threshold=self.reset_threshold,
         )
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
@@ -416,9 +496,40 @@ def _fingerprint_odometry_untempered() -> Method:
     return PoseFilteredMethod("fingerprint", temper=False)
 
 
-@register_method("baseline-histogram-odometry", default=False)
+@register_method("odometry-only")
+def _odometry_only() -> Method:
+    # What the odometry and the place layout give without the sensor (uniform rows at the queries).
+    return PoseFilteredMethod("fingerprint", observe=False)
+
+
+@register_method("histogram-odometry")
 def _histogram_odometry() -> Method:
+    # The histogram baseline's likelihood under the same pose filter.
     return PoseFilteredMethod("baseline-histogram")
+
+
+@register_method("baseline-histogram-odometry", default=False)
+def _baseline_histogram_odometry() -> Method:
+    # The former name of histogram-odometry, kept for scripts.
+    return PoseFilteredMethod("baseline-histogram")
+
+
+@register_method("fingerprint-odometry-reliability", default=False)
+def _fingerprint_odometry_reliability() -> Method:
+    # rho fitted to the front end's held-out reliability on the mapping pass (off-place weight kept at 0.1).
+    return PoseFilteredMethod("fingerprint", outlier="fit")
+
+
+@register_method("fingerprint-odometry-eager", default=False)
+def _fingerprint_odometry_eager() -> Method:
+    # Ablation: the start prior carried by dead reckoning to the first observation (the former default).
+    return PoseFilteredMethod("fingerprint", start_at_first_observation=False)
+
+
+@register_method("fingerprint-odometry-reset", default=False)
+def _fingerprint_odometry_reset() -> Method:
+    # Sensor resetting when the place filter has out-explained the particles by 8 nats (CUSUM).
+    return PoseFilteredMethod("fingerprint", reset_threshold=8.0)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -737,3 +848,24 @@ def tracking_ranks(data: TrackingData) -> tuple[IArray, IArray]:
         np.where(np.isnan(data.log_likelihood[q]), -np.inf, data.log_likelihood[q]), data.truth[q]
     )
     return single, true_place_ranks(res.log_posterior[q], data.truth[q])
+
+
+def _register_odometry_error_variants() -> None:
+    """``fingerprint-odometry-x2`` / ``-x4`` and ``odometry-only-exact`` / ``-x2`` / ``-x4``: the simulated errors times 0, 2, 4."""
+    def make(observe: bool, factor: float) -> Callable[[], Method]:
+        return lambda: PoseFilteredMethod("fingerprint", observe=observe, odometry_error=factor)
+
+    for factor in (2.0, 4.0):
+        register_method(f"fingerprint-odometry-x{factor:g}", default=False)(make(True, factor))
+        register_method(f"odometry-only-x{factor:g}", default=False)(make(False, factor))
+    register_method("odometry-only-exact", default=False)(
+        lambda: PoseFilteredMethod("fingerprint", observe=False, odometry="exact")
+    )
+    # Ablations: rho = 0.1 and 2 m tempering fixed (the former defaults), not chosen on the mapping pass.
+    register_method("fingerprint-odometry-untuned", default=False)(lambda: PoseFilteredMethod("fingerprint", tune=False))
+    register_method("histogram-odometry-untuned", default=False)(
+        lambda: PoseFilteredMethod("baseline-histogram", tune=False)
+    )
+
+
+_register_odometry_error_variants()

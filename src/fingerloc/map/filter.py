@@ -51,6 +51,7 @@ __all__ = [
     "TransitionModel",
     "entropy_bits",
     "fit_likelihood_scale",
+    "fit_outlier_weight",
     "metres_per_move",
     "run_filter",
 ]
@@ -312,6 +313,49 @@ def fit_likelihood_scale(scores: Any, labels: Any, *, bounds: tuple[float, float
     res = minimize_scalar(nll, bounds=(math.log(bounds[0]), math.log(bounds[1])), method="bounded",
                           options={"xatol": 1e-4})  # fmt: skip
     return float(math.exp(res.x))
+
+
+def fit_outlier_weight(log_likelihood: Any, labels: Any, *, bounds: tuple[float, float] = (1e-4, 0.999)) -> float:
+    """How often a front end's answer is noise: ``rho`` of the robust likelihood ``(1 - rho) softmax(l) + rho / P``.
+
+    The reliability the sensor has proved on held-out data (the mapping
+    pass, cross-validated, as for :func:`fit_likelihood_scale`): ``rho``
+    maximises the mean log-probability of the true place under the robust
+    likelihood. A front end whose calibrated answers are seldom wrong gets a
+    small ``rho`` (an observation can overrule the motion model); one whose
+    confident answers are often wrong gets a large one.
+
+    Parameters
+    ----------
+    log_likelihood : array_like, shape (n, P)
+        Calibrated log-likelihood rows (``beta`` times the scores); ``-inf`` allowed.
+    labels : array_like of int, shape (n,)
+    bounds : (float, float)
+        Search interval of ``rho``, inside ``(0, 1)``.
+
+    Returns
+    -------
+    float
+    """
+    s = np.asarray(log_likelihood, dtype=np.float64)
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if s.ndim != 2 or s.shape[0] != y.size or s.shape[1] < 1:
+        raise InvalidParameterError(f"log_likelihood must have shape (n, P) with n = {y.size}, got {s.shape}")
+    if not (0 < bounds[0] < bounds[1] < 1):
+        raise InvalidParameterError(f"bounds must satisfy 0 < low < high < 1, got {bounds!r}")
+    s = np.where(np.isnan(s), -np.inf, s)
+    keep = np.any(np.isfinite(s), axis=1)
+    s, y = s[keep], y[keep]
+    if y.size == 0:
+        raise InvalidParameterError("fit_outlier_weight needs at least one row with a finite entry")
+    p = s.shape[1]
+    soft = s[np.arange(y.size), y] - logsumexp(s, axis=1)  # log softmax of the true place (may be -inf)
+
+    def nll(rho: float) -> float:
+        return float(-np.mean(np.logaddexp(math.log1p(-rho) + soft, math.log(rho / p))))
+
+    res = minimize_scalar(nll, bounds=bounds, method="bounded", options={"xatol": 1e-5})
+    return float(res.x)
 
 
 class MarkovFilter:

@@ -33,6 +33,14 @@ cell), mixed with the kidnapping term below.
   their exact total weight, then everything is resampled back to ``N``
   (systematic resampling).
 
+* **Lost and found** (:func:`run_pose_filter` options): the particles can be
+  drawn from the first observation instead of a start prior carried blindly
+  (a run that starts far from every place), re-drawn after a gap in the log
+  (an odometry step longer than ``gap_metres``), and partly re-seeded from
+  the place filter's posterior when it has explained the views better for
+  long (sensor resetting, :meth:`PoseFilter.reseed`; Lenser and Veloso 2000,
+  Thrun, Fox, Burgard and Dellaert 2001).
+
 Everything is in log space; a likelihood of zero never makes a NaN.
 """
 
@@ -58,6 +66,7 @@ __all__ = [
     "compose_increments",
     "observation_weights",
     "odometry_increments",
+    "path_start_poses",
     "run_pose_filter",
     "simulate_odometry",
     "wheel_odometry",
@@ -241,13 +250,33 @@ class PoseFilter:
         anywhere since the previous one (in ``[0, 1)``).
     outlier : float, default 0.1
         ``rho``: weight of the noise part of the place likelihood (in ``[0, 1]``).
-    start : array_like, shape (m, 2), optional
-        Positions the robot may start from, equally likely; the initial
-        particles are drawn from them with ``radius / 2`` of jitter and
-        uniform headings. Default: the place centres (a uniform prior over
-        the places, as the discrete filter's). Positions where the robot
-        spent long (e.g. every scan of a mapping run) weigh the prior towards
-        those places.
+    off_place : float, optional
+        Likelihood of an observation, relative to the mean over the places,
+        for a pose at no place (``[0, 1]``): such a particle weighs
+        ``off_place / P``. Default ``outlier`` (the view is then explained
+        by noise alone). Kept apart from ``outlier`` when ``outlier`` is
+        fitted to the front end's reliability
+        (:func:`fingerloc.map.filter.fit_outlier_weight`): how often the
+        front end names the wrong place says nothing of how likely a view is
+        away from every place.
+    start : array_like, shape (m, 2) or (m, 3), optional
+        Positions (or poses, heading in radians) the robot may start from,
+        equally likely; the initial particles are drawn from them with
+        ``radius / 2`` of jitter, and a heading jitter of ``heading_jitter``
+        when headings are given (uniform headings otherwise). Default: the
+        place centres (a uniform prior over the places, as the discrete
+        filter's). Positions where the robot spent long (e.g. every scan of a
+        mapping run) weigh the prior towards those places;
+        :func:`path_start_poses` spreads them evenly along a path instead.
+    place_poses : array_like, shape (m, 3), optional
+        Poses at which the robot has been seen (e.g. the mapping run's scans,
+        with the reversed headings too): particles re-seeded at place ``j``
+        (kidnapping, :meth:`reseed`) take one of the poses within ``radius``
+        of its centre, jittered, instead of a point of its disc with a
+        uniform heading. A place with no such pose falls back to the disc.
+    heading_jitter : float, default 0.2
+        Radians (one sigma) added to the headings of ``start`` and
+        ``place_poses``.
     random_state : int or Generator, optional
 
     Attributes
@@ -266,7 +295,10 @@ class PoseFilter:
         motion: MotionNoise | None = None,
         kidnap: float = 0.005,
         outlier: float = 0.1,
+        off_place: float | None = None,
         start: Any = None,
+        place_poses: Any = None,
+        heading_jitter: float = 0.2,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -286,10 +318,24 @@ class PoseFilter:
         self.outlier = _finite("outlier", outlier)
         if self.outlier > 1:
             raise InvalidParameterError(f"outlier must be in [0, 1], got {outlier!r}")
+        self.off_place = self.outlier if off_place is None else _finite("off_place", off_place)
+        if self.off_place > 1:
+            raise InvalidParameterError(f"off_place must be in [0, 1], got {off_place!r}")
         st = c if start is None else np.asarray(start, dtype=np.float64)
-        if st.ndim != 2 or st.shape[1] != 2 or st.shape[0] == 0 or not np.all(np.isfinite(st)):
-            raise InvalidParameterError(f"start must be a finite array of shape (m >= 1, 2), got {st.shape}")
+        if st.ndim != 2 or st.shape[1] not in (2, 3) or st.shape[0] == 0 or not np.all(np.isfinite(st)):
+            raise InvalidParameterError(f"start must be a finite array of shape (m >= 1, 2 or 3), got {st.shape}")
         self.start = st
+        self.heading_jitter = _finite("heading_jitter", heading_jitter)
+        self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
+        if place_poses is not None:
+            pp = np.asarray(place_poses, dtype=np.float64)
+            if pp.ndim != 2 or pp.shape[1] != 3 or not np.all(np.isfinite(pp)):
+                raise InvalidParameterError(f"place_poses must be a finite array of shape (m, 3), got {pp.shape}")
+            if pp.shape[0]:
+                d, j = cKDTree(c).query(pp[:, :2])
+                near = np.asarray(j)[np.asarray(d) <= self.radius]
+                pp = pp[np.asarray(d) <= self.radius]
+                self._place_poses = [pp[near == k] for k in range(c.shape[0])]
         self._rng = (
             random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
         )
@@ -305,10 +351,15 @@ class PoseFilter:
         """Particles drawn from ``start`` (global localization: nothing known)."""
         n, rng = self.n_particles, self._rng
         k = rng.integers(0, self.start.shape[0], n)
-        xy = self.start[k] + 0.5 * self.radius * rng.standard_normal((n, 2))
-        self.particles_ = np.column_stack([xy, rng.uniform(-math.pi, math.pi, n)])
+        xy = self.start[k, :2] + 0.5 * self.radius * rng.standard_normal((n, 2))
+        if self.start.shape[1] == 3:
+            th = wrap(self.start[k, 2] + self.heading_jitter * rng.standard_normal(n))
+        else:
+            th = rng.uniform(-math.pi, math.pi, n)
+        self.particles_ = np.column_stack([xy, th])
         self.log_weights_ = np.full(n, -math.log(n))
         self._place_log_posterior = self._particle_places()
+        self.resets_ = 0
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
@@ -370,7 +421,9 @@ class PoseFilter:
             return np.full(self.n_places, -math.log(self.n_places))
         return np.logaddexp(math.log1p(-self.outlier) + soft, math.log(self.outlier / self.n_places))
 
-    def update(self, log_likelihood: Any, weight: float = 1.0, kidnap_prior: Any = None) -> FArray:
+    def update(
+        self, log_likelihood: Any, weight: float = 1.0, kidnap_prior: Any = None, kidnap: float | None = None
+    ) -> FArray:
         """Weigh the particles by one observation, apply the kidnapping term, resample; the place log-posterior.
 
         ``weight`` in ``(0, 1]`` counts the observation as that fraction of an
@@ -378,19 +431,24 @@ class PoseFilter:
         kidnapping probability becomes ``1 - (1 - epsilon) ** weight``.
         ``kidnap_prior`` (log-probabilities over the places, shape (P,)): where
         a kidnapped robot may be, e.g. the discrete place filter's predicted
-        belief; default uniform.
+        belief; default uniform. ``kidnap`` overrides the kidnapping
+        probability of this observation, untempered (1 = the particles are
+        forgotten and re-drawn from ``kidnap_prior`` times the likelihood:
+        a global (re)initialisation from the sensor).
         """
         w_obs = _finite("weight", weight)
+        if kidnap is not None and not 0 <= _finite("kidnap", kidnap) <= 1:
+            raise InvalidParameterError(f"kidnap must be in [0, 1], got {kidnap!r}")
         if not 0 < w_obs <= 1:
             raise InvalidParameterError(f"an observation's weight must be in (0, 1], got {weight!r}")
         lp = w_obs * self.place_likelihood(log_likelihood)
         P = self.n_places
-        floor = w_obs * math.log(self.outlier / P) if self.outlier > 0 else -np.inf
+        floor = w_obs * math.log(self.off_place / P) if self.off_place > 0 else -np.inf
         d, near = self._nearest(self.particles_[:, :2])
         lik = np.where(d <= self.radius, lp[near], floor)
         w = self.log_weights_ + lik
         tracked = float(logsumexp(w)) if np.any(np.isfinite(w)) else -np.inf
-        eps = -math.expm1(w_obs * math.log1p(-self.kidnap))
+        eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):
             mass = np.log(np.bincount(near, weights=np.exp(w - tracked) if math.isfinite(tracked) else None,
@@ -404,7 +462,7 @@ class PoseFilter:
             prior = prior - logsumexp(prior)
         kid = prior + lp
         comp_kid = (math.log(eps) if eps > 0 else -np.inf) + float(logsumexp(kid))
-        comp_trk = (math.log1p(-eps) + tracked) if math.isfinite(tracked) else -np.inf
+        comp_trk = (math.log1p(-eps) + tracked) if math.isfinite(tracked) and eps < 1 else -np.inf
         if not math.isfinite(comp_trk) and not math.isfinite(comp_kid):
             # nothing explains the observation (outlier = 0 and every particle away from a place): keep the prior
             return self.place_log_posterior()
@@ -414,7 +472,7 @@ class PoseFilter:
         parts = [self.particles_]
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
-            m = max(self.n_particles // 3, 1)
+            m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
             fresh = self._sample_at_places(kid, m)
             parts.append(fresh)
             logw.append(np.full(m, comp_kid - math.log(m)))
@@ -427,10 +485,51 @@ class PoseFilter:
         j = rng.choice(self.n_places, size=m, p=pr / pr.sum())
         ang = rng.uniform(0.0, 2 * math.pi, m)
         rad = self.radius * np.sqrt(rng.uniform(0.0, 1.0, m))
-        return np.column_stack(
+        out = np.column_stack(
             [self.centres[j, 0] + rad * np.cos(ang), self.centres[j, 1] + rad * np.sin(ang),
              rng.uniform(-math.pi, math.pi, m)]
         )  # fmt: skip
+        for k in np.unique(j).tolist():
+            known = self._place_poses[k]
+            if known.shape[0] == 0:
+                continue
+            rows = np.flatnonzero(j == k)
+            pick = known[rng.integers(0, known.shape[0], rows.size)]
+            out[rows, :2] = pick[:, :2] + 0.25 * self.radius * rng.standard_normal((rows.size, 2))
+            out[rows, 2] = wrap(pick[:, 2] + self.heading_jitter * rng.standard_normal(rows.size))
+        return out
+
+    def reseed(self, log_p: Any, fraction: float) -> FArray:
+        """Sensor resetting: replace ``fraction`` of the particles by fresh ones drawn at the places by ``log_p``.
+
+        Lenser and Veloso's sensor-resetting localization (2000) and the
+        mixture proposal of Thrun, Fox, Burgard and Dellaert (2001): when the
+        particles have lost the robot, a proposal from the sensor (here a
+        place posterior, e.g. the single-shot one or the discrete filter's)
+        puts hypotheses back where the robot may be. The replaced particles
+        are a random subset and keep their weights (equal after an update,
+        which resamples), so about ``fraction`` of the mass moves. Returns the place log-posterior afterwards.
+
+        Parameters
+        ----------
+        log_p : array_like, shape (P,)
+            Log-probabilities of the places (not all ``-inf``).
+        fraction : float
+            In ``[0, 1]``.
+        """
+        f = _finite("fraction", fraction)
+        if f > 1:
+            raise InvalidParameterError(f"fraction must be in [0, 1], got {fraction!r}")
+        lp = np.asarray(log_p, dtype=np.float64).reshape(-1)
+        if lp.size != self.n_places or np.any(np.isnan(lp)) or not np.any(np.isfinite(lp)):
+            raise InvalidParameterError(f"log_p must be {self.n_places} log-probabilities, not all -inf, without NaN")
+        n = self.particles_.shape[0]
+        m = round(f * n)
+        if m:
+            idx = self._rng.choice(n, size=m, replace=False)
+            self.particles_[idx] = self._sample_at_places(lp, m)
+            self._place_log_posterior = self._particle_places()
+        return self.place_log_posterior()
 
     def _resample(self, particles: FArray, log_w: FArray) -> None:
         """Systematic resampling of ``N`` particles from weighted ``particles``."""
@@ -452,6 +551,41 @@ class PoseFilter:
         if log_likelihood is None:
             return self.place_log_posterior()
         return self.update(log_likelihood, weight, kidnap_prior)
+
+
+def path_start_poses(poses: Any, *, spacing: float = 0.5, both_directions: bool = True) -> FArray:
+    """Poses spread evenly along a path (one per ``spacing`` metres travelled), for a start prior or re-seeding.
+
+    A robot that is lost is somewhere it can drive: on the path of the mapping
+    run, facing along it (or back, with ``both_directions``). Taking every
+    scan's pose would weigh the prior by the time spent (a robot standing
+    still for a minute at one place); one pose per ``spacing`` metres of
+    path weighs it by length instead.
+
+    Parameters
+    ----------
+    poses : array_like, shape (n, 3)
+        The path, metres and radians, in order.
+    spacing : float, default 0.5
+        Metres of path per kept pose (> 0).
+    both_directions : bool, default True
+        Also each kept pose with the reversed heading.
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        ``m >= 1`` (the first pose is always kept).
+    """
+    p = _poses(poses)
+    sp = _finite("spacing", spacing)
+    if p.shape[0] == 0 or sp <= 0:
+        raise InvalidParameterError(f"path_start_poses needs at least one pose and spacing > 0, got {p.shape[0]}, {spacing!r}")
+    arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p[:, :2], axis=0).T))]
+    keep = np.r_[0, np.flatnonzero(np.diff(np.floor(arc / sp)) > 0) + 1] if p.shape[0] > 1 else np.zeros(1, np.int64)
+    out = p[keep]
+    if both_directions:
+        out = np.vstack([out, np.column_stack([out[:, :2], wrap(out[:, 2] + math.pi)])])
+    return out
 
 
 def observation_weights(increments: Any, observed: Any, *, metres: float, radians: float = math.inf) -> FArray:
@@ -506,6 +640,11 @@ def run_pose_filter(
     weights: Any = None,
     temper: tuple[float, float] | None = None,
     place_filter: MarkovFilter | None = None,
+    reset_threshold: float | None = None,
+    reset_fraction: float = 0.5,
+    start_at_first_observation: bool = False,
+    gap_metres: float | None = None,
+    answer_untempered: bool = False,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -530,10 +669,49 @@ def run_pose_filter(
         its predicted belief is where a kidnapped robot is looked for
         (``kidnap_prior``), so that the pose filter re-localizes as fast as
         the place filter does.
+    reset_threshold : float, optional
+        Sensor resetting (:meth:`PoseFilter.reseed`) when the particles and
+        the sensor disagree for long. At each observation with place
+        likelihood ``p`` (robust, tempered by the observation's weight
+        ``w``), the evidence that the particles still hold the robot against
+        the alternative (the place filter's predicted belief, else a uniform
+        prior over the places) is
+        ``r = w (log sum_j pose_j p_j - log sum_j alt_j p_j)``; the
+        one-sided cumulative sum ``S = min(0, S + r)`` (Page's CUSUM test for
+        a change) falls when observation after observation the alternative
+        explains the views better. When ``S < -reset_threshold`` (nats),
+        ``reset_fraction`` of the particles are re-drawn from the
+        alternative's posterior ``alt_j p_j`` and ``S`` restarts at 0.
+        ``None``: no resetting.
+    reset_fraction : float, default 0.5
+        In ``(0, 1]``.
+    start_at_first_observation : bool, default False
+        Global localization from the sensor: the particles are drawn at the
+        first observation from the places' prior times its likelihood
+        (:meth:`PoseFilter.update` with ``kidnap=1``, at the filter's
+        ``place_poses`` when given), not carried by dead reckoning from the
+        start prior. A prior spread over the places and moved blindly over a
+        long unobserved stretch (a run that starts far from every place)
+        thins out to a few particles anywhere; the sensor's first answer is
+        a far better proposal. Before it the answer is the start prior moved
+        by the odometry.
+    gap_metres : float, optional
+        An odometry increment longer than this (metres) is a gap in the log
+        (a jump of the poses, a pause of the recording while the robot was
+        moved): the next observation re-initialises the particles as
+        ``start_at_first_observation`` does. ``None``: no gap detection.
+    answer_untempered : bool, default False
+        The answer at an observed step weighs the particles' predicted
+        place posterior by the step's *whole* robust likelihood (the
+        tempering still governs what the particles keep for later): the
+        weight discounts evidence that repeats earlier views, which the
+        particles already carry, not the current view itself.
 
     Returns
     -------
     FilterResult
+        Also ``resets`` (number of re-seedings) is set as an attribute of the
+        filter: ``pose_filter.resets_``.
     """
     ll = np.asarray(log_likelihood, dtype=np.float64)
     P = pose_filter.n_places
@@ -547,6 +725,11 @@ def run_pose_filter(
         raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
     if weights is None and temper is not None:
         weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
+    if reset_threshold is not None:
+        thr = _finite("reset_threshold", reset_threshold)
+        frac = _finite("reset_fraction", reset_fraction)
+        if not 0 < frac <= 1:
+            raise InvalidParameterError(f"reset_fraction must be in (0, 1], got {reset_fraction!r}")
     wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     if wts.size != n:
         raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
@@ -555,7 +738,11 @@ def run_pose_filter(
         if place_filter.transition.n_places != P:
             raise InvalidParameterError(f"the place filter has {place_filter.transition.n_places} places, need {P}")
         place_filter.reset()
+    gap = math.inf if gap_metres is None else _finite("gap_metres", gap_metres)
     out = np.empty_like(ll)
+    cusum, resets = 0.0, 0
+    lost = bool(start_at_first_observation)
+    uniform = np.full(P, -math.log(P))
     for t in range(n):
         row = ll[t]
         observed = not np.all(np.isnan(row))
@@ -566,10 +753,32 @@ def run_pose_filter(
             )
             if observed:
                 place_filter.update(np.where(np.isnan(row), -np.inf, row))
-        out[t] = pose_filter.step(
-            row if observed else None,
-            inc[t - 1] if t > 0 else None,
-            float(wts[t]) if observed else 1.0,
-            prior if observed else None,
-        )
+        if t > 0:
+            pose_filter.predict(inc[t - 1])
+            if math.hypot(inc[t - 1, 0], inc[t - 1, 1]) > gap:
+                lost = True
+        if not observed:
+            out[t] = pose_filter.place_log_posterior()
+            continue
+        if reset_threshold is not None:
+            lp = pose_filter.place_likelihood(row)
+            alt = uniform if prior is None else prior
+            mine = pose_filter.place_log_posterior() + lp
+            theirs = alt + lp
+            r = float(wts[t]) * (float(logsumexp(mine)) - float(logsumexp(theirs)))
+            cusum = min(0.0, cusum + r)
+        if lost:
+            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0)
+            lost, cusum = False, 0.0
+            continue
+        predicted = pose_filter.place_log_posterior() if answer_untempered else None
+        out[t] = pose_filter.update(row, float(wts[t]), prior)
+        if predicted is not None:
+            full = predicted + pose_filter.place_likelihood(row)
+            if np.any(np.isfinite(full)):
+                out[t] = full - logsumexp(full)
+        if reset_threshold is not None and cusum < -thr:
+            out[t] = pose_filter.reseed(theirs - logsumexp(theirs), frac)
+            cusum, resets = 0.0, resets + 1
+    pose_filter.resets_ = resets
     return FilterResult.from_log_posterior(out)

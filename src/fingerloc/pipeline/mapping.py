@@ -24,7 +24,7 @@ from ..observation import Observation
 from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
 from .presets import ResolvedPreset, resolve_preset
 from .readers import Run
-from .tracker import Calibration, Tracker, fit_scale, mapping_graph, model_fit_score
+from .tracker import Calibration, Tracker, held_out_calibration, mapping_graph, model_fit_score, tune_pose_filter
 
 __all__ = ["LoadedMap", "PlaceMap", "load_map", "make_map", "save_map"]
 
@@ -77,6 +77,7 @@ def make_map(
     spacing: float = PLACE_SPACING_M,
     radius: float = PLACE_RADIUS_M,
     calibrate: bool = True,
+    odometry_error: float | None = None,
     on_step: Callable[[str], None] | None = None,
 ) -> PlaceMap:
     """Places from a run's poses, learned with a preset, with the filters' calibration.
@@ -92,7 +93,13 @@ def make_map(
     mapping_part, until, spacing, radius
         :func:`~fingerloc.pipeline.places.places_from_trajectory`.
     calibrate : bool, default True
-        Fit ``beta`` on the mapping part (two more model fits); False keeps ``beta = 1``.
+        Fit ``beta`` on the mapping part (two more model fits), then choose the
+        pose filter's reliability and tempering along it
+        (:func:`~fingerloc.pipeline.tracker.tune_pose_filter`); False keeps the defaults.
+    odometry_error : float, optional
+        Factor of the simulated wheel-odometry errors used while choosing them:
+        by default 1 for CARMEN logs (their poses are corrected ones, as
+        ``fingerloc track`` and the benchmark assume), else 0.
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -119,12 +126,13 @@ def make_map(
     note(f"learning {split.n_places} places ({resolved.name})")
     model = resolved.model().fit(training)
     graph, metres = mapping_graph(poses[: split.n_mapping, :2], split.centres, labels)
-    beta, rows = 1.0, 0
+    held = None
     if calibrate:
         note("calibrating the filters on the mapping part")
-        beta, rows = fit_scale(
+        held = held_out_calibration(
             model_fit_score(resolved.options, raw), split.train_idx, split.train_labels, split.n_places
         )
+    beta, rows = (1.0, 0) if held is None else (held.beta, held.rows)
     cal = Calibration(
         beta=float(beta),
         metres_per_move=float(metres),
@@ -136,6 +144,12 @@ def make_map(
         n_train=split.n_train,
         calibration_rows=rows,
     )
+    if held is not None:
+        note("choosing the pose filter's reliability and tempering on the mapping part")
+        factor = (1.0 if run.kind == "carmen" else 0.0) if odometry_error is None else odometry_error
+        cal, _ = tune_pose_filter(
+            Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor
+        )
     name = " ".join(str(p) for p in run.paths)
     return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key)
 

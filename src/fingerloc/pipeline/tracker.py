@@ -28,14 +28,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
-from ..map.filter import FilterResult, MarkovFilter, TransitionModel, fit_likelihood_scale, run_filter
+from ..map.filter import (
+    FilterResult,
+    MarkovFilter,
+    TransitionModel,
+    fit_likelihood_scale,
+    fit_outlier_weight,
+    run_filter,
+)
 from ..map.filter import metres_per_move as _metres_per_move
 from ..map.graph import PlaceGraph, nearest_place_sequence
 from .places import visit_folds
@@ -49,15 +56,20 @@ __all__ = [
     "MIN_CALIBRATION_ROWS",
     "Calibration",
     "FitScore",
+    "HeldOut",
     "Tracker",
     "calibrate_labelled",
     "fit_scale",
+    "held_out_calibration",
+    "held_out_rows",
     "held_out_scores",
     "mapping_graph",
     "model_fit_score",
     "posterior_columns",
     "run_pose_steps",
     "step_distances",
+    "tune_grid",
+    "tune_pose_filter",
 ]
 
 FArray = NDArray[np.float64]
@@ -97,6 +109,17 @@ class Calibration:
         Training observations of the mapping part.
     calibration_rows : int
         Held-out rows ``beta`` was fit on (0: ``beta = 1``).
+    outlier : float
+        Pose filter: ``rho``, how often the single shot's answer is noise
+        (chosen on the mapping part by :func:`tune_pose_filter`).
+    off_place : float
+        Pose filter: likelihood weight of a pose at no place, at an observation.
+    start_at_first_observation : bool
+        Pose filter: draw the particles from the first observation (prior
+        times its likelihood) instead of carrying the start prior blindly.
+    gap_metres : float or None
+        Pose filter: an odometry step longer than this (a gap in the run)
+        re-draws the particles at the next observation.
     """
 
     beta: float = 1.0
@@ -109,6 +132,10 @@ class Calibration:
     alpha: float = 1.0
     n_train: int = 0
     calibration_rows: int = 0
+    outlier: float = 0.1
+    off_place: float = 0.1
+    start_at_first_observation: bool = True
+    gap_metres: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -161,7 +188,8 @@ def mapping_graph(positions: Any, centres: Any, labels: Sequence[str] | None = N
 def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int) -> tuple[FArray, IArray]:
     """Scores of each fold's rows by a recogniser fit on the other fold, shape (n_rows, n_places).
 
-    Places absent from a training fold score ``-inf``.
+    Places absent from a training fold score ``-inf``. Rows come fold 0
+    first, then fold 1 (:func:`held_out_rows` gives their positions).
     """
     y = np.asarray(labels, dtype=np.int64).reshape(-1)
     f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
@@ -185,6 +213,54 @@ def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int) 
     return np.concatenate(rows), np.concatenate(ys)
 
 
+def held_out_rows(fold: Any) -> IArray:
+    """Positions of :func:`held_out_scores`' rows among the training rows (fold 0's, then fold 1's)."""
+    f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
+    parts = [np.flatnonzero(f_ == f) for f in (0, 1)]
+    if any(p.size == 0 for p in parts):  # a fold without training rows scores nothing
+        return np.zeros(0, np.int64)
+    return np.concatenate(parts)
+
+
+@dataclass(frozen=True, slots=True)
+class HeldOut:
+    """The held-out calibration of a mapping part (:func:`held_out_calibration`).
+
+    Attributes
+    ----------
+    beta : float
+    rows : int
+        Usable held-out rows (0: ``beta = 1``).
+    scores : ndarray, shape (n, P)
+        Each training row's ``log P(place | obs)`` from a model fit on the other fold.
+    labels : ndarray of int, shape (n,)
+    index : ndarray of int, shape (n,)
+        Position of each row among the training rows.
+    """
+
+    beta: float
+    rows: int
+    scores: FArray
+    labels: IArray
+    index: IArray
+
+
+def held_out_calibration(
+    fit_score: FitScore, train_idx: Any, labels: Any, n_places: int, *, by_visits: bool = True
+) -> HeldOut:
+    """``beta`` from held-out scores of the training rows, with the scores themselves (module docstring)."""
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    fold = visit_folds(train_idx, y) if by_visits else np.arange(y.size) % 2
+    s, yy = held_out_scores(fit_score, y, fold, n_places)
+    usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+    if usable < MIN_CALIBRATION_ROWS:
+        fold = np.arange(y.size) % 2
+        s, yy = held_out_scores(fit_score, y, fold, n_places)
+        usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
+    beta = fit_likelihood_scale(s, yy) if usable else 1.0
+    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64))
+
+
 def fit_scale(
     fit_score: FitScore, train_idx: Any, labels: Any, n_places: int, *, by_visits: bool = True
 ) -> tuple[float, int]:
@@ -201,14 +277,8 @@ def fit_scale(
     by_visits : bool, default True
         Folds by alternate visits; False: alternate rows.
     """
-    y = np.asarray(labels, dtype=np.int64).reshape(-1)
-    fold = visit_folds(train_idx, y) if by_visits else np.arange(y.size) % 2
-    s, yy = held_out_scores(fit_score, y, fold, n_places)
-    usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
-    if usable < MIN_CALIBRATION_ROWS:
-        s, yy = held_out_scores(fit_score, y, np.arange(y.size) % 2, n_places)
-        usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
-    return (fit_likelihood_scale(s, yy) if usable else 1.0), usable
+    h = held_out_calibration(fit_score, train_idx, labels, n_places, by_visits=by_visits)
+    return h.beta, h.rows
 
 
 def model_fit_score(options: Mapping[str, Any], observations: Sequence[Observation]) -> FitScore:
@@ -253,6 +323,9 @@ def run_pose_steps(
     *,
     temper: tuple[float, float] | None,
     relocalize: bool = True,
+    start_at_first_observation: bool = False,
+    gap_metres: float | None = None,
+    reset_threshold: float | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -268,6 +341,8 @@ def run_pose_steps(
         Of the discrete filter run alongside (``relocalize``).
     temper : (metres, radians) or None
     relocalize : bool, default True
+    start_at_first_observation, gap_metres, reset_threshold
+        :func:`~fingerloc.map.pose_filter.run_pose_filter`.
     """
     from ..map.pose_filter import run_pose_filter
 
@@ -277,7 +352,70 @@ def run_pose_steps(
         pose_filter,
         temper=temper,
         place_filter=MarkovFilter(transition) if relocalize else None,
+        start_at_first_observation=start_at_first_observation,
+        gap_metres=gap_metres,
+        reset_threshold=reset_threshold,
     )
+
+
+def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
+    """(rho, tempering metres) pairs tried by :func:`tune_pose_filter`, the former default first."""
+    return [(rho, m) for rho in (0.1, 0.3, fitted_outlier) for m in (2.0, 1.0, 4.0)]
+
+
+def tune_pose_filter(
+    tracker: Tracker,
+    held: HeldOut,
+    train_idx: Any,
+    mapping_poses: Any,
+    *,
+    odometry_error: float = 0.0,
+    seed: int = 0,
+    temper: bool = True,
+    relocalize: bool = True,
+) -> tuple[Calibration, list[dict[str, float]]]:
+    """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
+
+    Each training scan's held-out score (the model fit on the other visits,
+    :func:`held_out_calibration`) is an observation of a run along the
+    mapping part's poses, with simulated odometry of its own seed
+    (``seed + 2``); every pair of :func:`tune_grid` (rho 0.1, 0.3 or the
+    reliability :func:`~fingerloc.map.filter.fit_outlier_weight` fits,
+    tempering 2, 1 or 4 m) runs the filter, and the pair with the best top-1
+    at the training scans wins (ties: the earlier pair). Nothing is taken
+    from the queries.
+
+    Returns
+    -------
+    Calibration
+        ``tracker.calibration`` with ``outlier`` and ``temper_metres`` chosen
+        (unchanged when there is no held-out row).
+    list of dict
+        ``{"outlier", "temper_metres", "top1"}`` of every pair tried.
+    """
+    from ..map.pose_filter import wheel_odometry
+
+    cal = tracker.calibration
+    poses = np.asarray(mapping_poses, dtype=np.float64).reshape(-1, 3)
+    if held.index.size == 0:
+        return cal, []
+    rows = np.asarray(train_idx, dtype=np.int64)[held.index]
+    ll = np.full((poses.shape[0], tracker.centres.shape[0]), np.nan)
+    ll[rows] = cal.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
+    truth = held.labels
+    inc = np.vstack([np.zeros((1, 3)), wheel_odometry(poses, odometry_error, random_state=seed + 2)])
+    fitted = fit_outlier_weight(ll[rows], truth)
+    tried: list[dict[str, float]] = []
+    best = (-1.0, cal)
+    for rho, metres in tune_grid(fitted):
+        trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
+        t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles)
+        res = t.run_pose(ll, inc, t.pose_filter(seed + 2), temper=temper, relocalize=relocalize)
+        top1 = float(np.mean(res.best[rows] == truth))
+        tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
+        if top1 > best[0]:
+            best = (top1, trial)
+    return best[1], tried
 
 
 def calibrate_labelled(options: Mapping[str, Any], observations: Sequence[Observation]) -> Calibration:
@@ -308,8 +446,6 @@ class Tracker:
     calibration : Calibration
     n_particles : int, default 3000
         Pose filter.
-    outlier : float, default 0.1
-        Pose filter: weight of the noise part of the place likelihood.
     uniform_mix : float, optional
         Uniform mixing per step of the transition model (default
         ``1 / (counted steps + 2)``, :meth:`~fingerloc.map.filter.TransitionModel.from_graph`).
@@ -326,14 +462,12 @@ class Tracker:
         calibration: Calibration,
         *,
         n_particles: int = 3000,
-        outlier: float = 0.1,
         uniform_mix: float | None = None,
     ) -> None:
         self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
         self.graph = graph
         self.calibration = calibration
         self.n_particles = n_particles
-        self.outlier = outlier
         if graph.graph.number_of_edges() == 0:
             self.transition_ = TransitionModel.uniform(self.centres.shape[0])
         else:
@@ -350,7 +484,8 @@ class Tracker:
             self.calibration.radius,
             n_particles=self.n_particles,
             kidnap=self.calibration.kidnap if kidnap is None else kidnap,
-            outlier=self.outlier,
+            outlier=self.calibration.outlier,
+            off_place=self.calibration.off_place,
             random_state=seed,
         )
 
@@ -373,6 +508,7 @@ class Tracker:
         *,
         temper: bool = True,
         relocalize: bool = True,
+        reset_threshold: float | None = None,
     ) -> FilterResult:
         """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused)."""
         c = self.calibration
@@ -383,6 +519,9 @@ class Tracker:
             self.transition_,
             temper=(c.temper_metres, c.temper_radians) if temper else None,
             relocalize=relocalize,
+            start_at_first_observation=c.start_at_first_observation,
+            gap_metres=c.gap_metres,
+            reset_threshold=reset_threshold,
         )
 
     def run(
