@@ -15,12 +15,13 @@ from rich.table import Table
 
 from ..errors import InvalidParameterError
 from ..io.jsonl import read_observations
-from ..model import TERMS, PlaceModel
 from .app import app, console, err_console
 from .bench import write_json
 
 
 def _parse_terms(text: str) -> tuple[str, ...]:
+    from ..model import TERMS  # heavy (scipy, numba): imported when a command runs, not at start-up
+
     terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
     for t in terms:
         if t not in TERMS:
@@ -126,6 +127,8 @@ def learn_cmd(
         model.add_places(obs)
         verb = f"added {len(set(model.places_) - before)} place(s), extended {len(before & {o.label for o in obs})}"
     else:
+        from ..model import PlaceModel
+
         model = PlaceModel(**given).fit(obs)
         verb = f"learned {len(model.places_)} place(s)"
     # The place graph: transitions between consecutive observations of the file, added to the stored ones.
