@@ -331,6 +331,18 @@ def fit_batch(
         ll_out[m] = ll
 
 
+@njit(cache=True)
+def fit_single(x, kmax, u_m, tol, max_iter, min_sigma, params):  # pragma: no cover
+    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[x]``: same code, same results, fewer arguments.
+
+    ``u_m`` (n_init, kmax) drives the seeding; ``params`` (3, kmax) receives
+    the weights, means and sigmas. Returns (converged, n_iter, mean log-lik).
+    One call from Python costs a few microseconds less per argument than
+    :func:`fit_batch`, which matters for :meth:`fingerloc.mog.AngularMixture.fit`.
+    """
+    return _fit_one(x, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
+
+
 @njit(cache=True, parallel=True)
 def fit_batch_parallel(
     x, offsets, kmax, u, tol, max_iter, min_sigma, w_out, mu_out, sg_out, conv_out, iter_out, ll_out
