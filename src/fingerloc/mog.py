@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import threading
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -68,6 +67,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _mog_kernels as _k
+from ._numba_guard import try_parallel
 from .angles import wrap
 from .errors import InvalidParameterError, NotFittedError
 
@@ -89,7 +89,6 @@ DEFAULT_MIN_SIGMA_DEG = 1.0
 #: From this many mixtures on, :func:`fit_mixtures` spreads them over numba's
 #: threads (``NUMBA_NUM_THREADS``); the results are the same either way.
 PARALLEL_MIN_MIXTURES = 16
-_PARALLEL_LOCK = threading.Lock()
 #: Fewest (mixtures x components x bearings) for which :func:`mixture_log_density` uses threads.
 PARALLEL_MIN_DENSITY_CELLS = 8192
 
@@ -317,14 +316,12 @@ def _fit(
     ll = np.empty(m)
     # numba's default threading layer must not be entered by two Python threads at once:
     # a caller that finds it busy runs the serial kernel instead (same results).
-    if trace is None and m >= PARALLEL_MIN_MIXTURES and _PARALLEL_LOCK.acquire(blocking=False):
-        try:
+    with try_parallel() as free:
+        if trace is None and m >= PARALLEL_MIN_MIXTURES and free:
             _k.fit_batch_parallel(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll)
-        finally:
-            _PARALLEL_LOCK.release()
-    else:
-        tr = np.empty((0, 0, 0)) if trace is None else trace
-        _k.fit_batch(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll, tr)
+        else:
+            tr = np.empty((0, 0, 0)) if trace is None else trace
+            _k.fit_batch(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll, tr)
     return MixtureSet(weights=w, means=mu, sigmas=sg, converged=conv, n_iter=n_iter, lower_bound=ll)
 
 
@@ -403,13 +400,11 @@ def mixture_log_density(x: ArrayLike, weights: ArrayLike, means: ArrayLike, sigm
         return out
     threads = numba.get_num_threads()
     # Threads pay off from a few thousand component-bearing pairs (a place database against one view).
-    if threads > 1 and w.size * xa.size >= PARALLEL_MIN_DENSITY_CELLS and _PARALLEL_LOCK.acquire(blocking=False):
-        try:
+    with try_parallel() as free:
+        if threads > 1 and w.size * xa.size >= PARALLEL_MIN_DENSITY_CELLS and free:
             _k.log_density_batch_parallel(xa, w, mu, sg, out, threads)
-        finally:
-            _PARALLEL_LOCK.release()
-    else:
-        _k.log_density_batch(xa, w, mu, sg, out)
+        else:
+            _k.log_density_batch(xa, w, mu, sg, out)
     return out
 
 

@@ -25,8 +25,7 @@ Kernels: unit costs go to RapidFuzz's bit-parallel Levenshtein
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar, overload
 
@@ -36,6 +35,7 @@ from numpy.typing import NDArray
 from rapidfuzz import process as rf_process
 from rapidfuzz.distance import Levenshtein
 
+from .._numba_guard import parallel_region
 from ..angles import TWO_PI, rad_to_deg360
 from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
@@ -265,18 +265,9 @@ def _n_workers(workers: int | None) -> int:
     return int(min(int(workers), top))
 
 
-@contextmanager
-def _threads(n: int) -> Iterator[None]:
-    old = numba.get_num_threads()
-    numba.set_num_threads(n)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
-
-
 def _run(n: int, fn: Callable[..., _T], *args: Any) -> _T:
-    with _threads(n):
+    # one numba parallel region at a time in the process (see fingerloc._numba_guard)
+    with parallel_region(n):
         return fn(*args)
 
 

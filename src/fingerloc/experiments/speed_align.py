@@ -33,6 +33,7 @@ import numpy as np
 from rapidfuzz import process as rf_process
 from rapidfuzz.distance import Levenshtein
 
+from .._numba_guard import parallel_region
 from ..align import CostModel, alignment_costs, minimum_energy_costs
 from ..align._cyclic import cyclic_batch_brute
 from ..align._encode import encode_many
@@ -124,9 +125,10 @@ def align_figures(
     qc, qo = encode_many(queries)
     rc, ro = encode_many(refs[:n_sub])
     unit = CostModel()
-    cyclic_batch_brute(qc[:length], qo[:2], rc[:length], ro[:2], unit.substitution, unit.indel)  # compile
-    t_b, c_b = _wall_cpu(lambda: cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel), 1)
-    brute = cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel)
+    with parallel_region(int(numba.get_num_threads())):  # the one lock around numba parallel kernels
+        cyclic_batch_brute(qc[:length], qo[:2], rc[:length], ro[:2], unit.substitution, unit.indel)  # compile
+        t_b, c_b = _wall_cpu(lambda: cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel), 1)
+        brute = cyclic_batch_brute(qc, qo, rc, ro, unit.substitution, unit.indel)
     fast = alignment_costs(queries, refs[:n_sub], cyclic=True)
     scale = n_r / n_sub
     out["cyclic_unit_ms_per_query"] = 1e3 * t_c / n_q
