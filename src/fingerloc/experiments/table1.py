@@ -331,7 +331,7 @@ def run_table1(
             obs = places[:, None, :] + rng.normal(0.0, np.deg2rad(noise_deg), (n_places, n_observations, n_max))
         states = []
         for k in ks_t:
-            states.append(rng.bit_generator.state)
+            states.append(dict(rng.bit_generator.state))
             rng.random((n_samples, n_init, k))  # what fit_mixtures draws from the generator, and nothing else
         tasks.append(_Trial(obs, tuple(states), ks_t, ns_t, held_out, n_init, min_sigma_deg))
     rows = run_tasks(_run_trial, tasks, workers=workers, scheduler=scheduler, on_done=on_trial)
