@@ -77,4 +77,5 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.carmen",
     "fingerloc.experiments.extractors",
     "fingerloc.experiments.speed_markov",
+    "fingerloc.experiments.speed_startup",
 ]
