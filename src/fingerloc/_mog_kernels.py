@@ -91,7 +91,8 @@ def _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum):  # pragma: no cover
         if w[j] > 0.0:
             for i in range(n):
                 t = r[j, i] - mx[i]
-                e = math.exp(t) if t > -_SKIP else 0.0
+                # exp(0) is exactly 1: the largest term of each point needs no call
+                e = 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)
                 r[j, i] = e
                 ssum[i] += e
         else:
@@ -403,6 +404,6 @@ def _log_density_rows(x, w, mu, sg, out, lo, hi):  # pragma: no cover
             if w[m, j] > 0.0:
                 for i in range(n):
                     t = a[j, i] - mx[i]
-                    ssum[i] += math.exp(t) if t > -_SKIP else 0.0
+                    ssum[i] += 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)  # exp(0) == 1 exactly
         for i in range(n):
             out[m, i] = mx[i] + math.log(ssum[i])
