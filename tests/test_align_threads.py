@@ -22,7 +22,7 @@ SCRIPT = textwrap.dedent(
 
     rng = np.random.default_rng(0)
     letters = np.array(list("vcbfnABCh"))
-    refs = ["".join(rng.choice(letters, int(n))) for n in rng.integers(5, 30, 300)]
+    refs = ["".join(rng.choice(letters, int(n))) for n in rng.integers(5, 30, 120)]
     queries = refs[:3]
     feature = CostModel.feature_aware()
     samples = [rng.uniform(-3, 3, 40) for _ in range(40)]
@@ -38,7 +38,7 @@ SCRIPT = textwrap.dedent(
 
     def worker(t):
         try:
-            for rep in range(3):
+            for rep in range(2):
                 for name in ("cyclic_unit", "cyclic_feature") if t < 4 else jobs:
                     out = jobs[name]()
                     if not np.array_equal(out, serial[name]):
