@@ -148,3 +148,13 @@ def test_int8_kernel_workers_do_not_change_results(workers):
     np.testing.assert_array_equal(
         alignment_costs(qs, rs, cyclic=True, costs=FEATURE, workers=workers), brute(qs, rs, FEATURE)
     )
+
+
+def test_int8_kernel_empty_strings_only():
+    # every reference empty (blocks of length 0), then every query empty: the cost is the other side's indels
+    np.testing.assert_array_equal(
+        alignment_costs(["cvn", "", "A"], ["", ""], cyclic=True, costs=FEATURE), [[2.5, 2.5], [0.0, 0.0], [1.0, 1.0]]
+    )
+    np.testing.assert_array_equal(
+        alignment_costs(["", ""], ["cvn", "", "A"], cyclic=True, costs=FEATURE), [[2.5, 0, 1]] * 2
+    )
