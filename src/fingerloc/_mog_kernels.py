@@ -99,21 +99,21 @@ def _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum):  # pragma: no cover
             for i in range(n):
                 r[j, i] = 0.0
                 d[j, i] = 0.0
-    for i in range(n):
-        ssum[i] = 1.0 / ssum[i]
-    for j in range(k):
-        if w[j] > 0.0:
-            for i in range(n):
-                r[j, i] *= ssum[i]
     # log-likelihood: sum_i (mx_i + log s_i) with s_i = 1 / ssum_i in [1, K]; one log per many points
+    # (in the loop that takes the reciprocals: the divisions of the product overlap with them)
     total = 0.0
     prod = 1.0
     for i in range(n):
+        ssum[i] = 1.0 / ssum[i]
         total += mx[i]
         prod /= ssum[i]
         if prod > 1e200:
             total += math.log(prod)
             prod = 1.0
+    for j in range(k):
+        if w[j] > 0.0:
+            for i in range(n):
+                r[j, i] *= ssum[i]
     return (total + math.log(prod)) / n
 
 
