@@ -130,3 +130,17 @@ def test_batch_kernel_equals_pair_kernel(qs, rs, wrap, mismatch):
     out = minimum_energy_costs(qs, rs, wrap=wrap, mismatch=mismatch)
     expect = [[minimum_energy(q, r, wrap=wrap, mismatch=mismatch) for r in rs] for q in qs]
     np.testing.assert_allclose(out, expect, rtol=1e-12, atol=1e-12)
+
+
+def test_batch_rotating_the_query_equals_pair_kernel_over_several_blocks():
+    # the batch kernel minimises over rotations of the query, the pair kernel over rotations of the reference
+    rng = np.random.default_rng(21)
+    fps = [
+        parse_fingerprint("".join(rng.choice(list("vcbnfA"), k)), np.sort(rng.uniform(0, 360, k)))
+        for k in rng.integers(0, 14, 75)
+    ]
+    qs = [fps[0], fps[1], parse_fingerprint("vcbnnfAc", np.sort(rng.uniform(0, 360, 8))), ""]
+    for mismatch in (math.inf, 0.4):
+        out = minimum_energy_costs(qs, fps, mismatch=mismatch, workers=2)
+        expect = [[minimum_energy(q, r, mismatch=mismatch) for r in fps] for q in qs]
+        np.testing.assert_allclose(out, expect, rtol=1e-12, atol=1e-12)

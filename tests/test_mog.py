@@ -433,3 +433,18 @@ def test_log_density_threads_equal_serial():
     k.log_density_batch_parallel(x, w, mu, sg, threaded, 3)
     np.testing.assert_array_equal(serial, threaded)
     np.testing.assert_array_equal(mixture_log_density(x, w, mu, sg), serial)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 90), st.integers(1, 6), st.integers(1, 3), st.integers(0, 2**32 - 1))
+def test_fit_fast_path_equals_fit_mixtures(n, k, n_init, seed):
+    # AngularMixture.fit takes a shorter path than fit_mixtures; the fits must be identical
+    x = np.random.default_rng(seed).vonmises(0.7, 2.0, n) * 1.3
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        gm = AngularMixture(k, n_init=n_init, max_iter=60, random_state=seed).fit(x)
+    ms = fit_mixtures([x], k, n_init=n_init, max_iter=60, random_state=seed)
+    np.testing.assert_array_equal(gm.weights_, ms.weights[0])
+    np.testing.assert_array_equal(gm.means_, ms.means[0])
+    np.testing.assert_array_equal(gm.sigmas_, ms.sigmas[0])
+    assert (gm.converged_, gm.n_iter_, gm.lower_bound_) == (ms.converged[0], ms.n_iter[0], ms.lower_bound[0])

@@ -91,28 +91,29 @@ def _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum):  # pragma: no cover
         if w[j] > 0.0:
             for i in range(n):
                 t = r[j, i] - mx[i]
-                e = math.exp(t) if t > -_SKIP else 0.0
+                # exp(0) is exactly 1: the largest term of each point needs no call
+                e = 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)
                 r[j, i] = e
                 ssum[i] += e
         else:
             for i in range(n):
                 r[j, i] = 0.0
                 d[j, i] = 0.0
-    for i in range(n):
-        ssum[i] = 1.0 / ssum[i]
-    for j in range(k):
-        if w[j] > 0.0:
-            for i in range(n):
-                r[j, i] *= ssum[i]
     # log-likelihood: sum_i (mx_i + log s_i) with s_i = 1 / ssum_i in [1, K]; one log per many points
+    # (in the loop that takes the reciprocals: the divisions of the product overlap with them)
     total = 0.0
     prod = 1.0
     for i in range(n):
+        ssum[i] = 1.0 / ssum[i]
         total += mx[i]
         prod /= ssum[i]
         if prod > 1e200:
             total += math.log(prod)
             prod = 1.0
+    for j in range(k):
+        if w[j] > 0.0:
+            for i in range(n):
+                r[j, i] *= ssum[i]
     return (total + math.log(prod)) / n
 
 
@@ -331,6 +332,18 @@ def fit_batch(
         ll_out[m] = ll
 
 
+@njit(cache=True)
+def fit_single(x, kmax, u_m, tol, max_iter, min_sigma, params):  # pragma: no cover
+    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[x]``: same code, same results, fewer arguments.
+
+    ``u_m`` (n_init, kmax) drives the seeding; ``params`` (3, kmax) receives
+    the weights, means and sigmas. Returns (converged, n_iter, mean log-lik).
+    One call from Python costs a few microseconds less per argument than
+    :func:`fit_batch`, which matters for :meth:`fingerloc.mog.AngularMixture.fit`.
+    """
+    return _fit_one(x, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
+
+
 @njit(cache=True, parallel=True)
 def fit_batch_parallel(
     x, offsets, kmax, u, tol, max_iter, min_sigma, w_out, mu_out, sg_out, conv_out, iter_out, ll_out
@@ -391,6 +404,6 @@ def _log_density_rows(x, w, mu, sg, out, lo, hi):  # pragma: no cover
             if w[m, j] > 0.0:
                 for i in range(n):
                     t = a[j, i] - mx[i]
-                    ssum[i] += math.exp(t) if t > -_SKIP else 0.0
+                    ssum[i] += 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)  # exp(0) == 1 exactly
         for i in range(n):
             out[m, i] = mx[i] + math.log(ssum[i])

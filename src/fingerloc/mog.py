@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import threading
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -68,6 +67,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _mog_kernels as _k
+from ._numba_guard import try_parallel
 from .angles import wrap
 from .errors import InvalidParameterError, NotFittedError
 
@@ -89,7 +89,6 @@ DEFAULT_MIN_SIGMA_DEG = 1.0
 #: From this many mixtures on, :func:`fit_mixtures` spreads them over numba's
 #: threads (``NUMBA_NUM_THREADS``); the results are the same either way.
 PARALLEL_MIN_MIXTURES = 16
-_PARALLEL_LOCK = threading.Lock()
 #: Fewest (mixtures x components x bearings) for which :func:`mixture_log_density` uses threads.
 PARALLEL_MIN_DENSITY_CELLS = 8192
 
@@ -317,14 +316,12 @@ def _fit(
     ll = np.empty(m)
     # numba's default threading layer must not be entered by two Python threads at once:
     # a caller that finds it busy runs the serial kernel instead (same results).
-    if trace is None and m >= PARALLEL_MIN_MIXTURES and _PARALLEL_LOCK.acquire(blocking=False):
-        try:
+    with try_parallel() as free:
+        if trace is None and m >= PARALLEL_MIN_MIXTURES and free:
             _k.fit_batch_parallel(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll)
-        finally:
-            _PARALLEL_LOCK.release()
-    else:
-        tr = np.empty((0, 0, 0)) if trace is None else trace
-        _k.fit_batch(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll, tr)
+        else:
+            tr = np.empty((0, 0, 0)) if trace is None else trace
+            _k.fit_batch(x, offsets, k, u, tol, max_iter, min_sigma, w, mu, sg, conv, n_iter, ll, tr)
     return MixtureSet(weights=w, means=mu, sigmas=sg, converged=conv, n_iter=n_iter, lower_bound=ll)
 
 
@@ -403,13 +400,11 @@ def mixture_log_density(x: ArrayLike, weights: ArrayLike, means: ArrayLike, sigm
         return out
     threads = numba.get_num_threads()
     # Threads pay off from a few thousand component-bearing pairs (a place database against one view).
-    if threads > 1 and w.size * xa.size >= PARALLEL_MIN_DENSITY_CELLS and _PARALLEL_LOCK.acquire(blocking=False):
-        try:
+    with try_parallel() as free:
+        if threads > 1 and w.size * xa.size >= PARALLEL_MIN_DENSITY_CELLS and free:
             _k.log_density_batch_parallel(xa, w, mu, sg, out, threads)
-        finally:
-            _PARALLEL_LOCK.release()
-    else:
-        _k.log_density_batch(xa, w, mu, sg, out)
+        else:
+            _k.log_density_batch(xa, w, mu, sg, out)
     return out
 
 
@@ -522,25 +517,26 @@ class AngularMixture:
         return self
 
     def fit(self, X: ArrayLike, y: object = None) -> AngularMixture:
-        """Fit by EM on bearings ``X`` (radians, shape (n,) or (n, 1), n >= 1); returns ``self``."""
+        """Fit by EM on bearings ``X`` (radians, shape (n,) or (n, 1), n >= 1); returns ``self``.
+
+        Gives exactly ``fit_mixtures([X], ...)`` with the same arguments (the
+        same compiled fit and the same random draws), through a shorter path:
+        one validation of ``X`` and one compiled call, no :class:`MixtureSet`.
+        """
+        k, tol_f, it, ni, msd = _check_params(
+            self.n_components, self.tol, self.max_iter, self.n_init, self.min_sigma_deg
+        )
+        rng = _check_random_state(self.random_state)
         xa = _as_bearings(X, "X")
         if xa.size == 0:
             raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
-        res = fit_mixtures(
-            [xa],
-            self.n_components,
-            tol=self.tol,
-            max_iter=self.max_iter,
-            n_init=self.n_init,
-            min_sigma_deg=self.min_sigma_deg,
-            random_state=self.random_state,
-        )
-        self.weights_ = np.array(res.weights[0])
-        self.means_ = np.array(res.means[0])
-        self.sigmas_ = np.array(res.sigmas[0])
-        self.converged_ = bool(res.converged[0])
-        self.n_iter_ = int(res.n_iter[0])
-        self.lower_bound_ = float(res.lower_bound[0])
+        u = rng.random((1, ni, k))  # the draws fit_mixtures makes for one sample
+        params = np.empty((3, k))
+        conv, n_iter, ll = _k.fit_single(xa, k, u[0], tol_f, it, math.radians(msd), params)
+        self.weights_, self.means_, self.sigmas_ = params[0], params[1], params[2]
+        self.converged_ = bool(conv)
+        self.n_iter_ = int(n_iter)
+        self.lower_bound_ = float(ll)
         self.n_components_ = int(np.count_nonzero(self.weights_ > 0))
         if not self.converged_:
             warnings.warn(

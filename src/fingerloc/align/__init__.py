@@ -25,8 +25,7 @@ Kernels: unit costs go to RapidFuzz's bit-parallel Levenshtein
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar, overload
 
@@ -36,11 +35,13 @@ from numpy.typing import NDArray
 from rapidfuzz import process as rf_process
 from rapidfuzz.distance import Levenshtein
 
+from .._numba_guard import parallel_region
 from ..angles import TWO_PI, rad_to_deg360
 from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
 from ._costs import CostModel
 from ._cyclic import cyclic_all_rotations, cyclic_batch_unit
+from ._cyclic_int import LANES8, integer_costs, nw_batch_cyclic_i8
 from ._encode import FingerprintBatch, FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._energy import EnergyParams, energy_batch_lanes, energy_pair, pack_energy_lanes
 from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
@@ -264,18 +265,9 @@ def _n_workers(workers: int | None) -> int:
     return int(min(int(workers), top))
 
 
-@contextmanager
-def _threads(n: int) -> Iterator[None]:
-    old = numba.get_num_threads()
-    numba.set_num_threads(n)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
-
-
 def _run(n: int, fn: Callable[..., _T], *args: Any) -> _T:
-    with _threads(n):
+    # one numba parallel region at a time in the process (see fingerloc._numba_guard)
+    with parallel_region(n):
         return fn(*args)
 
 
@@ -315,7 +307,11 @@ def alignment_costs(
     running 32 references side by side (AVX2) in each thread. Cyclic, unit
     costs: a bit-parallel kernel (Myers/Hyyrö) that runs every rotation at
     once in AVX2 lanes; cyclic, weighted: the weighted block kernel for
-    every rotation (see :mod:`fingerloc.align._cyclic`). Both are exact: they
+    every rotation (see :mod:`fingerloc.align._cyclic`); cyclic, weighted
+    with small dyadic costs (``CostModel.feature_aware()`` and most hand-made
+    models: multiples of 1/64 within a bounded range): an int8 kernel in the
+    difference form that runs 256 references side by side and rotates the
+    query (see :mod:`fingerloc.align._cyclic_int`). All are exact: they
     equal the brute-force minimum over rotations.
     """
     cm = _costs_or_unit(costs)
@@ -333,6 +329,13 @@ def alignment_costs(
     rcodes, roff = encode_many(rs)
     if cyclic and cm.is_unit:
         return _run(nw, cyclic_batch_unit, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
+    if cyclic:
+        small = integer_costs(cm.substitution, cm.indel)
+        if small is not None:
+            sub8, indel8, scale = small
+            blocks, blens, block_len, slot = pack_lanes(rcodes, roff, LANES8)
+            packed_int = _run(nw, nw_batch_cyclic_i8, qcodes, qoff, blocks, blens, block_len, sub8, indel8)
+            return np.ascontiguousarray(packed_int[:, slot], dtype=np.float64) / scale
     blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
     kernel = nw_batch_cyclic if cyclic else nw_batch
     packed = _run(nw, kernel, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)

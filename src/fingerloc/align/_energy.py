@@ -223,70 +223,74 @@ def energy_batch_lanes(
 ) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """Minimum energies against ``LANES`` references side by side, shape ``(n_queries, n_blocks * LANES)``.
 
-    The same DP as :func:`energy_pair`, vectorised over the lanes: for every
-    rotation ``r`` of the block's longest reference (each reference of length
-    ``m`` reads rotation ``r mod m``), the letters and bearings are rotated
-    into a work block, the type energies laid out as a profile
-    ``prof[letter, j, lane]``, and every query aligned against all lanes at once.
+    The same DP as :func:`energy_pair`, vectorised over the lanes. With
+    ``wrap`` the minimum runs over every rotation of the *query's* letter
+    order rather than the reference's: both minimise over the same cyclic
+    matchings (cut a cyclic matching where ``a`` starts, or where ``b``
+    starts), so the energy is the same, and every lane then shares one
+    rotation. The match energies of a query against a block,
+    ``type(a_i, b_j) + (distAS / scale)^2`` for every query letter ``i``,
+    reference letter ``j`` and lane, are computed once per query and block
+    and read by every rotation, which leaves the DP cell three additions and
+    two minima.
     """
     nq = qoff.shape[0] - 1
     nb = letters.shape[0]
     maxlen = letters.shape[1]
-    n_letters = typ.shape[0]
     two_pi = 2.0 * np.pi
     inv_two_pi = 1.0 / two_pi
     rad2deg = 180.0 / np.pi
+    maxq = 1
+    for q in range(nq):
+        maxq = max(maxq, qoff[q + 1] - qoff[q])
     out = np.empty((nq, nb * LANES))
     for blk in prange(nb):
         lens = blens[blk]
         big = 0
         for k in range(LANES):
             big = max(big, lens[k])
-        rl = np.zeros((maxlen, LANES), dtype=np.uint8)
-        rb = np.zeros((maxlen, LANES))
-        prof = np.empty((n_letters, maxlen, LANES))
+        energy = np.empty((maxq, maxlen, LANES))  # energy[t, j, k]: query letter t against letter j of lane k
         row = np.empty((maxlen + 1, LANES))
         diag = np.empty(LANES)
-        best = np.full((nq, LANES), np.inf)
-        n_rot = max(big, 1) if wrap else 1
-        for r in range(n_rot):
-            for k in range(LANES):
-                m = lens[k]
-                if m == 0:
-                    continue
-                jj = r % m
-                for j in range(m):
-                    rl[j, k] = letters[blk, jj, k]
-                    rb[j, k] = bearings[blk, jj, k]
-                    jj += 1
-                    if jj == m:
-                        jj = 0
-            for c in range(n_letters):
+        best = np.empty(LANES)
+        for q in range(nq):
+            q0 = qoff[q]
+            n = qoff[q + 1] - q0
+            for t in range(n):
+                ca = qcodes[q0 + t]
+                bai = qbear[q0 + t]
                 for j in range(big):
                     for k in range(LANES):
-                        prof[c, j, k] = typ[c, rl[j, k]]
-            for q in range(nq):
+                        # distAS in degrees, squared and scaled: the disparity energy
+                        d = bearings[blk, j, k] - bai
+                        d = (d - two_pi * np.floor((d + np.pi) * inv_two_pi)) * rad2deg
+                        energy[t, j, k] = typ[ca, letters[blk, j, k]] + d * d * inv_scale2
+            for k in range(LANES):
+                best[k] = np.inf
+            n_rot = max(n, 1) if wrap else 1
+            for r in range(n_rot):
                 for j in range(big + 1):
                     for k in range(LANES):
                         row[j, k] = j * occ
-                for i in range(qoff[q], qoff[q + 1]):
-                    ca = qcodes[i]
-                    bai = qbear[i]
-                    pr = prof[ca]
+                t = r
+                for _ in range(n):
+                    en = energy[t]
+                    t += 1
+                    if t == n:
+                        t = 0
                     for k in range(LANES):
                         diag[k] = row[0, k]
                         row[0, k] = diag[k] + occ
                     for j in range(1, big + 1):
                         for k in range(LANES):  # vectorised over the references
-                            d = rb[j - 1, k] - bai
-                            d = (d - two_pi * np.floor((d + np.pi) * inv_two_pi)) * rad2deg
-                            v = diag[k] + pr[j - 1, k] + d * d * inv_scale2
+                            v = diag[k] + en[j - 1, k]
                             up = row[j, k]
                             v = min(v, up + occ)
                             v = min(v, row[j - 1, k] + occ)
                             diag[k] = up
                             row[j, k] = v
                 for k in range(LANES):
-                    best[q, k] = min(best[q, k], row[lens[k], k])
-        out[:, blk * LANES : (blk + 1) * LANES] = best
+                    best[k] = min(best[k], row[lens[k], k])
+            for k in range(LANES):
+                out[q, blk * LANES + k] = best[k]
     return out

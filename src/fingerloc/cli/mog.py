@@ -41,10 +41,18 @@ def table1_cmd(
         help="draws: an observation's features are drawn from its place's edges (default); "
         "fixed: every observation is its place's N bearings plus noise.",
     ),
+    workers: int | None = typer.Option(
+        None, "--workers", help="Run the trials on a local Dask cluster of this many processes (same results)."
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="Run the trials on an existing Dask cluster: its scheduler address (tcp://host:8786)."
+    ),
 ) -> None:
     """Classify 10 alike simulated places by MOG likelihood, k in {3,4,5}, N in {5..35}; print beside the paper."""
     from ..experiments.table1 import run_table1
+    from ..parallel import check_cluster_options
 
+    check_cluster_options(workers, scheduler)
     spread, edges = place_spread_deg, n_edges
     with trial_progress("Table I", trials) as on_trial:
         res = run_table1(
@@ -56,6 +64,8 @@ def table1_cmd(
             observation_model=model,
             evaluation="held-out" if held_out else "resubstitution",
             on_trial=on_trial,
+            workers=workers,
+            scheduler=scheduler,
         )
     acc, se, paper = res.accuracy * 100, res.stderr * 100, res.paper()
     table = Table(

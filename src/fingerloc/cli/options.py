@@ -16,7 +16,6 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..model import TERMS
 from .app import err_console
 
 __all__ = [
@@ -82,6 +81,8 @@ def check_db_target(db: Path, overwrite: bool) -> None:
 
 
 def _parse_terms(text: str) -> tuple[str, ...]:
+    from ..model import TERMS  # heavy (scipy, numba): imported when a command runs, not at start-up
+
     terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
     for t in terms:
         if t not in TERMS:

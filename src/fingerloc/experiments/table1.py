@@ -57,6 +57,7 @@ from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
 from ..mog import DEFAULT_MIN_SIGMA_DEG, DEFAULT_N_INIT, fit_mixtures, mixture_log_density
+from ..parallel import check_cluster_options, run_tasks
 
 __all__ = [
     "DEFAULT_N_EDGES",
@@ -192,6 +193,54 @@ def _check(name: str, values: Sequence[int], minimum: int) -> tuple[int, ...]:
     return out
 
 
+@dataclass(frozen=True)
+class _Trial:
+    """One Table I trial: its observations and the generator state of each fit (picklable, for Dask)."""
+
+    obs: NDArray[np.float64]  # (places, observations, n_max) bearings, radians
+    states: tuple[dict[str, Any], ...]  # per k: the bit generator state fit_mixtures starts from
+    ks: tuple[int, ...]
+    ns: tuple[int, ...]
+    held_out: bool
+    n_init: int
+    min_sigma_deg: float
+
+
+def _run_trial(task: _Trial) -> NDArray[np.float64]:
+    """Accuracies of one trial, shape (len(ks), len(ns))."""
+    obs = task.obs
+    n_places, n_observations = obs.shape[0], obs.shape[1]
+    ns_t, held_out = task.ns, task.held_out
+    truth = np.repeat(np.arange(n_places), n_observations)  # label of each observation
+    n_obs_all = n_places * n_observations
+    out = np.empty((len(task.ks), len(ns_t)))
+    for a, k in enumerate(task.ks):
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = task.states[a]
+        samples = [obs[p, :, :n].ravel() for n in ns_t for p in range(n_places)]
+        if held_out:  # one more mixture per observation: its place without it
+            samples += [
+                np.delete(obs[p, :, :n], o, axis=0).ravel()
+                for n in ns_t
+                for p in range(n_places)
+                for o in range(n_observations)
+            ]
+        fit = fit_mixtures(samples, k, n_init=task.n_init, min_sigma_deg=task.min_sigma_deg, random_state=rng)
+        base = len(ns_t) * n_places
+        for b, n in enumerate(ns_t):
+            sl = slice(b * n_places, (b + 1) * n_places)
+            x = obs[:, :, :n].reshape(-1)  # (places * observations * n,)
+            ll = mixture_log_density(x, fit.weights[sl], fit.means[sl], fit.sigmas[sl])
+            score = ll.reshape(n_places, n_obs_all, n).sum(axis=2)  # (model, observation)
+            if held_out:
+                lo = slice(base + b * n_obs_all, base + (b + 1) * n_obs_all)
+                own = mixture_log_density(x, fit.weights[lo], fit.means[lo], fit.sigmas[lo])
+                own_score = own.reshape(n_obs_all, n_obs_all, n).sum(axis=2).diagonal()
+                score[truth, np.arange(n_obs_all)] = own_score
+            out[a, b] = float(np.mean(score.argmax(axis=0) == truth))
+    return out
+
+
 def run_table1(
     *,
     trials: int = 20,
@@ -208,6 +257,8 @@ def run_table1(
     n_init: int = DEFAULT_N_INIT,
     min_sigma_deg: float = DEFAULT_MIN_SIGMA_DEG,
     on_trial: Callable[[int], None] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> Table1Result:
     """Run the Table I protocol (module docstring) and return the accuracies.
 
@@ -241,7 +292,12 @@ def run_table1(
     n_init, min_sigma_deg : passed to :func:`fingerloc.mog.fit_mixtures`.
     on_trial : callable, optional
         Called with the number of trials done after each trial.
+    workers, scheduler : optional
+        Run the trials on a Dask cluster (see :func:`fingerloc.parallel.run_tasks`):
+        ``workers`` local worker processes, or the scheduler at this address.
+        The result is the same as the serial run's.
     """
+    check_cluster_options(workers, scheduler)
     ks_t = _check("ks", ks, 1)
     ns_t = _check("ns", ns, 1)
     if not isinstance(trials, int) or trials < 1:
@@ -262,40 +318,24 @@ def run_table1(
             raise InvalidParameterError(f"{name} must be a finite number >= 0, got {v!r}")
     rng = np.random.default_rng(seed)
     n_max = max(ns_t)
-    truth = np.repeat(np.arange(n_places), n_observations)  # label of each observation
-    per_trial = np.empty((trials, len(ks_t), len(ns_t)))
-    for t in range(trials):
+    n_samples = len(ns_t) * n_places * (1 + (n_observations if held_out else 0))  # mixtures per fit_mixtures call
+    # The data of every trial, and the generator state each fit_mixtures call starts from, are drawn here in
+    # the serial order (so the figures do not depend on how the trials run); the fits run as independent tasks.
+    tasks: list[_Trial] = []
+    for _ in range(trials):
         if observation_model == "draws":
             places = make_places(rng, n_places, n_edges, place_spread_deg)
             obs = make_observations(rng, places, n_observations, n_max, noise_deg)
         else:  # "fixed": N shared features per place; the first N of the N_max ones
             places = make_places(rng, n_places, n_max, place_spread_deg)
             obs = places[:, None, :] + rng.normal(0.0, np.deg2rad(noise_deg), (n_places, n_observations, n_max))
-        n_obs_all = n_places * n_observations
-        for a, k in enumerate(ks_t):
-            samples = [obs[p, :, :n].ravel() for n in ns_t for p in range(n_places)]
-            if held_out:  # one more mixture per observation: its place without it
-                samples += [
-                    np.delete(obs[p, :, :n], o, axis=0).ravel()
-                    for n in ns_t
-                    for p in range(n_places)
-                    for o in range(n_observations)
-                ]
-            fit = fit_mixtures(samples, k, n_init=n_init, min_sigma_deg=min_sigma_deg, random_state=rng)
-            base = len(ns_t) * n_places
-            for b, n in enumerate(ns_t):
-                sl = slice(b * n_places, (b + 1) * n_places)
-                x = obs[:, :, :n].reshape(-1)  # (places * observations * n,)
-                ll = mixture_log_density(x, fit.weights[sl], fit.means[sl], fit.sigmas[sl])
-                score = ll.reshape(n_places, n_obs_all, n).sum(axis=2)  # (model, observation)
-                if held_out:
-                    lo = slice(base + b * n_obs_all, base + (b + 1) * n_obs_all)
-                    own = mixture_log_density(x, fit.weights[lo], fit.means[lo], fit.sigmas[lo])
-                    own_score = own.reshape(n_obs_all, n_obs_all, n).sum(axis=2).diagonal()
-                    score[truth, np.arange(n_obs_all)] = own_score
-                per_trial[t, a, b] = float(np.mean(score.argmax(axis=0) == truth))
-        if on_trial is not None:
-            on_trial(t + 1)
+        states = []
+        for k in ks_t:
+            states.append(dict(rng.bit_generator.state))
+            rng.random((n_samples, n_init, k))  # what fit_mixtures draws from the generator, and nothing else
+        tasks.append(_Trial(obs, tuple(states), ks_t, ns_t, held_out, n_init, min_sigma_deg))
+    rows = run_tasks(_run_trial, tasks, workers=workers, scheduler=scheduler, on_done=on_trial)
+    per_trial = np.stack(rows) if rows else np.empty((0, len(ks_t), len(ns_t)))
     params = {
         "seed": seed,
         "n_places": n_places,
