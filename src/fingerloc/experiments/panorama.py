@@ -1,0 +1,491 @@
+"""Development benchmark on real 360 deg photographs (``fingerloc bench panorama``).
+
+Data: a folder of equirectangular photos (one per spot of a virtual campus
+tour) and the tour's area definitions, TypeScript files that list each area's
+photos (``id: '...'``, ``imageUrl: '...'``, ``buildingBlock``, ``floorLevel``),
+and optionally a table of hand-placed map positions per photo id
+(``'photo-id': { x: 0.5, y: 0.7 }``). Nothing of the data ships with
+fingerloc: the command reads it from the paths the user gives.
+
+Protocol:
+
+1. Every photo is read, the band of elevations ``band`` (parts of the height,
+   default 0.3..0.7, i.e. -36..+36 deg) is resampled to ``width`` columns,
+   and :func:`fingerloc.features.vision.observation_from_views` gives VE, CP
+   and the appearance descriptor. The observations are cached as JSON Lines
+   (``cache``), keyed by the photo's relative path.
+2. Places are defined two ways: ``area`` (the tour's areas), and ``position``
+   (greedy place centres ``spacing`` apart, in map units, per building and
+   floor, in file order; each photo goes to its nearest centre; photos
+   without a position are left out).
+3. Leave-one-out over the photos whose place has two or more: the query's
+   photo is removed, every other photo is a reference. Scores per place for
+   each method; top-1 and mean rank (ties counted against) of the true place.
+
+Methods: the single terms ``VE``, ``CP`` (angle-space mixtures, heading as
+recorded), ``Fp`` (cyclic alignment, feature-aware costs, ``exp`` likelihood),
+``A`` (:class:`~fingerloc.terms.appearance.AppearanceTerm`), sums of their
+log-likelihoods, and an independent baseline: rotation-invariant hue,
+saturation and value histograms compared by the Jeffrey divergence (after
+Ulrich and Nourbakhsh, "Appearance-based place recognition for topological
+localization", ICRA 2000), nearest reference photo.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import DataFormatError, InvalidParameterError
+from ..observation import Observation
+
+__all__ = [
+    "PANORAMA_METHODS",
+    "CampusPhoto",
+    "extract_observations",
+    "hsv_histogram",
+    "jeffrey_divergence",
+    "load_photo_band",
+    "load_tour_layout",
+    "places_by_area",
+    "places_by_position",
+    "run_panorama_bench",
+]
+
+FArray = NDArray[np.float64]
+
+#: Default band of elevations (parts of the image height, top = 0) and width.
+DEFAULT_BAND = (0.3, 0.7)
+DEFAULT_WIDTH = 1440
+#: Edge extraction on photographs: one edge per 3 deg, the 12 strongest (docs/RESULTS.md).
+PHOTO_EDGE_PARAMS: dict[str, Any] = {"nms_deg": 3.0, "max_edges": 12}
+
+
+@dataclass(frozen=True, slots=True)
+class CampusPhoto:
+    """One photo of the tour.
+
+    Attributes
+    ----------
+    photo_id : str
+    file : str
+        Path relative to the photo folder (``/``-separated).
+    area : str
+        Area id.
+    floor : str
+        ``"<building>-<floor>"``.
+    position : (x, y) or None
+        Map position (map units), when known.
+    """
+
+    photo_id: str
+    file: str
+    area: str
+    floor: str
+    position: tuple[float, float] | None
+
+
+_AREA = re.compile(r":\s*Area\s*=\s*\{")
+_PHOTO = re.compile(r"\bid:\s*'([^']+)',\s*imageUrl:\s*'([^']+)'")
+_FIRST_ID = re.compile(r"\bid:\s*'([^']+)'")
+_BLOCK = re.compile(r"\bbuildingBlock:\s*'([^']+)'")
+_FLOOR = re.compile(r"\bfloorLevel:\s*(\d+)")
+_POS = re.compile(r"'([^']+)':\s*\{\s*x:\s*([0-9.]+|null),\s*y:\s*([0-9.]+|null)\s*\}")
+
+
+def load_tour_layout(areas_dir: str | Path, minimap: str | Path | None = None) -> list[CampusPhoto]:
+    """The tour's photos with their area, floor and map position.
+
+    Parameters
+    ----------
+    areas_dir : path
+        Folder searched recursively for ``*.ts`` files holding ``... : Area = {``
+        objects.
+    minimap : path, optional
+        File of ``'photo-id': { x: .., y: .. }`` entries; default: the first
+        ``minimap/minimapLocations.ts`` next to ``areas_dir`` or above it.
+
+    Returns
+    -------
+    list of CampusPhoto
+        In the order of the sorted file names, then of the files' text; one per
+        image file (the first area listing it wins).
+    """
+    root = Path(areas_dir)
+    if not root.is_dir():
+        raise DataFormatError("not a folder of area definitions (*.ts)", path=root)
+    if minimap is None:
+        for cand in (root.parent / "minimap" / "minimapLocations.ts", root / "minimap" / "minimapLocations.ts"):
+            if cand.is_file():
+                minimap = cand
+                break
+    positions: dict[str, tuple[float, float]] = {}
+    if minimap is not None:
+        try:
+            text = Path(minimap).read_text(encoding="utf-8")
+        except OSError as err:
+            raise DataFormatError(f"cannot read: {err.strerror or err}", path=Path(minimap)) from err
+        for pid, x, y in _POS.findall(text):
+            if x != "null" and y != "null":
+                positions[pid] = (float(x), float(y))
+    out: list[CampusPhoto] = []
+    seen: set[str] = set()
+    for ts in sorted(root.rglob("*.ts")):
+        text = ts.read_text(encoding="utf-8")
+        starts = [m.end() for m in _AREA.finditer(text)]
+        for k, s in enumerate(starts):
+            chunk = text[s : starts[k + 1] if k + 1 < len(starts) else len(text)]
+            area = _FIRST_ID.search(chunk)
+            if area is None:
+                continue
+            block = _BLOCK.search(chunk)
+            floor = _FLOOR.search(chunk)
+            floor_key = f"{block.group(1) if block else '?'}-{floor.group(1) if floor else '?'}"
+            for pid, url in _PHOTO.findall(chunk):
+                rel = url.split("360_photos_compressed/", 1)[-1].lstrip("/")
+                if rel in seen:
+                    continue
+                seen.add(rel)
+                out.append(CampusPhoto(pid, rel, area.group(1), floor_key, positions.get(pid)))
+    if not out:
+        raise DataFormatError("no area with photos found in the *.ts files", path=root)
+    return out
+
+
+def places_by_area(photos: Sequence[CampusPhoto]) -> list[str | None]:
+    """Place label of each photo: its area id."""
+    return [p.area for p in photos]
+
+
+def places_by_position(photos: Sequence[CampusPhoto], *, spacing: float = 0.03) -> list[str | None]:
+    """Place label of each photo from its map position (None without one).
+
+    Per floor, in order, a photo farther than ``spacing`` (map units) from
+    every existing centre becomes a new centre; each photo then takes its
+    nearest centre (as the laser benchmark's places, :mod:`.carmen`).
+    """
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise InvalidParameterError(f"spacing must be a positive number of map units, got {spacing!r}")
+    centres: dict[str, list[tuple[float, float]]] = {}
+    for p in photos:
+        if p.position is None:
+            continue
+        cs = centres.setdefault(p.floor, [])
+        if not cs or min(math.dist(c, p.position) for c in cs) > spacing:
+            cs.append(p.position)
+    out: list[str | None] = []
+    for p in photos:
+        if p.position is None:
+            out.append(None)
+            continue
+        cs = centres[p.floor]
+        k = int(np.argmin([math.dist(c, p.position) for c in cs]))
+        out.append(f"{p.floor}#{k}")
+    return out
+
+
+# ---------------------------------------------------------------------------
+# reading photos and extracting observations
+
+
+def load_photo_band(path: str | Path, *, band: tuple[float, float] = DEFAULT_BAND, width: int = DEFAULT_WIDTH) -> Any:
+    """The band of elevations of an equirectangular photo, resampled to ``width`` columns (a Panorama).
+
+    Column 0's left edge is at bearing 0; bearings decrease to the right (the
+    defaults of ``fingerloc features``).
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    from ..sensors import Panorama
+
+    p = Path(path)
+    try:
+        with Image.open(p) as im:
+            rgb = im.convert("RGB")
+    except FileNotFoundError as err:
+        raise DataFormatError("no such file", path=p) from err
+    except (UnidentifiedImageError, OSError, ValueError) as err:
+        raise DataFormatError(f"cannot read image: {err}", path=p) from err
+    w, h = rgb.size
+    top, bottom = round(band[0] * h), round(band[1] * h)
+    crop = rgb.crop((0, top, w, bottom))
+    new_h = max(2, round((bottom - top) * width / w))
+    small = crop.resize((width, new_h), Image.Resampling.BOX)
+    return Panorama(np.asarray(small, dtype=np.uint8), meta={"source": str(p)})
+
+
+def _extract(pano: Any, source: str) -> Observation:
+    from ..features.vision import observation_from_views
+
+    return observation_from_views(panorama=pano, appearance=True, source=source, **PHOTO_EDGE_PARAMS)
+
+
+def extract_observations(
+    photo_dir: str | Path,
+    photos: Sequence[CampusPhoto],
+    *,
+    cache: str | Path | None = None,
+    band: tuple[float, float] = DEFAULT_BAND,
+    width: int = DEFAULT_WIDTH,
+    on_step: Callable[[int, int], None] | None = None,
+) -> tuple[list[Observation | None], list[FArray | None]]:
+    """Observations (``source`` = the relative file) and baseline histograms of the photos.
+
+    Missing photos give None. With ``cache``, earlier results are read from
+    (and new ones appended to) that JSON Lines file; the baseline histogram
+    travels in the record's ``"hsv_hist"`` key.
+    """
+    from ..io.jsonl import observation_from_record, observation_to_record
+
+    root = Path(photo_dir)
+    if not root.is_dir():
+        raise DataFormatError("not a folder of photos", path=root)
+    known: dict[str, tuple[Observation, FArray]] = {}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS}
+    cpath = Path(cache) if cache is not None else None
+    if cpath is not None and cpath.is_file():
+        lines = cpath.read_text(encoding="utf-8").splitlines()
+        if lines and json.loads(lines[0]) == key:
+            for line in lines[1:]:
+                rec = json.loads(line)
+                known[rec["source"]] = (observation_from_record(rec), np.asarray(rec["hsv_hist"], dtype=np.float64))
+    new: list[str] = []
+    obs: list[Observation | None] = []
+    hists: list[FArray | None] = []
+    for i, ph in enumerate(photos):
+        if ph.file not in known and (root / ph.file).is_file():
+            pano = load_photo_band(root / ph.file, band=band, width=width)
+            o = _extract(pano, ph.file)
+            known[ph.file] = (o, hsv_histogram(pano.image))
+            new.append(ph.file)
+        got = known.get(ph.file)
+        obs.append(None if got is None else got[0])
+        hists.append(None if got is None else got[1])
+        if on_step is not None:
+            on_step(i + 1, len(photos))
+    if cpath is not None and new:
+        tmp = cpath.with_name(cpath.name + ".tmp")
+        with tmp.open("w", encoding="utf-8") as fh:
+            fh.write(json.dumps(key) + "\n")
+            for o, h in known.values():
+                rec = observation_to_record(o, ndigits=6)
+                rec["hsv_hist"] = [round(float(x), 8) for x in h]
+                fh.write(json.dumps(rec) + "\n")
+        tmp.replace(cpath)
+    return obs, hists
+
+
+# ---------------------------------------------------------------------------
+# the independent baseline
+
+
+def hsv_histogram(image: Any, *, bins: int = 32) -> FArray:
+    """Hue, saturation and value histograms of an RGB image, concatenated, each summing to 1.
+
+    Rotation-invariant (a histogram ignores where the pixels are). Shape
+    ``(3 * bins,)``. Written apart from the feature extractors on purpose: an
+    independent baseline.
+    """
+    a = np.asarray(image, dtype=np.float64).reshape(-1, 3)
+    if a.max(initial=0.0) > 1.0:
+        a = a / 255.0
+    mx, mn = a.max(axis=1), a.min(axis=1)
+    c = mx - mn
+    r, g, b = a.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hr = np.where(c > 0, ((g - b) / c) % 6.0, 0.0)
+        hg = np.where(c > 0, (b - r) / c + 2.0, 0.0)
+        hb = np.where(c > 0, (r - g) / c + 4.0, 0.0)
+        hue = np.where(mx == r, hr, np.where(mx == g, hg, hb)) / 6.0
+        sat = np.where(mx > 0, c / mx, 0.0)
+    out = []
+    for ch in (np.clip(hue, 0, 1 - 1e-9), np.clip(sat, 0, 1 - 1e-9), np.clip(mx, 0, 1 - 1e-9)):
+        h = np.bincount((ch * bins).astype(np.int64), minlength=bins).astype(np.float64)
+        out.append(h / max(h.sum(), 1.0))
+    return np.concatenate(out)
+
+
+def jeffrey_divergence(h: FArray, k: FArray) -> FArray:
+    """Jeffrey divergence between histogram rows: ``sum h log(h/m) + k log(k/m)``, ``m = (h + k) / 2``.
+
+    ``h`` of shape ``(n, d)``, ``k`` of shape ``(m, d)``; returns ``(n, m)``.
+    """
+    hh = h[:, None, :]
+    kk = k[None, :, :]
+    m = 0.5 * (hh + kk)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t1 = np.where(hh > 0, hh * np.log(hh / m), 0.0)
+        t2 = np.where(kk > 0, kk * np.log(kk / m), 0.0)
+    out: FArray = (t1 + t2).sum(axis=2)
+    return out
+
+
+# ---------------------------------------------------------------------------
+# leave-one-out
+
+
+#: Methods reported by :func:`run_panorama_bench`: single terms, sums of terms, the baseline.
+PANORAMA_METHODS: tuple[str, ...] = ("VE", "CP", "Fp", "A", "VE+CP+Fp", "Fp+A", "VE+CP+Fp+A", "hsv-baseline")
+
+
+def _rank(scores: FArray, truth: int) -> int:
+    """Rank of the true place (1 = best), ties counted against."""
+    return int(np.sum(scores >= scores[truth]))
+
+
+def _per_place(d: FArray, owner: NDArray[np.int64], n_places: int) -> FArray:
+    """Least distance of each row to each place's columns, shape ``(n, P)`` (inf for none)."""
+    out = np.full((d.shape[0], n_places), np.inf)
+    for j in range(n_places):
+        cols = owner == j
+        if cols.any():
+            out[:, j] = d[:, cols].min(axis=1)
+    return out
+
+
+def _loo_distance_ll(d: FArray, owner: NDArray[np.int64], n_places: int, queries: Sequence[int]) -> FArray:
+    """Log-likelihoods ``-lambda d`` of each query (rows of ``queries``), query left out of the references.
+
+    ``d`` is the all-against-all distance matrix (n, n); ``lambda`` is fit for
+    each query on the leave-one-out distances of the *other* photos.
+    """
+    from ..terms.appearance import fit_lambda
+
+    dd = d.copy()
+    np.fill_diagonal(dd, np.inf)
+    out = np.empty((len(queries), n_places))
+    for k, q in enumerate(queries):
+        keep = np.arange(d.shape[0]) != q
+        sub = dd[np.ix_(keep, keep)]
+        per = _per_place(sub, owner[keep], n_places)
+        t = owner[keep]
+        ok = np.isfinite(per[np.arange(t.size), t])
+        lam = fit_lambda(per[ok], t[ok]) if ok.any() else 1.0
+        row = _per_place(dd[q : q + 1][:, keep], owner[keep], n_places)[0]
+        row = np.where(np.isfinite(row), row, np.nanmax(np.where(np.isfinite(row), row, np.nan)))
+        out[k] = -lam * row
+    return out
+
+
+def _loo_scores(
+    obs: list[Observation], labels: list[str], hists: list[FArray], queries: Sequence[int], n_components: int
+) -> tuple[dict[str, FArray], NDArray[np.int64]]:
+    """Per-method scores ``(n_queries, P)`` and the true place of each query."""
+    from scipy.spatial.distance import cdist
+
+    from ..align import CostModel, alignment_costs
+    from ..fingerprint import make_fingerprint
+    from ..model import PlaceModel
+
+    classes = sorted(set(labels))
+    owner = np.array([classes.index(lab) for lab in labels], dtype=np.int64)
+    n_places = len(classes)
+    out: dict[str, FArray] = {}
+
+    # mixtures: places other than the query's are fit once on all their photos; the query's place
+    # is refit without the query
+    def mixture_model(sub: list[Observation], sub_labels: list[str]) -> Any:
+        return PlaceModel(n_components, terms=("VE", "CP")).fit(sub, sub_labels)
+
+    full = mixture_model([o.with_label(lab) for o, lab in zip(obs, labels, strict=True)], labels)
+    full_cols = [classes.index(str(c)) for c in full.classes_]
+    qobs = [obs[q] for q in queries]
+    all_ll = full.term_log_likelihoods(qobs)
+    for term in ("VE", "CP"):
+        mat = np.empty((len(queries), n_places))
+        mat[:, full_cols] = all_ll[term]
+        out[term] = mat
+    for k, q in enumerate(queries):
+        mates = [i for i in range(len(obs)) if i != q and owner[i] == owner[q]]
+        own = mixture_model([obs[i].with_label(labels[q]) for i in mates], [labels[q]] * len(mates))
+        ll = own.term_log_likelihoods([obs[q]])
+        for term in ("VE", "CP"):
+            out[term][k, owner[q]] = ll[term][0, 0]
+    fps = [make_fingerprint(o) for o in obs]
+    d_fp = alignment_costs(fps, fps, cyclic=True, costs=CostModel.feature_aware())
+    out["Fp"] = _loo_distance_ll(d_fp, owner, n_places, queries)
+    app = np.stack([o.appearance for o in obs])  # type: ignore[misc]
+    out["A"] = _loo_distance_ll(cdist(app, app, metric="cityblock"), owner, n_places, queries)
+    for combo in PANORAMA_METHODS:
+        if "+" in combo:
+            out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
+    h = np.stack(hists)
+    dj = jeffrey_divergence(h, h)
+    np.fill_diagonal(dj, np.inf)
+    out["hsv-baseline"] = -_per_place(dj[list(queries)], owner, n_places)
+    return out, owner[list(queries)]
+
+
+def run_panorama_bench(
+    photo_dir: str | Path,
+    areas_dir: str | Path,
+    *,
+    minimap: str | Path | None = None,
+    cache: str | Path | None = None,
+    spacing: float = 0.03,
+    n_components: int = 3,
+    max_queries: int | None = None,
+    on_step: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Leave-one-out top-1 and mean rank per method, places by area and by position (module docstring).
+
+    Returns
+    -------
+    dict
+        ``{"photos": n, "features": {...}, "places": {"area": {...}, "position": {...}}}``;
+        per definition: ``n_places``, ``n_queries``, and per method ``top1``, ``mean_rank``.
+    """
+    photos = load_tour_layout(areas_dir, minimap)
+    obs, hists = extract_observations(
+        photo_dir, photos, cache=cache, on_step=None if on_step is None else lambda i, n: on_step("extract", i, n)
+    )
+    have = [i for i, o in enumerate(obs) if o is not None]
+    if len(have) < 3:
+        raise DataFormatError(f"only {len(have)} of the tour's photos were found", path=Path(photo_dir))
+    res: dict[str, Any] = {
+        "photos": len(have),
+        "photos_listed": len(photos),
+        "features": {
+            "VE_per_photo": float(np.mean([obs[i].ve.size for i in have])),  # type: ignore[union-attr]
+            "CP_per_photo": float(np.mean([obs[i].cp.size for i in have])),  # type: ignore[union-attr]
+        },
+        "places": {},
+    }
+    for name, labels_all in (
+        ("area", places_by_area(photos)),
+        ("position", places_by_position(photos, spacing=spacing)),
+    ):
+        idx = [i for i in have if labels_all[i] is not None]
+        sub_obs = [obs[i] for i in idx]
+        sub_lab = [str(labels_all[i]) for i in idx]
+        sub_h = [hists[i] for i in idx]
+        counts: dict[str, int] = {}
+        for lab in sub_lab:
+            counts[lab] = counts.get(lab, 0) + 1
+        queries = [k for k, lab in enumerate(sub_lab) if counts[lab] >= 2]
+        if max_queries is not None and len(queries) > max_queries:
+            queries = sorted(np.random.default_rng(0).choice(queries, max_queries, replace=False).tolist())
+        if on_step is not None:
+            on_step(name, 0, len(queries))
+        scores, truth = _loo_scores(sub_obs, sub_lab, sub_h, queries, n_components)  # type: ignore[arg-type]
+        ranks = {m: [_rank(scores[m][k], int(truth[k])) for k in range(len(queries))] for m in PANORAMA_METHODS}
+        res["places"][name] = {
+            "n_places": len(counts),
+            "n_queries": len(queries),
+            "methods": {
+                m: {
+                    "top1": float(np.mean(np.asarray(r) == 1)) if r else None,
+                    "mean_rank": float(np.mean(r)) if r else None,
+                }
+                for m, r in ranks.items()
+            },
+        }
+    return res
