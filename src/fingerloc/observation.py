@@ -196,7 +196,7 @@ class Observation:
                 raise InvalidParameterError(f"appearance: must be a non-empty 1-D array, got shape {app.shape}")
             if not np.all(np.isfinite(app)) or np.any(app < 0):
                 bad = app[~(np.isfinite(app) & (app >= 0))][0]
-                raise InvalidParameterError(f"appearance: values must be finite and >= 0, got {bad!r}")
+                raise InvalidParameterError(f"appearance: values must be finite and >= 0, got {float(bad)!r}")
             app.setflags(write=False)
             object.__setattr__(self, "appearance", app)
         if self.source is not None and not isinstance(self.source, str):

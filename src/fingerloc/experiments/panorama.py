@@ -10,7 +10,7 @@ fingerloc: the command reads it from the paths the user gives.
 Protocol:
 
 1. Every photo is read, the band of elevations ``band`` (parts of the height,
-   default 0.3..0.7, i.e. -36..+36 deg) is resampled to ``width`` columns,
+   default 0.25..0.75, i.e. -45..+45 deg, as ``fingerloc features``) is resampled to ``width`` columns,
    and :func:`fingerloc.features.vision.observation_from_views` gives VE, CP
    and the appearance descriptor. The observations are cached as JSON Lines
    (``cache``), keyed by the photo's relative path.
@@ -63,7 +63,7 @@ __all__ = [
 FArray = NDArray[np.float64]
 
 #: Default band of elevations (parts of the image height, top = 0) and width.
-DEFAULT_BAND = (0.3, 0.7)
+DEFAULT_BAND = (0.25, 0.75)
 DEFAULT_WIDTH = 1440
 #: Edge extraction on photographs: one edge per 3 deg, the 12 strongest (docs/RESULTS.md).
 PHOTO_EDGE_PARAMS: dict[str, Any] = {"nms_deg": 3.0, "max_edges": 12}

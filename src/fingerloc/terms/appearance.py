@@ -198,7 +198,8 @@ class AppearanceTerm(Term):
 
     def log_likelihood(self, observations: Sequence[Observation], *, rotations: FArray | None = None) -> FArray:
         """``-lambda_ * d(observation, place)``, shape ``(n, P)``; ``rotations`` is ignored (heading-free)."""
-        return -self.lambda_ * self.distances(observations)
+        d = self.distances(observations)
+        return -self.lambda_ * d
 
     def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
         """``-lambda_ * unknown_cost_`` for observations with a descriptor, 0 for the others, shape ``(n,)``."""
