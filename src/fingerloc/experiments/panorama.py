@@ -50,14 +50,21 @@ from ..observation import Observation
 __all__ = [
     "PANORAMA_METHODS",
     "CampusPhoto",
-    "extract_observations",
+    "PhotoFeatures",
+    "band_signature",
+    "extract_features",
+    "fingerprint_heading_deg",
     "hsv_histogram",
+    "image_rotation_deg",
     "jeffrey_divergence",
+    "load_edge_labels",
     "load_photo_band",
     "load_tour_layout",
     "places_by_area",
     "places_by_position",
+    "run_edge_bench",
     "run_panorama_bench",
+    "signature_rotation_deg",
 ]
 
 FArray = NDArray[np.float64]
@@ -228,7 +235,45 @@ def _extract(pano: Any, source: str) -> Observation:
     return observation_from_views(panorama=pano, appearance=True, source=source, **PHOTO_EDGE_PARAMS)
 
 
-def extract_observations(
+@dataclass(frozen=True, slots=True)
+class PhotoFeatures:
+    """What the benchmark keeps of one photo.
+
+    Attributes
+    ----------
+    observation : Observation
+        VE, CP, the appearance descriptor, ``source`` = the relative file.
+    hsv_hist : ndarray, shape (96,)
+        The baseline's histograms (:func:`hsv_histogram`).
+    signature : ndarray, shape (360, 12)
+        :func:`band_signature`, for the image-to-image rotation.
+    """
+
+    observation: Observation
+    hsv_hist: FArray
+    signature: FArray
+
+
+def _features_to_record(f: PhotoFeatures) -> dict[str, Any]:
+    from ..io.jsonl import observation_to_record
+
+    rec = observation_to_record(f.observation, ndigits=6)
+    rec["hsv_hist"] = [round(float(x), 8) for x in f.hsv_hist]
+    rec["signature"] = np.round(f.signature, 3).tolist()
+    return rec
+
+
+def _features_from_record(rec: dict[str, Any]) -> PhotoFeatures:
+    from ..io.jsonl import observation_from_record
+
+    return PhotoFeatures(
+        observation_from_record(rec),
+        np.asarray(rec["hsv_hist"], dtype=np.float64),
+        np.asarray(rec["signature"], dtype=np.float64),
+    )
+
+
+def extract_features(
     photo_dir: str | Path,
     photos: Sequence[CampusPhoto],
     *,
@@ -236,51 +281,44 @@ def extract_observations(
     band: tuple[float, float] = DEFAULT_BAND,
     width: int = DEFAULT_WIDTH,
     on_step: Callable[[int, int], None] | None = None,
-) -> tuple[list[Observation | None], list[FArray | None]]:
-    """Observations (``source`` = the relative file) and baseline histograms of the photos.
+) -> list[PhotoFeatures | None]:
+    """The :class:`PhotoFeatures` of each photo (None for a missing file).
 
-    Missing photos give None. With ``cache``, earlier results are read from
-    (and new ones appended to) that JSON Lines file; the baseline histogram
-    travels in the record's ``"hsv_hist"`` key.
+    With ``cache``, results of earlier runs with the same settings are read
+    from that JSON Lines file (a header line holds the settings), and the file
+    is rewritten with every result when something new was extracted.
     """
-    from ..io.jsonl import observation_from_record, observation_to_record
-
     root = Path(photo_dir)
     if not root.is_dir():
         raise DataFormatError("not a folder of photos", path=root)
-    known: dict[str, tuple[Observation, FArray]] = {}
-    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS}
+    known: dict[str, PhotoFeatures] = {}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 2}
     cpath = Path(cache) if cache is not None else None
     if cpath is not None and cpath.is_file():
-        lines = cpath.read_text(encoding="utf-8").splitlines()
-        if lines and json.loads(lines[0]) == key:
-            for line in lines[1:]:
-                rec = json.loads(line)
-                known[rec["source"]] = (observation_from_record(rec), np.asarray(rec["hsv_hist"], dtype=np.float64))
-    new: list[str] = []
-    obs: list[Observation | None] = []
-    hists: list[FArray | None] = []
+        with cpath.open(encoding="utf-8") as fh:
+            header = fh.readline()
+            if header.strip() and json.loads(header) == key:
+                for line in fh:
+                    f = _features_from_record(json.loads(line))
+                    known[str(f.observation.source)] = f
+    n_new = 0
+    out: list[PhotoFeatures | None] = []
     for i, ph in enumerate(photos):
         if ph.file not in known and (root / ph.file).is_file():
             pano = load_photo_band(root / ph.file, band=band, width=width)
-            o = _extract(pano, ph.file)
-            known[ph.file] = (o, hsv_histogram(pano.image))
-            new.append(ph.file)
-        got = known.get(ph.file)
-        obs.append(None if got is None else got[0])
-        hists.append(None if got is None else got[1])
+            known[ph.file] = PhotoFeatures(_extract(pano, ph.file), hsv_histogram(pano.image), band_signature(pano))
+            n_new += 1
+        out.append(known.get(ph.file))
         if on_step is not None:
             on_step(i + 1, len(photos))
-    if cpath is not None and new:
+    if cpath is not None and n_new:
         tmp = cpath.with_name(cpath.name + ".tmp")
         with tmp.open("w", encoding="utf-8") as fh:
             fh.write(json.dumps(key) + "\n")
-            for o, h in known.values():
-                rec = observation_to_record(o, ndigits=6)
-                rec["hsv_hist"] = [round(float(x), 8) for x in h]
-                fh.write(json.dumps(rec) + "\n")
+            for f in known.values():
+                fh.write(json.dumps(_features_to_record(f)) + "\n")
         tmp.replace(cpath)
-    return obs, hists
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -432,6 +470,7 @@ def run_panorama_bench(
     cache: str | Path | None = None,
     spacing: float = 0.03,
     n_components: int = 3,
+    width: int = DEFAULT_WIDTH,
     max_queries: int | None = None,
     on_step: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
@@ -444,10 +483,12 @@ def run_panorama_bench(
         per definition: ``n_places``, ``n_queries``, and per method ``top1``, ``mean_rank``.
     """
     photos = load_tour_layout(areas_dir, minimap)
-    obs, hists = extract_observations(
-        photo_dir, photos, cache=cache, on_step=None if on_step is None else lambda i, n: on_step("extract", i, n)
+    feats = extract_features(
+        photo_dir, photos, cache=cache, width=width, on_step=None if on_step is None else lambda i, n: on_step("extract", i, n)
     )
-    have = [i for i, o in enumerate(obs) if o is not None]
+    have = [i for i, f in enumerate(feats) if f is not None]
+    obs = [None if f is None else f.observation for f in feats]
+    hists = [None if f is None else f.hsv_hist for f in feats]
     if len(have) < 3:
         raise DataFormatError(f"only {len(have)} of the tour's photos were found", path=Path(photo_dir))
     res: dict[str, Any] = {
@@ -459,6 +500,7 @@ def run_panorama_bench(
         },
         "places": {},
     }
+    res["heading"] = heading_errors(photos, feats)
     for name, labels_all in (
         ("area", places_by_area(photos)),
         ("position", places_by_position(photos, spacing=spacing)),
@@ -489,3 +531,199 @@ def run_panorama_bench(
             },
         }
     return res
+
+
+# ---------------------------------------------------------------------------
+# vertical edges against hand labels
+
+
+def _match_count(found: FArray, truth: FArray, tol: float) -> int:
+    """Greedy one-to-one matches within ``tol`` degrees on the circle, closest pairs first."""
+    if found.size == 0 or truth.size == 0:
+        return 0
+    d = np.abs((found[:, None] - truth[None, :] + 180.0) % 360.0 - 180.0)
+    pairs = sorted((float(d[i, j]), i, j) for i in range(found.size) for j in range(truth.size) if d[i, j] <= tol)
+    used_f: set[int] = set()
+    used_t: set[int] = set()
+    for _, i, j in pairs:
+        if i not in used_f and j not in used_t:
+            used_f.add(i)
+            used_t.add(j)
+    return len(used_f)
+
+
+def load_edge_labels(path: str | Path) -> dict[str, Any]:
+    """Read and check a hand-label file (see ``tests/data/campus_edges.json`` for the format)."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
+    except json.JSONDecodeError as err:
+        raise DataFormatError(f"malformed JSON ({err.msg})", path=p) from err
+    try:
+        tol = float(data["tolerance_deg"])
+        photos = data["photos"]
+        for ph in photos:
+            lo, hi = (float(v) for v in ph["range_deg"])
+            cols = [float(v) for v in ph["column_deg"]]
+            if not (0 <= lo < hi <= 360) or any(not lo <= c <= hi for c in cols) or not isinstance(ph["file"], str):
+                raise ValueError(ph.get("file"))
+    except (KeyError, TypeError, ValueError) as err:
+        raise DataFormatError(
+            f'expected {{"tolerance_deg": x, "photos": [{{"file", "range_deg", "column_deg"}}, ...]}} ({err})', path=p
+        ) from err
+    if not (math.isfinite(tol) and tol > 0):
+        raise DataFormatError(f"tolerance_deg must be > 0, got {tol!r}", path=p)
+    return dict(data)
+
+
+def run_edge_bench(
+    labels: str | Path,
+    photo_dir: str | Path,
+    *,
+    band: tuple[float, float] = DEFAULT_BAND,
+    width: int = DEFAULT_WIDTH,
+    edge_params: dict[str, Any] | None = None,
+    tol_deg: float | None = None,
+) -> dict[str, Any]:
+    """Precision and recall of :func:`~fingerloc.features.vision.vertical_edges` against hand labels.
+
+    Only detections inside each photo's labelled ``range_deg`` count.
+    ``edge_params`` default to :data:`PHOTO_EDGE_PARAMS`. Detected bearings
+    are turned into column degrees (``column_deg = -bearing``, the panorama's
+    default orientation).
+    """
+    from ..features.vision import vertical_edges
+
+    data = load_edge_labels(labels)
+    tol = float(data["tolerance_deg"]) if tol_deg is None else float(tol_deg)
+    params = dict(PHOTO_EDGE_PARAMS if edge_params is None else edge_params)
+    root = Path(photo_dir)
+    per: list[dict[str, Any]] = []
+    tp = n_found = n_true = 0
+    for ph in data["photos"]:
+        pano = load_photo_band(root / ph["file"], band=band, width=width)
+        cols = np.mod(-np.rad2deg(vertical_edges(pano, **params)), 360.0)
+        lo, hi = (float(v) for v in ph["range_deg"])
+        cols = cols[(cols >= lo) & (cols <= hi)]
+        truth = np.asarray(ph["column_deg"], dtype=np.float64)
+        m = _match_count(cols, truth, tol)
+        per.append({"file": ph["file"], "found": int(cols.size), "true": int(truth.size), "matched": m})
+        tp, n_found, n_true = tp + m, n_found + cols.size, n_true + truth.size
+    return {
+        "tolerance_deg": tol,
+        "band": list(band),
+        "width": width,
+        "edge_params": params,
+        "photos": per,
+        "precision": tp / n_found if n_found else None,
+        "recall": tp / n_true if n_true else None,
+        "matched": tp,
+        "found": int(n_found),
+        "true": int(n_true),
+    }
+
+
+# ---------------------------------------------------------------------------
+# heading between two panoramas
+
+
+def band_signature(pano: Any, *, columns: int = 360, strips: int = 4) -> FArray:
+    """Per-bearing signature of a panorama for the image-to-image rotation, shape ``(columns, 3 * strips)``.
+
+    The band is averaged into ``columns`` columns and ``strips`` horizontal
+    strips; each cell holds its mean log luminance and two chromaticities;
+    each channel is standardised over the columns.
+    """
+    img = np.asarray(pano.image, dtype=np.float64)
+    h, w, _ = img.shape
+    lum = img @ np.array([0.299, 0.587, 0.114])
+    tot = img.sum(axis=2) + 0.06
+    chans = np.stack([np.log(lum + 0.02), img[:, :, 0] / tot, img[:, :, 1] / tot], axis=2)
+    # cell means by cumulative sums over the strip and column boundaries
+    rb = np.linspace(0, h, strips + 1).round().astype(np.int64)
+    cb = np.linspace(0, w, columns + 1).round().astype(np.int64)
+    cum = np.zeros((h + 1, w + 1, 3))
+    cum[1:, 1:] = chans.cumsum(axis=0).cumsum(axis=1)
+    box = cum[rb[1:]][:, cb[1:]] - cum[rb[:-1]][:, cb[1:]] - cum[rb[1:]][:, cb[:-1]] + cum[rb[:-1]][:, cb[:-1]]
+    area = np.maximum(np.diff(rb)[:, None] * np.diff(cb)[None, :], 1)[:, :, None]
+    sig = (box / area).transpose(1, 0, 2).reshape(columns, strips * 3)  # (columns, strips * channels)
+    sig -= sig.mean(axis=0)
+    sig /= np.maximum(sig.std(axis=0), 1e-9)
+    return sig
+
+
+def image_rotation_deg(a: Any, b: Any, *, columns: int = 360) -> tuple[float, float]:
+    """Rotation between two panoramas by brute-force circular cross-correlation of their band signatures.
+
+    Returns ``(heading_deg, peak)``: a feature at bearing ``x`` in ``a`` is at
+    bearing ``x + heading_deg`` in ``b`` (degrees, ``[0, 360)``), and the
+    correlation at the best shift (1: identical up to rotation). Both
+    panoramas must share the column orientation (``clockwise``).
+    """
+    if a.clockwise != b.clockwise:
+        raise InvalidParameterError("both panoramas must have the same column orientation (clockwise)")
+    return signature_rotation_deg(
+        band_signature(a, columns=columns), band_signature(b, columns=columns), clockwise=a.clockwise
+    )
+
+
+def signature_rotation_deg(sa: FArray, sb: FArray, *, clockwise: bool = True) -> tuple[float, float]:
+    """:func:`image_rotation_deg` on two :func:`band_signature` arrays of one shape ``(columns, c)``."""
+    columns = sa.shape[0]
+    # corr[s] = mean over columns of <sa[j], sb[j + s]>
+    fa, fb = np.fft.rfft(sa, axis=0), np.fft.rfft(sb, axis=0)
+    corr = np.fft.irfft(np.conj(fa) * fb, n=columns, axis=0).sum(axis=1) / (columns * sa.shape[1])
+    s = int(np.argmax(corr))
+    sign = -1.0 if clockwise else 1.0  # b's column j + s holds a's column j
+    return float(np.mod(sign * s * 360.0 / columns, 360.0)), float(corr[s])
+
+
+def fingerprint_heading_deg(a: Observation, b: Observation) -> float | None:
+    """Heading from the cyclic alignment of the fingerprints (feature-aware costs), same convention as above."""
+    from ..align import CostModel, cyclic_alignment
+    from ..fingerprint import make_fingerprint
+
+    r = cyclic_alignment(make_fingerprint(a), make_fingerprint(b), costs=CostModel.feature_aware())
+    if r.heading_deg is None:
+        return None
+    # cyclic_alignment: bearing_a = bearing_b + heading_deg  ->  bearing_b = bearing_a - heading_deg
+    return float(np.mod(-r.heading_deg, 360.0))
+
+
+def heading_errors(photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures | None]) -> dict[str, Any]:
+    """Fingerprint heading against the image-to-image rotation, on consecutive photos of one area.
+
+    Returns the number of pairs, the median absolute error (degrees) and the
+    share of pairs within 30 deg, over all pairs and over the pairs whose
+    signature correlation peak is at least 0.5 (the oracle is then clear),
+    and the median error of a random heading (90 deg) for reference.
+    """
+    errs: list[float] = []
+    peaks: list[float] = []
+    rows: list[dict[str, Any]] = []
+    for k in range(len(photos) - 1):
+        a, b = photos[k], photos[k + 1]
+        fa, fb = feats[k], feats[k + 1]
+        if a.area != b.area or fa is None or fb is None:
+            continue
+        truth, peak = signature_rotation_deg(fa.signature, fb.signature)
+        h = fingerprint_heading_deg(fa.observation, fb.observation)
+        err = 180.0 if h is None else abs((h - truth + 180.0) % 360.0 - 180.0)
+        errs.append(err)
+        peaks.append(peak)
+        rows.append({"a": a.file, "b": b.file, "oracle_deg": truth, "peak": peak, "fp_deg": h, "error_deg": err})
+    e = np.asarray(errs)
+    pk = np.asarray(peaks)
+
+    def summary(sel: NDArray[np.bool_]) -> dict[str, Any]:
+        if not sel.any():
+            return {"pairs": 0, "median_error_deg": None, "within_30": None}
+        return {
+            "pairs": int(sel.sum()),
+            "median_error_deg": float(np.median(e[sel])),
+            "within_30": float(np.mean(e[sel] <= 30.0)),
+        }
+
+    return {"all": summary(np.ones(e.size, dtype=bool)), "clear_oracle": summary(pk >= 0.5), "pairs": rows}
