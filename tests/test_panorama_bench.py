@@ -208,3 +208,17 @@ def test_bench_commands(tour, tmp_path, capsys):
 def test_campus_photo_is_plain_data():
     p = CampusPhoto("id", "f.webp", "area", "x-1", None)
     assert p.position is None and p.floor == "x-1"
+
+
+def test_features_command_records_appearance_and_source(tour, tmp_path, capsys):
+    from fingerloc.io.jsonl import read_observations
+
+    photos, _ = tour
+    out = tmp_path / "obs.jsonl"
+    img = photos / "a" / "a0.png"
+    code, _, err = run_cli(capsys, "features", img, "--place", "a", "--json", out)
+    assert code == 0, err
+    (obs,) = read_observations(out)
+    assert obs.source == str(img) and obs.label == "a"
+    assert obs.appearance is not None and obs.appearance.size > 50
+    assert obs.ve.size <= 12  # a full 2:1 photo keeps only its strongest edges

@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import DataFormatError, InvalidParameterError
+from ..features.vision import PHOTO_EDGE_PARAMS
 from ..observation import Observation
 
 __all__ = [
@@ -72,8 +73,6 @@ FArray = NDArray[np.float64]
 #: Default band of elevations (parts of the image height, top = 0) and width.
 DEFAULT_BAND = (0.25, 0.75)
 DEFAULT_WIDTH = 1440
-#: Edge extraction on photographs: one edge per 3 deg, the 12 strongest (docs/RESULTS.md).
-PHOTO_EDGE_PARAMS: dict[str, Any] = {"nms_deg": 3.0, "max_edges": 12}
 
 
 @dataclass(frozen=True, slots=True)

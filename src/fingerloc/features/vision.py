@@ -44,6 +44,7 @@ from ..observation import FULL_FOV, Observation
 from ..sensors import Panorama, Scan
 
 __all__ = [
+    "PHOTO_EDGE_PARAMS",
     "AppearanceParams",
     "EdgeParams",
     "PatchParams",
@@ -58,6 +59,10 @@ __all__ = [
 ]
 
 FArray = NDArray[np.float64]
+
+#: Vertical-edge parameters for real photographs (full equirectangular panoramas): one edge per
+#: 3 deg, the 12 strongest. Chosen on hand-labelled campus photos (docs/RESULTS.md, "Real panoramas").
+PHOTO_EDGE_PARAMS: dict[str, Any] = {"nms_deg": 3.0, "max_edges": 12}
 
 
 def _check_positive(obj: object, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
