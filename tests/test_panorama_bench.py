@@ -222,3 +222,24 @@ def test_features_command_records_appearance_and_source(tour, tmp_path, capsys):
     assert obs.source == str(img) and obs.label == "a"
     assert obs.appearance is not None and obs.appearance.size > 50
     assert obs.ve.size <= 12  # a full 2:1 photo keeps only its strongest edges
+
+
+def test_weighted_fusion_silences_a_loud_useless_term():
+    """A term of pure noise at 100x the scale drowns a plain sum; fitted weights keep the good term."""
+    from fingerloc.experiments.panorama import _loo_weighted_sum
+
+    rng = np.random.default_rng(0)
+    n, p = 30, 5
+    truth = rng.integers(0, p, n)
+    good = -rng.random((n, p))
+    good[np.arange(n), truth] += 1.0  # the right place always wins
+    noise = 100.0 * rng.standard_normal((n, p))
+    plain = good + noise
+    fused = _loo_weighted_sum([good, noise], truth)
+
+    def top1(s):
+        return float(np.mean(np.argmax(s, axis=1) == truth))
+
+    assert top1(good) == 1.0
+    assert top1(plain) < 0.5
+    assert top1(fused) >= 0.95

@@ -370,7 +370,20 @@ def jeffrey_divergence(h: FArray, k: FArray) -> FArray:
 
 
 #: Methods reported by :func:`run_panorama_bench`: single terms, sums of terms, the baseline.
-PANORAMA_METHODS: tuple[str, ...] = ("VE", "CP", "Fp", "A", "VE+CP+Fp", "Fp+A", "VE+CP+Fp+A", "hsv-baseline")
+PANORAMA_METHODS: tuple[str, ...] = (
+    "VE",
+    "CP",
+    "Fp",
+    "A",
+    "VE+CP+Fp",
+    "Fp+A",
+    "VE+CP+Fp+A",
+    "VE+CP+Fp+A weighted",
+    "hsv-baseline",
+)
+
+#: Terms whose weights :func:`_loo_weighted_sum` fits.
+WEIGHTED_TERMS: tuple[str, ...] = ("VE", "CP", "Fp", "A")
 
 
 def _rank(scores: FArray, truth: int) -> int:
@@ -409,6 +422,46 @@ def _loo_distance_ll(d: FArray, owner: NDArray[np.int64], n_places: int, queries
         row = _per_place(dd[q : q + 1][:, keep], owner[keep], n_places)[0]
         row = np.where(np.isfinite(row), row, np.nanmax(np.where(np.isfinite(row), row, np.nan)))
         out[k] = -lam * row
+    return out
+
+
+def _loo_weighted_sum(terms: Sequence[FArray], truth: NDArray[np.int64]) -> FArray:
+    """``sum_t w_t LL_t`` per query, the weights ``w_t >= 0`` fit on the *other* queries.
+
+    The weights maximise the mean log-probability of the right place
+    (softmax over the places) of every other query: a term that many
+    features make overconfident gets a small weight, a reliable one a large
+    weight (the terms' calibration, learned without the query).
+    """
+    from scipy.optimize import minimize
+    from scipy.special import logsumexp
+
+    stack = np.stack([np.where(np.isfinite(t), t, -1e6) for t in terms])  # (T, n, P)
+    # scale each term to unit spread first, so that one step size suits every weight
+    spread = np.array([max(float(np.std(t)), 1e-9) for t in stack])
+    stack = stack / spread[:, None, None]
+    n = truth.size
+    out = np.empty(stack.shape[1:])
+
+    def nll(theta: FArray, rows: NDArray[np.int64]) -> tuple[float, FArray]:
+        w = np.exp(theta)
+        sub = stack[:, rows]  # (T, m, P)
+        z = np.tensordot(w, sub, axes=1)  # (m, P)
+        lse = logsumexp(z, axis=1)
+        r = np.arange(rows.size)
+        value = float(-(z[r, truth[rows]] - lse).mean())
+        prob = np.exp(z - lse[:, None])
+        # d value / d theta_t = -w_t mean_i (LL_t[i, truth_i] - sum_p prob[i, p] LL_t[i, p])
+        grad = -w * (sub[:, r, truth[rows]] - (sub * prob[None]).sum(axis=2)).mean(axis=1)
+        return value, grad
+
+    theta0 = np.zeros(stack.shape[0])
+    for k in range(n):
+        rows = np.delete(np.arange(n), k)
+        res = minimize(
+            nll, theta0, args=(rows,), jac=True, method="L-BFGS-B", bounds=[(-8.0, 5.0)] * stack.shape[0]
+        )
+        out[k] = np.tensordot(np.exp(res.x), stack[:, k], axes=1)
     return out
 
 
@@ -452,8 +505,9 @@ def _loo_scores(
     app = np.stack([o.appearance for o in obs])  # type: ignore[misc]
     out["A"] = _loo_distance_ll(cdist(app, app, metric="cityblock"), owner, n_places, queries)
     for combo in PANORAMA_METHODS:
-        if "+" in combo:
+        if "+" in combo and " " not in combo:
             out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
+    out["VE+CP+Fp+A weighted"] = _loo_weighted_sum([out[t] for t in WEIGHTED_TERMS], owner[list(queries)])
     h = np.stack(hists)
     dj = jeffrey_divergence(h, h)
     np.fill_diagonal(dj, np.inf)
