@@ -51,7 +51,9 @@ export const roomB: Area = {{
 
 
 def _photo_entry(pid: str, rel: str) -> str:
-    return f"    {{\n      id: '{pid}',\n      imageUrl: '/360_photos_compressed/{rel}',\n      startingAngle: 0\n    }},"
+    return (
+        f"    {{\n      id: '{pid}',\n      imageUrl: '/360_photos_compressed/{rel}',\n      startingAngle: 0\n    }},"
+    )
 
 
 def _room_image(room: int, shift: int, seed: int) -> np.ndarray:
@@ -159,7 +161,9 @@ def test_edge_bench_counts_matches(tour, tmp_path):
 
 def test_edge_labels_checked(tmp_path):
     path = tmp_path / "labels.json"
-    path.write_text(json.dumps({"tolerance_deg": 3, "photos": [{"file": "x", "range_deg": [0, 90], "column_deg": [120]}]}))
+    path.write_text(
+        json.dumps({"tolerance_deg": 3, "photos": [{"file": "x", "range_deg": [0, 90], "column_deg": [120]}]})
+    )
     with pytest.raises(DataFormatError, match="expected"):
         load_edge_labels(path)
 

@@ -458,9 +458,7 @@ def _loo_weighted_sum(terms: Sequence[FArray], truth: NDArray[np.int64]) -> FArr
     theta0 = np.zeros(stack.shape[0])
     for k in range(n):
         rows = np.delete(np.arange(n), k)
-        res = minimize(
-            nll, theta0, args=(rows,), jac=True, method="L-BFGS-B", bounds=[(-8.0, 5.0)] * stack.shape[0]
-        )
+        res = minimize(nll, theta0, args=(rows,), jac=True, method="L-BFGS-B", bounds=[(-8.0, 5.0)] * stack.shape[0])
         out[k] = np.tensordot(np.exp(res.x), stack[:, k], axes=1)
     return out
 
@@ -537,7 +535,11 @@ def run_panorama_bench(
     """
     photos = load_tour_layout(areas_dir, minimap)
     feats = extract_features(
-        photo_dir, photos, cache=cache, width=width, on_step=None if on_step is None else lambda i, n: on_step("extract", i, n)
+        photo_dir,
+        photos,
+        cache=cache,
+        width=width,
+        on_step=None if on_step is None else lambda i, n: on_step("extract", i, n),
     )
     have = [i for i, f in enumerate(feats) if f is not None]
     obs = [None if f is None else f.observation for f in feats]

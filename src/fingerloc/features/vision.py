@@ -651,11 +651,7 @@ class AppearanceParams:
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InvalidParameterError(f"{name} must be an integer >= 1, got {v!r}")
         edges = tuple(self.sat_edges)
-        if (
-            not edges
-            or any(not 0 < e < 1 for e in edges)
-            or any(b <= a for a, b in itertools.pairwise(edges))
-        ):
+        if not edges or any(not 0 < e < 1 for e in edges) or any(b <= a for a, b in itertools.pairwise(edges)):
             raise InvalidParameterError(f"sat_edges must increase strictly inside (0, 1), got {self.sat_edges!r}")
 
     @property
