@@ -406,6 +406,8 @@ def bench_panorama_edges_cmd(
     tol_deg: float | None = typer.Option(
         None, "--tol-deg", help="Largest bearing error of a match, degrees (default: the labels').", show_default=False
     ),
+    max_edges: int = typer.Option(12, "--max-edges", help="Keep the N strongest edges per photo (0: all)."),
+    nms_deg: float = typer.Option(3.0, "--nms-deg", help="One edge per this many degrees (non-maximum suppression)."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
 ) -> None:
     """Precision and recall of the vertical-edge extractor against hand-labelled real photos."""
@@ -416,8 +418,12 @@ def bench_panorama_edges_cmd(
 
     if tol_deg is not None and not (tol_deg > 0 and np.isfinite(tol_deg)):
         raise InvalidParameterError(f"--tol-deg must be a positive number of degrees, got {tol_deg}")
+    if max_edges < 0:
+        raise InvalidParameterError(f"--max-edges must be >= 0, got {max_edges}")
+    if not (nms_deg > 0 and np.isfinite(nms_deg)):
+        raise InvalidParameterError(f"--nms-deg must be a positive number of degrees, got {nms_deg}")
     with err_console.status("extracting edges..."):
-        res = run_edge_bench(labels, photos, tol_deg=tol_deg)
+        res = run_edge_bench(labels, photos, tol_deg=tol_deg, edge_params={"max_edges": max_edges, "nms_deg": nms_deg})
     table = Table(title=f"vertical edges vs hand labels (within {res['tolerance_deg']:g} deg)")
     for col in ("photo", "labelled", "found", "matched"):
         table.add_column(col, justify="right")
