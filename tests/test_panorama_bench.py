@@ -13,6 +13,7 @@ from fingerloc.errors import DataFormatError
 from fingerloc.experiments.panorama import (
     PANORAMA_METHODS,
     CampusPhoto,
+    feature_heading_deg,
     fingerprint_heading_deg,
     hsv_histogram,
     image_rotation_deg,
@@ -24,6 +25,7 @@ from fingerloc.experiments.panorama import (
     run_panorama_bench,
 )
 from fingerloc.features.vision import observation_from_views
+from fingerloc.observation import Observation
 from fingerloc.sensors import Panorama
 
 from ._cli import run_cli
@@ -139,8 +141,22 @@ def test_image_rotation_and_fingerprint_heading_agree_on_a_rotated_panorama(shif
     expected = (-shift * 360.0 / 720) % 360.0  # a feature at bearing x in a is at x + expected in b
     heading, peak = image_rotation_deg(a, b, columns=720)
     assert heading == pytest.approx(expected) and peak == pytest.approx(1.0)
-    fp = fingerprint_heading_deg(observation_from_views(panorama=a), observation_from_views(panorama=b))
+    oa, ob = observation_from_views(panorama=a), observation_from_views(panorama=b)
+    fp = fingerprint_heading_deg(oa, ob)
     assert fp is not None and abs((fp - expected + 180.0) % 360.0 - 180.0) < 1.0
+    hf = feature_heading_deg(oa, ob)
+    assert hf is not None and abs((hf - expected + 180.0) % 360.0 - 180.0) < 1.0
+
+
+def test_feature_heading_pairs_patches_of_one_hue_only():
+    """Two patches of different hue never pair: the heading follows the same-hue patch."""
+    a = Observation.from_degrees({"CP": [(10.0, 0.0), (200.0, 120.0)]})
+    b = Observation.from_degrees({"CP": [(50.0, 0.0), (300.0, 120.0)]})
+    # red moved +40 deg, green +100 deg: both count, each alone; the best single shift is one of them
+    assert feature_heading_deg(a, b) in (pytest.approx(40.0), pytest.approx(100.0))
+    c = Observation.from_degrees({"CP": [(50.0, 0.0)]})
+    assert feature_heading_deg(a, c) == pytest.approx(40.0)
+    assert feature_heading_deg(Observation.from_degrees({"VE": [1.0]}), c) is None
 
 
 def test_edge_bench_counts_matches(tour, tmp_path):

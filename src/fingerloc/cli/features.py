@@ -393,7 +393,7 @@ def bench_panorama_cmd(
     for key, h in res["heading"].items():
         if key != "pairs" and h["pairs"]:
             console.print(
-                f"heading, Fp vs image rotation ({key}): {h['pairs']} pairs, median error "
+                f"heading vs image rotation, {key}: {h['pairs']} pairs, median error "
                 f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
             )
     write_json(json_out, res)
