@@ -294,13 +294,23 @@ def extract_features(
     known: dict[str, PhotoFeatures] = {}
     key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 2}
     cpath = Path(cache) if cache is not None else None
+    if cpath is not None and not cpath.parent.is_dir():
+        raise InvalidParameterError(f"--cache: no folder {str(cpath.parent)!r} to write {cpath.name!r} into")
     if cpath is not None and cpath.is_file():
-        with cpath.open(encoding="utf-8") as fh:
-            header = fh.readline()
-            if header.strip() and json.loads(header) == key:
-                for line in fh:
-                    f = _features_from_record(json.loads(line))
-                    known[str(f.observation.source)] = f
+        lineno = 1
+        try:
+            with cpath.open(encoding="utf-8") as fh:
+                header = fh.readline()
+                if header.strip() and json.loads(header) == key:
+                    for lineno, line in enumerate(fh, start=2):  # noqa: B007  (lineno: for the error)
+                        f = _features_from_record(json.loads(line))
+                        known[str(f.observation.source)] = f
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as err:
+            raise DataFormatError(
+                f"not a feature cache of this benchmark ({err}); delete it or give another --cache",
+                path=cpath,
+                line=lineno,
+            ) from err
     n_new = 0
     out: list[PhotoFeatures | None] = []
     for i, ph in enumerate(photos):
