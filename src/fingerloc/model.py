@@ -2,11 +2,12 @@
 
 Decomposition, with the feature sets independent given the place::
 
-    P(Loc VE CP Ex B Fp R) = P(Loc) P(VE|Loc) P(CP|Loc) P(Ex|Loc) P(B|Loc) P(Fp|Loc) P(R|Loc)
+    P(Loc VE CP Ex B Fp R A) = P(Loc) P(VE|Loc) P(CP|Loc) P(Ex|Loc) P(B|Loc) P(Fp|Loc) P(R|Loc) P(A|Loc)
 
 Each factor is a *term* (:mod:`fingerloc.terms`): the angle-space mixtures
-(VE, CP, Ex, B), the fingerprint string (Fp) and the range term (R, our
-extension for 2D lasers). :class:`PlaceModel` only combines them: per-term
+(VE, CP, Ex, B), the fingerprint string (Fp), the range term (R, our
+extension for 2D lasers) and the appearance term (A, our extension for
+cameras: a heading-free description of the whole view). :class:`PlaceModel` only combines them: per-term
 weights, the prior, the "unknown place" hypothesis, normalisation, and (an
 option) rotating the observation by the heading the fingerprint alignment
 estimates before the mixtures score it. The question ``P(Loc | ...)`` is
@@ -31,6 +32,7 @@ from .metrics import rank_scores
 from .observation import Observation
 from .terms import (
     MOG_TERMS,
+    AppearanceTerm,
     FingerprintTerm,
     MixtureTerm,
     RangeTerm,
@@ -44,8 +46,8 @@ __all__ = ["MOG_TERMS", "PAPER_TERMS", "TERMS", "PlaceData", "PlaceModel", "cons
 
 #: The paper's terms (the default).
 PAPER_TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
-#: Every term a model may use: the paper's and the range term ``R`` (our extension).
-TERMS: tuple[str, ...] = (*PAPER_TERMS, "R")
+#: Every term a model may use: the paper's, the range term ``R`` and the appearance term ``A`` (our extensions).
+TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A")
 
 FArray = NDArray[np.float64]
 
@@ -255,8 +257,10 @@ class PlaceModel(ParamsMixin):
                     laser_letters=self.laser_letters,
                     need_unknown=self.unknown_prior > 0,
                 )
-            else:
+            elif name == "R":
                 out[name] = RangeTerm(bin_m=self.range_bin_m, max_m=self.range_max_m)
+            else:
+                out[name] = AppearanceTerm()
         return out
 
     # -- learning ------------------------------------------------------------

@@ -120,6 +120,13 @@ class Observation:
         Pose in metres and radians, when known.
     timestamp : float, optional
         Seconds, when known.
+    appearance : array_like of float, shape (d,), optional
+        A heading-free appearance descriptor of the view (for the camera: the
+        colour histograms of :func:`fingerloc.features.vision.appearance_descriptor`),
+        finite and ``>= 0``; the appearance term ``A`` compares it between views.
+    source : str, optional
+        The file the observation was extracted from (an image, a log), as the
+        user gave it.
     """
 
     ve: FArray = field(default_factory=lambda: np.empty(0))
@@ -137,6 +144,8 @@ class Observation:
     label: str | None = None
     pose: tuple[float, float, float] | None = None
     timestamp: float | None = None
+    appearance: FArray | None = None
+    source: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("ve", "ex", "c", "b"):
@@ -176,6 +185,22 @@ class Observation:
             if not np.isfinite(ts):
                 raise InvalidParameterError(f"timestamp: must be finite, got {self.timestamp!r}")
             object.__setattr__(self, "timestamp", ts)
+        if self.appearance is not None:
+            try:
+                app = np.array(self.appearance, dtype=np.float64, copy=True)
+            except (TypeError, ValueError) as err:
+                raise InvalidParameterError(
+                    f"appearance: must be a 1-D array of numbers, got {self.appearance!r}"
+                ) from err
+            if app.ndim != 1 or app.size == 0:
+                raise InvalidParameterError(f"appearance: must be a non-empty 1-D array, got shape {app.shape}")
+            if not np.all(np.isfinite(app)) or np.any(app < 0):
+                bad = app[~(np.isfinite(app) & (app >= 0))][0]
+                raise InvalidParameterError(f"appearance: values must be finite and >= 0, got {float(bad)!r}")
+            app.setflags(write=False)
+            object.__setattr__(self, "appearance", app)
+        if self.source is not None and not isinstance(self.source, str):
+            raise InvalidParameterError(f"source: must be a string or None, got {self.source!r}")
 
     def _init_walls_and_ranges(self) -> None:
         w = wrap(_readonly(self.w, "w"))
@@ -219,6 +244,8 @@ class Observation:
         label: str | None = None,
         pose: Sequence[float] | None = None,
         timestamp: float | None = None,
+        appearance: ArrayLike | None = None,
+        source: str | None = None,
     ) -> Observation:
         """Build an observation from bearings in degrees.
 
@@ -234,6 +261,8 @@ class Observation:
             Counter-clockwise ranges; ``None`` for the full circle.
         pose : (x, y, theta_deg), optional
             Metres and degrees.
+        appearance, source : optional
+            As in :class:`Observation`.
         """
         features = dict(features or {})
         unknown = sorted(set(features) - set(FEATURE_TYPES))
@@ -283,6 +312,8 @@ class Observation:
             label=label,
             pose=p3,
             timestamp=timestamp,
+            appearance=appearance,  # type: ignore[arg-type]  # validated and converted in __post_init__
+            source=source,
         )
 
     def bearings(self, kind: str) -> FArray:
@@ -329,6 +360,8 @@ class Observation:
             label=self.label,
             pose=self.pose,
             timestamp=self.timestamp,
+            appearance=self.appearance,
+            source=self.source,
         )
 
     def with_label(self, label: str | None) -> Observation:
@@ -346,6 +379,8 @@ class Observation:
             and self.label == other.label
             and self.pose == other.pose
             and self.timestamp == other.timestamp
+            and _same_optional(self.appearance, other.appearance)
+            and self.source == other.source
         )
 
     __hash__ = None  # type: ignore[assignment]

@@ -181,3 +181,111 @@ def bench_features_cmd(
         )
     console.print(table)
     write_json(json_out, res)
+
+
+@bench_app.command("panorama")
+def bench_panorama_cmd(
+    photo_dir: Path = typer.Argument(..., help="Folder of the tour's equirectangular photos (360_photos_compressed)."),
+    areas: Path = typer.Option(..., "--areas", help="Folder of the tour's area definitions (*.ts, src/data/blocks)."),
+    minimap: Path | None = typer.Option(
+        None,
+        "--minimap",
+        help="Map positions file (default: minimap/minimapLocations.ts beside --areas).",
+        show_default=False,
+    ),
+    cache: Path | None = typer.Option(
+        None, "--cache", help="JSON Lines cache of the extracted features (read, then rewritten).", show_default=False
+    ),
+    spacing: float = typer.Option(0.03, "--spacing", help="Places by position: centres this far apart, map units."),
+    components: int = typer.Option(3, "-k", "--components", help="Mixture components per place (VE, CP)."),
+    width: int = typer.Option(1440, "--width", help="Photos are resampled to this many columns (one per 0.25 deg)."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
+) -> None:
+    """Leave-one-out place recognition on real 360 deg photos: single terms, fusions, an HSV-histogram baseline."""
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from ..experiments.panorama import PANORAMA_METHODS, run_panorama_bench
+    from .bench import write_json
+
+    if not (spacing > 0 and np.isfinite(spacing)):
+        raise InvalidParameterError(f"--spacing must be a positive number of map units, got {spacing}")
+    if components < 1:
+        raise InvalidParameterError(f"--components must be >= 1, got {components}")
+    if width < 64:
+        raise InvalidParameterError(f"--width must be >= 64 columns, got {width}")
+    with Progress(console=err_console, transient=True) as progress:
+        tasks: dict[str, object] = {}
+
+        def step(name: str, done: int, total: int) -> None:
+            if name not in tasks:
+                tasks[name] = progress.add_task(name, total=total)
+            progress.update(tasks[name], completed=done, total=total)  # type: ignore[arg-type]
+
+        res = run_panorama_bench(
+            photo_dir,
+            areas,
+            minimap=minimap,
+            cache=cache,
+            spacing=spacing,
+            n_components=components,
+            width=width,
+            on_step=step,
+        )
+    table = Table(title=f"leave-one-out top-1 / mean rank on {res['photos']} photos")
+    table.add_column("method")
+    for name, r in res["places"].items():
+        table.add_column(f"{name} ({r['n_queries']} queries, {r['n_places']} places)", justify="right")
+    for m in PANORAMA_METHODS:
+        cells = []
+        for r in res["places"].values():
+            f = r["methods"][m]
+            cells.append("-" if f["top1"] is None else f"{f['top1']:.3f} / {f['mean_rank']:.2f}")
+        table.add_row(m, *cells)
+    console.print(table)
+    for key, h in res["heading"].items():
+        if key != "pairs" and h["pairs"]:
+            console.print(
+                f"heading vs image rotation, {key}: {h['pairs']} pairs, median error "
+                f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
+            )
+    write_json(json_out, res)
+
+
+@bench_app.command("panorama-edges")
+def bench_panorama_edges_cmd(
+    labels: Path = typer.Argument(..., help="Hand labels of vertical edges (JSON, e.g. tests/data/campus_edges.json)."),
+    photos: Path = typer.Option(..., "--photos", help="Folder the labels' file names are relative to."),
+    tol_deg: float | None = typer.Option(
+        None, "--tol-deg", help="Largest bearing error of a match, degrees (default: the labels').", show_default=False
+    ),
+    max_edges: int = typer.Option(12, "--max-edges", help="Keep the N strongest edges per photo (0: all)."),
+    nms_deg: float = typer.Option(3.0, "--nms-deg", help="One edge per this many degrees (non-maximum suppression)."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
+) -> None:
+    """Precision and recall of the vertical-edge extractor against hand-labelled real photos."""
+    from rich.table import Table
+
+    from ..experiments.panorama import run_edge_bench
+    from .bench import write_json
+
+    if tol_deg is not None and not (tol_deg > 0 and np.isfinite(tol_deg)):
+        raise InvalidParameterError(f"--tol-deg must be a positive number of degrees, got {tol_deg}")
+    if max_edges < 0:
+        raise InvalidParameterError(f"--max-edges must be >= 0, got {max_edges}")
+    if not (nms_deg > 0 and np.isfinite(nms_deg)):
+        raise InvalidParameterError(f"--nms-deg must be a positive number of degrees, got {nms_deg}")
+    with err_console.status("extracting edges..."):
+        res = run_edge_bench(labels, photos, tol_deg=tol_deg, edge_params={"max_edges": max_edges, "nms_deg": nms_deg})
+    table = Table(title=f"vertical edges vs hand labels (within {res['tolerance_deg']:g} deg)")
+    for col in ("photo", "labelled", "found", "matched"):
+        table.add_column(col, justify="right")
+    for r in res["photos"]:
+        table.add_row(r["file"], str(r["true"]), str(r["found"]), str(r["matched"]))
+    console.print(table)
+    p, r = res["precision"], res["recall"]
+    console.print(
+        f"precision {'-' if p is None else f'{p:.3f}'}  recall {'-' if r is None else f'{r:.3f}'}  "
+        f"({res['matched']} matched, {res['found']} found, {res['true']} labelled)"
+    )
+    write_json(json_out, res)

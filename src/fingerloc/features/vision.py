@@ -29,6 +29,7 @@ in degrees, ``[0, 360)``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, fields
 from typing import Any
@@ -43,9 +44,12 @@ from ..observation import FULL_FOV, Observation
 from ..sensors import Panorama, Scan
 
 __all__ = [
+    "PHOTO_EDGE_PARAMS",
+    "AppearanceParams",
     "EdgeParams",
     "PatchParams",
     "VisionFeatures",
+    "appearance_descriptor",
     "colour_patches",
     "extract_vision_features",
     "observation_from_views",
@@ -55,6 +59,10 @@ __all__ = [
 ]
 
 FArray = NDArray[np.float64]
+
+#: Vertical-edge parameters for real photographs (full equirectangular panoramas): one edge per
+#: 3 deg, the 12 strongest. Chosen on hand-labelled campus photos (docs/RESULTS.md, "Real panoramas").
+PHOTO_EDGE_PARAMS: dict[str, Any] = {"nms_deg": 3.0, "max_edges": 12}
 
 
 def _check_positive(obj: object, names: tuple[str, ...], *, allow_zero: bool = False) -> None:
@@ -273,6 +281,10 @@ class EdgeParams:
         gradient within ``relative_deg`` is ignored (ringing, JPEG blocks).
     relative_deg : float, default 4
         Reach of that comparison, degrees.
+    max_edges : int, default 0
+        Keep only this many edges, the strongest (largest support, then
+        gradient); 0 keeps every edge. Real photographs show many weak edges
+        (shelves, posters, mullions); the strongest are the stable ones.
     """
 
     min_extent: float = 0.12
@@ -286,8 +298,11 @@ class EdgeParams:
     nms_deg: float = 1.25
     relative_min: float = 0.25
     relative_deg: float = 4.0
+    max_edges: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.max_edges, bool) or not isinstance(self.max_edges, int) or self.max_edges < 0:
+            raise InvalidParameterError(f"max_edges must be an integer >= 0, got {self.max_edges!r}")
         _check_positive(self, ("min_extent", "min_support", "min_contrast", "nms_deg", "relative_deg"))
         _check_positive(self, ("vertical_smooth",), allow_zero=True)
         if self.min_extent > 1:
@@ -399,6 +414,9 @@ def vertical_edges(pano: Panorama, **params: Any) -> FArray:
         keep.append(j)
     if len(keep) > 1 and (keep[0] + w - keep[-1]) <= half:
         keep.pop() if score[keep[-1]] <= score[keep[0]] else keep.pop(0)
+    if p.max_edges and len(keep) > p.max_edges:
+        strongest = sorted(keep, key=lambda j: -score[j])[: p.max_edges]
+        keep = sorted(strongest)
     cols = []
     for j in keep:
         # sub-column position: strength-weighted centre over the slant window
@@ -598,6 +616,113 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
 
 
 # ---------------------------------------------------------------------------
+# appearance: a heading-free descriptor of the whole view
+
+
+@dataclass(frozen=True, slots=True)
+class AppearanceParams:
+    """Tuning of :func:`appearance_descriptor`.
+
+    Parameters
+    ----------
+    hue_bins : int, default 16
+        Hue bins of the colour histogram (22.5 deg each, as the CP letters).
+    sat_edges : tuple of float, default (0.15, 0.35, 0.6)
+        Saturation bin edges: pixels below the first are grey, the others fall
+        into ``len(sat_edges)`` saturation bins per hue bin.
+    value_bins : int, default 8
+        Brightness bins of the grey pixels (after exposure normalisation).
+    harmonics : int, default 12
+        Fourier harmonics (1..harmonics) of the column profiles kept in the
+        layout block.
+    white_balance : bool, default True
+        Robust white balance first (:func:`colour_patches` uses the same).
+    """
+
+    hue_bins: int = 16
+    sat_edges: tuple[float, ...] = (0.15, 0.35, 0.6)
+    value_bins: int = 8
+    harmonics: int = 12
+    white_balance: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("hue_bins", "value_bins", "harmonics"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InvalidParameterError(f"{name} must be an integer >= 1, got {v!r}")
+        edges = tuple(self.sat_edges)
+        if not edges or any(not 0 < e < 1 for e in edges) or any(b <= a for a, b in itertools.pairwise(edges)):
+            raise InvalidParameterError(f"sat_edges must increase strictly inside (0, 1), got {self.sat_edges!r}")
+
+    @property
+    def size(self) -> int:
+        """Length of the descriptor."""
+        return self.hue_bins * len(self.sat_edges) + self.value_bins + 2 + 3 * self.harmonics
+
+
+def appearance_descriptor(pano: Panorama, **params: Any) -> FArray:
+    """A heading-free appearance descriptor of a panorama (the camera's analogue of the range histogram).
+
+    Three blocks, each summing to 1, so that L1 distances between descriptors
+    lie in ``[0, 6]``; none depends on the column where the panorama starts:
+
+    1. colour: the share of the pixels in each (hue, saturation) bin, with
+       ``hue_bins * len(sat_edges)`` bins, after a robust white balance;
+    2. grey and exposure: the share of grey pixels (saturation below
+       ``sat_edges[0]``) in ``value_bins`` brightness bins, brightness divided
+       by the image's 95th percentile (exposure normalisation), then the share
+       of dark (value < 0.08) and blown-out (> 0.98 before normalisation)
+       pixels. Blocks 1 and 2 together sum to 1;
+    3. layout: the magnitudes of the Fourier harmonics ``1..harmonics`` of the
+       column means of log luminance and of the two chromaticities, each
+       channel normalised to sum 1/3 (a rotation of the robot shifts the
+       columns, which changes only the phases).
+
+    Parameters
+    ----------
+    pano : Panorama
+        Rows: the elevations to describe (e.g. the band around the horizon).
+    **params
+        Fields of :class:`AppearanceParams`.
+
+    Returns
+    -------
+    ndarray of float, shape (AppearanceParams.size,)
+        Values ``>= 0``.
+    """
+    p = _from_kwargs(AppearanceParams, params, "appearance")
+    img = pano.image.astype(np.float64)
+    if p.white_balance:
+        img = _white_balance(img, "grey")
+    hue, sat, val = rgb_to_hsv(img)
+    n = float(val.size)
+    raw_v = val
+    ref = float(np.quantile(val, 0.95))
+    val = np.clip(val / max(ref, 1e-3), 0.0, 1.0)
+    dark = raw_v < 0.08
+    blown = raw_v > 0.98
+    usable = ~dark & ~blown
+    edges = np.asarray(p.sat_edges)
+    colour = usable & (sat >= edges[0])
+    grey = usable & ~colour
+    hb = np.minimum((hue[colour] / 360.0 * p.hue_bins).astype(np.int64), p.hue_bins - 1)
+    sb = np.searchsorted(edges, sat[colour], side="right") - 1
+    block1 = np.bincount(hb * edges.size + sb, minlength=p.hue_bins * edges.size) / n
+    vb = np.minimum((val[grey] * p.value_bins).astype(np.int64), p.value_bins - 1)
+    block2 = np.r_[np.bincount(vb, minlength=p.value_bins) / n, dark.sum() / n, blown.sum() / n]
+    lum = img @ np.array([0.299, 0.587, 0.114])
+    tot = img.sum(axis=2) + 0.06
+    profiles = [np.log(lum + 0.02).mean(axis=0), (img[:, :, 0] / tot).mean(axis=0), (img[:, :, 1] / tot).mean(axis=0)]
+    block3 = []
+    for prof in profiles:
+        mag = np.abs(np.fft.rfft(prof - prof.mean()))[1 : p.harmonics + 1]
+        mag = np.r_[mag, np.zeros(p.harmonics - mag.size)]
+        total = mag.sum()
+        block3.append(mag / (3.0 * total) if total > 0 else np.full(p.harmonics, 1.0 / (3.0 * p.harmonics)))
+    return np.concatenate([block1, block2, *block3])
+
+
+# ---------------------------------------------------------------------------
 # both, and observations
 
 
@@ -670,6 +795,8 @@ def observation_from_views(
     scan: Scan | None = None,
     panorama: Panorama | None = None,
     label: str | None = None,
+    appearance: bool = False,
+    source: str | None = None,
     **params: Any,
 ) -> Observation:
     """One :class:`Observation` from the laser scan and/or the panorama taken at one pose.
@@ -682,6 +809,11 @@ def observation_from_views(
         Gives vertical edges ``VE`` and colour patches ``CP``.
     label : str, optional
         Place label.
+    appearance : bool, default False
+        Also compute the panorama's :func:`appearance_descriptor` (with
+        default :class:`AppearanceParams`) into ``Observation.appearance``.
+    source : str, optional
+        The file the views came from, kept in ``Observation.source``.
     **params
         Fields of :class:`~fingerloc.features.laser.LaserParams`,
         :class:`EdgeParams` and :class:`PatchParams`, routed by name.
@@ -701,8 +833,11 @@ def observation_from_views(
     ve = cp = cp_hue = corners = ex = beacons = np.empty(0)
     pose: tuple[float, float, float] | None = None
     timestamp: float | None = None
+    desc: FArray | None = None
     if panorama is not None:
         vf = extract_vision_features(panorama, **e, **c)
+        if appearance:
+            desc = appearance_descriptor(panorama)
         ve, cp, cp_hue = vf.edges, vf.patches, vf.patch_hues
         mp = panorama.meta.get("pose")
         if mp is not None:
@@ -717,5 +852,16 @@ def observation_from_views(
         timestamp = scan.timestamp if scan.timestamp is not None else timestamp
     fov = FULL_FOV if panorama is not None else scan.fov  # type: ignore[union-attr]
     return Observation(
-        ve=ve, cp=cp, cp_hue=cp_hue, ex=ex, c=corners, b=beacons, fov=fov, label=label, pose=pose, timestamp=timestamp
+        ve=ve,
+        cp=cp,
+        cp_hue=cp_hue,
+        ex=ex,
+        c=corners,
+        b=beacons,
+        fov=fov,
+        label=label,
+        pose=pose,
+        timestamp=timestamp,
+        appearance=desc,
+        source=source,
     )

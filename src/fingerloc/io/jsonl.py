@@ -11,7 +11,11 @@ One observation a line, bearings and angles in degrees::
 without it saw the full circle. Two optional laser extensions (ours):
 ``features.W`` lists wall segments ``{"bearing": deg, "length": m, "range": m}``,
 and ``"scan": {"bearings": [deg, ...], "ranges": [m or null, ...]}`` holds the
-raw range profile (``null`` where a beam had no return). ``place``, ``pose`` and ``timestamp`` are
+raw range profile (``null`` where a beam had no return). Two optional camera
+extensions: ``"appearance": [x, ...]`` is the heading-free appearance
+descriptor of the view (numbers >= 0, see
+:func:`fingerloc.features.vision.appearance_descriptor`), and ``"source"`` the
+file an observation was extracted from. ``place``, ``pose`` and ``timestamp`` are
 optional; ``features`` is required (it may be empty). Blank lines are skipped.
 Other top-level keys are ignored, so tools may carry their own.
 """
@@ -135,8 +139,20 @@ def observation_from_record(record: Any) -> Observation:
         ranges = np.array([np.inf if r is None else _number(r, "scan range") for r in scan["ranges"]])
         if np.any(ranges < 0):
             raise DataFormatError(f'"scan": ranges must be >= 0 metres, got {float(ranges[ranges < 0][0])!r}')
+    appearance = record.get("appearance")
+    if appearance is not None:
+        if not isinstance(appearance, list) or not appearance:
+            raise DataFormatError(f'"appearance" must be a non-empty list of numbers >= 0, got {appearance!r}')
+        appearance = [_number(v, '"appearance" value') for v in appearance]
+        if min(appearance) < 0:
+            raise DataFormatError(f'"appearance" values must be >= 0, got {min(appearance)!r}')
+    source = record.get("source")
+    if source is not None and not isinstance(source, str):
+        raise DataFormatError(f'"source" must be a string or null, got {source!r}')
     try:
-        obs = Observation.from_degrees(out, fov=fov, label=place, pose=pose, timestamp=ts)
+        obs = Observation.from_degrees(
+            out, fov=fov, label=place, pose=pose, timestamp=ts, appearance=appearance, source=source
+        )
         if ranges is not None:
             obs = replace(obs, ranges=ranges, range_bearings=range_bearings)
         return obs
@@ -181,7 +197,11 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
             rec["fov"].append([start, round(start + float(np.rad2deg(w)), ndigits)])
     if obs.timestamp is not None:
         rec["timestamp"] = obs.timestamp
+    if obs.source is not None:
+        rec["source"] = obs.source
     rec["features"] = feats
+    if obs.appearance is not None:
+        rec["appearance"] = [round(float(x), ndigits) for x in obs.appearance]
     if obs.ranges is not None and obs.range_bearings is not None:
         rec["scan"] = {
             "bearings": [round(float(b), ndigits) for b in np.rad2deg(obs.range_bearings)],

@@ -399,8 +399,9 @@ def load_model(path: str | Path) -> PlaceModel:
             raise DatabaseError(f"{path}: the stored label types do not match the places")
         labels = typed_labels
     terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
-    for name in ("Fp", "R"):
+    for name in ("Fp", "R", "A"):
         terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
+    terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if all(f is not None for g in fingerprints for f in g):
         terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     else:  # no stored fingerprint for some view: the term recomputes them

@@ -130,15 +130,20 @@ def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
         lo, hi = round(band[0] * h), round(band[1] * h)
         img = img[lo:hi]
     img = _shrink(img, opts.max_width)
-    meta: dict[str, object] = {"source": str(path)}
+    meta: dict[str, object] = {"source": str(path), "equirectangular": abs(w / h - 2.0) < 0.05}
     return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
 
 
 def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
-    from ..features.vision import observation_from_views
+    from ..features.vision import PHOTO_EDGE_PARAMS, observation_from_views
 
     pano = panorama_from_file(path, opts)
-    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+    # a full 2:1 photo: only the strongest edges (real photos show many weak ones)
+    params = PHOTO_EDGE_PARAMS if pano.meta.get("equirectangular") else {}
+    yield (
+        str(path),
+        observation_from_views(panorama=pano, label=opts.place, appearance=True, source=str(path), **params),
+    )
 
 
 def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
@@ -157,7 +162,7 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
         bearing_offset=opts.bearing_offset,
         mirror=opts.mirror,
     )
-    yield str(path), observation_from_views(panorama=pano, label=opts.place)
+    yield str(path), observation_from_views(panorama=pano, label=opts.place, appearance=True, source=str(path))
 
 
 def _features(opts: FeatureOptions) -> dict[str, Any]:

@@ -9,12 +9,14 @@ Ex     laser extremities: product of angular mixtures              MixtureTerm
 B      beacons: product of angular mixtures                        MixtureTerm
 Fp     the fingerprint string: alignment to stored fingerprints   FingerprintTerm
 R      range distribution (2D laser, heading-free; ours)           RangeTerm
+A      appearance of the whole view (camera, heading-free; ours)  AppearanceTerm
 =====  ==========================================================  ============
 
 :class:`fingerloc.model.PlaceModel` combines them; each term can also be used
 on its own (``term.fit(groups).log_likelihood(observations)``).
 """
 
+from .appearance import AppearanceTerm
 from .base import Term
 from .distance import DistanceTerm, fit_lambda
 from .fingerprint import FingerprintTerm, consensus_fingerprint, crop_fingerprint
@@ -24,6 +26,7 @@ from .range import RangeTerm, range_descriptor
 __all__ = [
     "LOG_UNIFORM",
     "MOG_TERMS",
+    "AppearanceTerm",
     "DistanceTerm",
     "FingerprintTerm",
     "MixtureTerm",

@@ -46,6 +46,8 @@ class DistanceTerm(Term):
     #: compute ``unknown_cost_`` even when ``lambda_`` needs no calibration
     need_unknown: bool = False
     max_queries: int = 2000
+    #: search interval of ``lambda_``
+    lambda_bounds: tuple[float, float] = (1e-3, 1e4)
 
     def distances(self, observations: Sequence[Observation]) -> FArray:
         """Least distance of each observation to each place, shape ``(n, P)``."""
@@ -91,7 +93,7 @@ class DistanceTerm(Term):
         if np.isfinite(nearest_wrong).any():
             self.unknown_cost_ = float(np.median(nearest_wrong[np.isfinite(nearest_wrong)]))
         if self.likelihood == "exp":
-            self.lambda_ = fit_lambda(c, t)
+            self.lambda_ = fit_lambda(c, t, bounds=self.lambda_bounds)
 
     def _likelihood_of(self, d: FArray) -> FArray:
         if self.likelihood == "paper":
@@ -114,8 +116,19 @@ class DistanceTerm(Term):
         self.unknown_cost_ = None if u is None else float(u)
 
 
-def fit_lambda(c: FArray, truth: NDArray[np.int64]) -> float:
-    """``lambda`` maximising the mean ``log softmax(-lambda c)[truth]`` (leave-one-out distances ``c``, (n, P))."""
+def fit_lambda(c: FArray, truth: NDArray[np.int64], *, bounds: tuple[float, float] = (1e-3, 1e4)) -> float:
+    """``lambda`` maximising the mean ``log softmax(-lambda c)[truth]`` over the rows of ``c``.
+
+    Parameters
+    ----------
+    c : ndarray, shape (n, P)
+        Leave-one-out distances of ``n`` training views to the ``P`` places
+        (``inf`` for a place with no other view).
+    truth : ndarray of int, shape (n,)
+        The place of each view.
+    bounds : (float, float)
+        Search interval.
+    """
     from scipy.optimize import minimize_scalar
 
     cf = np.where(np.isfinite(c), c, np.nanmax(np.where(np.isfinite(c), c, np.nan)) * 10 + 1)
@@ -125,5 +138,5 @@ def fit_lambda(c: FArray, truth: NDArray[np.int64]) -> float:
         ll = -math.exp(log_lam) * cf
         return float(-(ll[rows, truth] - logsumexp(ll, axis=1)).mean())
 
-    res = minimize_scalar(nll, bounds=(math.log(1e-3), math.log(1e4)), method="bounded")
+    res = minimize_scalar(nll, bounds=(math.log(bounds[0]), math.log(bounds[1])), method="bounded")
     return float(math.exp(res.x))

@@ -1,0 +1,220 @@
+"""The appearance term ``A``: how the whole view looks, whatever the heading.
+
+The camera's analogue of the laser's range term ``R``: each observation may
+carry a heading-free appearance descriptor (``Observation.appearance``, e.g.
+the colour histograms and layout spectrum of
+:func:`fingerloc.features.vision.appearance_descriptor`). The term compares it
+with the descriptors of every training view of every place:
+
+    d(o, place)        = min over the place's training views v of D(o.appearance, v.appearance)
+    log P(A | place)   = -lambda * d(o, place)          (up to a constant shared by the places)
+
+``D`` is the L1 distance (``metric="l1"``) or the Hellinger distance
+(``metric="hellinger"``: ``sqrt(sum (sqrt a - sqrt b)^2)``, for histograms).
+``lambda`` is fit by leave-one-out on the training views: each training view
+in turn is a query against the others, and ``lambda`` maximises the mean
+log-probability of its own place under this term alone (a softmax over the
+places of ``-lambda d``). The "no learned place" hypothesis scores
+``-lambda * unknown_cost_``, the median leave-one-out distance of a training
+view to the nearest *other* place.
+
+Observations without a descriptor get a zero row (the term says nothing); a
+place whose training views have none gets the row's largest distance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InvalidParameterError, NotFittedError
+from ..observation import Observation
+from .base import FArray
+from .distance import DistanceTerm, fit_lambda
+
+__all__ = ["METRICS", "AppearanceTerm", "fit_lambda"]
+
+#: Distances between appearance descriptors.
+METRICS: tuple[str, ...] = ("l1", "hellinger")
+
+IArray = NDArray[np.int64]
+
+
+class AppearanceTerm(DistanceTerm):
+    """The heading-free appearance term ``A`` of the Bayesian program.
+
+    Parameters
+    ----------
+    metric : {"l1", "hellinger"}, default "l1"
+        Distance between two descriptors.
+    max_queries : int, default 2000
+        At most this many training views (a seeded sample) serve as
+        leave-one-out queries when fitting ``lambda_``.
+    lambda_bounds : (float, float), default (1e-3, 1e4)
+        Search interval of ``lambda_``.
+
+    Attributes
+    ----------
+    lambda_ : float
+        Inverse temperature of the term (1 / distance unit); 1 when fewer
+        than two places have descriptors.
+    unknown_cost_ : float or None
+        Distance scored by the "no learned place" hypothesis.
+    refs_ : ndarray, shape (m, d)
+        Descriptors of the training views that have one, grouped by place.
+    owner_ : ndarray of int, shape (m,)
+        Place index (into ``groups``) of each row of ``refs_``, non-decreasing.
+    n_places_ : int
+    """
+
+    name = "A"
+    heading_free = True
+    likelihood = "exp"
+
+    def __init__(
+        self,
+        *,
+        metric: str = "l1",
+        max_queries: int = 2000,
+        lambda_bounds: tuple[float, float] = (1e-3, 1e4),
+    ) -> None:
+        self.metric = metric
+        self.max_queries = max_queries
+        self.lambda_bounds = lambda_bounds
+
+    def __repr__(self) -> str:
+        return f"AppearanceTerm(metric={self.metric!r}, max_queries={self.max_queries!r})"
+
+    def _validate(self) -> None:
+        if self.metric not in METRICS:
+            raise InvalidParameterError(f"metric must be one of {', '.join(METRICS)}, got {self.metric!r}")
+        mq = self.max_queries
+        if isinstance(mq, bool) or not isinstance(mq, (int, np.integer)) or mq < 1:
+            raise InvalidParameterError(f"max_queries must be an integer >= 1, got {mq!r}")
+        lo, hi = (float(v) for v in self.lambda_bounds)
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise InvalidParameterError(f"lambda_bounds must satisfy 0 < low < high, got {self.lambda_bounds!r}")
+
+    # -- fitting -----------------------------------------------------------------
+    def _index(self, groups: Sequence[Sequence[Observation]]) -> None:
+        rows: list[FArray] = []
+        owner: list[int] = []
+        size: int | None = None
+        for j, group in enumerate(groups):
+            for o in group:
+                if o.appearance is None:
+                    continue
+                if size is None:
+                    size = o.appearance.size
+                elif o.appearance.size != size:
+                    raise InvalidParameterError(
+                        f"appearance: every descriptor must have the same length, got {o.appearance.size} and {size}"
+                    )
+                rows.append(o.appearance)
+                owner.append(j)
+        self.n_places_ = len(groups)
+        self.refs_ = np.stack(rows) if rows else np.zeros((0, 0))
+        self.owner_ = np.asarray(owner, dtype=np.int64)
+        self._has = np.array([o.appearance is not None for g in groups for o in g], dtype=bool)
+
+    def fit(self, groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
+        """Store every training descriptor and fit ``lambda_`` / ``unknown_cost_`` by leave-one-out."""
+        self._validate()
+        self._index(groups)
+        self.calibrate(groups)
+        return self
+
+    def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> AppearanceTerm:
+        """Re-index the descriptors of every place; ``lambda_`` and ``unknown_cost_`` are kept."""
+        self._check_fitted()
+        self._index(groups)
+        return self
+
+    def _loo_matrix(self, rows: IArray) -> FArray | None:
+        """Distances between training views; views without a descriptor are never anyone's neighbour."""
+        if self.refs_.shape[0] < 2:
+            return None
+        desc = np.zeros((self._has.size, self.refs_.shape[1]))
+        desc[self._has] = self.refs_
+        d = self._pairwise(desc[rows], desc)
+        d[:, ~self._has] = np.inf
+        d[~self._has[rows]] = np.inf
+        return d
+
+    # -- inference ---------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "refs_"):
+            raise NotFittedError("this AppearanceTerm is not fitted yet; call fit() first")
+
+    def _pairwise(self, a: FArray, b: FArray) -> FArray:
+        from scipy.spatial.distance import cdist
+
+        if self.metric == "hellinger":
+            return cdist(np.sqrt(a), np.sqrt(b), metric="euclidean")
+        return cdist(a, b, metric="cityblock")
+
+    def _per_place(self, d: FArray) -> FArray:
+        """Least distance to each place, shape ``(n, P)``; inf for a place without descriptors."""
+        out = np.full((d.shape[0], self.n_places_), np.inf)
+        has = np.bincount(self.owner_, minlength=self.n_places_) > 0
+        if d.shape[0] and has.any():
+            starts = np.searchsorted(self.owner_, np.flatnonzero(has))
+            out[:, has] = np.minimum.reduceat(d, starts, axis=1)
+        return out
+
+    def distances(self, observations: Sequence[Observation]) -> FArray:
+        """Distance of each observation to each place, shape ``(n, P)`` (see the module docstring)."""
+        self._check_fitted()
+        obs = list(observations)
+        out = np.zeros((len(obs), self.n_places_))
+        idx = [i for i, o in enumerate(obs) if o.appearance is not None]
+        if not idx or self.refs_.shape[0] == 0:
+            return out
+        q = np.stack([obs[i].appearance for i in idx])  # type: ignore[misc]
+        if q.shape[1] != self.refs_.shape[1]:
+            raise InvalidParameterError(
+                f"appearance: the observations' descriptors have length {q.shape[1]}, "
+                f"the learned places' {self.refs_.shape[1]}"
+            )
+        per = self._per_place(self._pairwise(q, self.refs_))
+        worst = np.max(np.where(np.isfinite(per), per, -np.inf), axis=1, keepdims=True)
+        out[idx] = np.where(np.isfinite(per), per, worst)
+        return out
+
+    def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
+        """``-lambda_ * unknown_cost_`` for observations with a descriptor, 0 for the others, shape ``(n,)``."""
+        self._check_fitted()
+        has = np.array([o.appearance is not None for o in observations], dtype=np.float64)
+        return super().unknown_log_likelihood(observations) * has
+
+    # -- state -------------------------------------------------------------------
+    def to_state(self) -> dict[str, Any]:
+        """``{"metric", "lambda", "unknown_cost"}``; the descriptors come back from the stored observations."""
+        self._check_fitted()
+        return {"metric": self.metric, **self._calibration_state()}
+
+    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
+        """Restore from :meth:`to_state` and the places' stored observations (``groups``)."""
+        try:
+            metric = state["metric"]
+            lam = float(state["lambda"])
+            unknown = state.get("unknown_cost")
+            unknown = None if unknown is None else float(unknown)
+        except (KeyError, TypeError, ValueError) as err:
+            raise InvalidParameterError(f"appearance term state is malformed: {state!r}") from err
+        if not (math.isfinite(lam) and lam > 0 and (unknown is None or (math.isfinite(unknown) and unknown >= 0))):
+            raise InvalidParameterError(f"appearance term state is malformed: {state!r}")
+        self.metric = metric
+        self._validate()
+        self._index(groups)
+        self._set_calibration_state(state)
+        return self
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
+        """A fitted term from :meth:`to_state` and the places' stored observations."""
+        return cls().set_state(state, groups)
