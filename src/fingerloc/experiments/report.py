@@ -45,14 +45,16 @@ FIGURES: dict[str, str] = {
 }
 
 
-
-def _pm(mean: float, std: float, n: int, fmt: str) -> str:
-    return f"{mean:{fmt}}" if n < 2 else f"{mean:{fmt}} ± {std:{fmt}}"
+def _ci(mean: float, ci: tuple[float, float] | None, fmt: str, scale: float = 1.0) -> str:
+    if ci is None:
+        return f"{scale * mean:{fmt}}"
+    return f"{scale * mean:{fmt}} [{scale * ci[0]:{fmt}}, {scale * ci[1]:{fmt}}]"
 
 
 def robot_tables_markdown(res: RobotResult) -> str:
     """Tables II-IV and the random-heading row as Markdown, beside the paper's figures."""
-    n = len(res.trials)
+    fci = res.feature_ci()
+    cci = res.cell_ci()
     lines = []
     lines += [
         "### Table II: mean features per measurement",
@@ -60,9 +62,9 @@ def robot_tables_markdown(res: RobotResult) -> str:
         "| feature | ours | paper |",
         "|---|---:|---:|",
     ]
-    for t, (m, s) in res.feature_stats().items():
+    for t, (m, _s) in res.feature_stats().items():
         paper = PAPER_TABLE2.get(t)
-        lines.append(f"| {t} | {_pm(m, s, n, '.1f')} | {'-' if paper is None else f'{paper:.1f}'} |")
+        lines.append(f"| {t} | {_ci(m, fci[t], '.1f')} | {'-' if paper is None else f'{paper:.1f}'} |")
     cells = res.cell_stats()
     lines += [
         "",
@@ -72,11 +74,10 @@ def robot_tables_markdown(res: RobotResult) -> str:
         "|---|---:|---:|---:|",
     ]
     for key, label in (("minimum_energy", "minimum energy"), ("global_alignment", "global alignment")):
-        a, as_, r, rs = cells[("table3", key)]
+        a, _, r, _ = cells[("table3", key)]
+        ca, cr = cci[("table3", key)]
         pa, pr = PAPER_TABLE3[key]
-        lines.append(
-            f"| {label} | {_pm(100 * a, 100 * as_, n, '.1f')} | {_pm(r, rs, n, '.2f')} | {100 * pa:.1f} / {pr:.2f} |"
-        )
+        lines.append(f"| {label} | {_ci(a, ca, '.1f', 100)} | {_ci(r, cr, '.2f')} | {100 * pa:.1f} / {pr:.2f} |")
     ks = list(res.protocol.ks)
     lines += [
         "",
@@ -90,10 +91,11 @@ def robot_tables_markdown(res: RobotResult) -> str:
             continue
         parts = []
         for k in ks:
-            a, as_, r, rs = cells[("table4", row, str(k))]
+            a, _, r, _ = cells[("table4", row, str(k))]
+            ca, cr = cci[("table4", row, str(k))]
             p = PAPER_TABLE4.get(row, {}).get(k)
             ptxt = f" ({100 * p[0]:.1f} / {p[1]:.2f})" if p is not None else ""
-            parts.append(f"{_pm(100 * a, 100 * as_, n, '.1f')} / {_pm(r, rs, n, '.2f')}{ptxt}")
+            parts.append(f"{_ci(a, ca, '.1f', 100)} / {_ci(r, cr, '.2f')}{ptxt}")
         lines.append(f"| {TABLE4_NAMES[row]} | " + " | ".join(parts) + " |")
     if ("random_heading", "global_alignment") in cells:
         lines += [
@@ -103,19 +105,20 @@ def robot_tables_markdown(res: RobotResult) -> str:
             "| method | right % | mean rank |",
             "|---|---:|---:|",
         ]
-        a, as_, r, rs = cells[("random_heading", "global_alignment")]
-        lines.append(f"| cyclic global alignment | {_pm(100 * a, 100 * as_, n, '.1f')} | {_pm(r, rs, n, '.2f')} |")
+        a, _, r, _ = cells[("random_heading", "global_alignment")]
+        ca, cr = cci[("random_heading", "global_alignment")]
+        lines.append(f"| cyclic global alignment | {_ci(a, ca, '.1f', 100)} | {_ci(r, cr, '.2f')} |")
         for k in ks:
-            a, as_, r, rs = cells[("random_heading", "VE+Ex+Fp", str(k))]
+            a, _, r, _ = cells[("random_heading", "VE+Ex+Fp", str(k))]
+            ca, cr = cci[("random_heading", "VE+Ex+Fp", str(k))]
             lines.append(
                 f"| VE, Ex & fingerprint, k={k}, heading from cyclic alignment | "
-                f"{_pm(100 * a, 100 * as_, n, '.1f')} | {_pm(r, rs, n, '.2f')} |"
+                f"{_ci(a, ca, '.1f', 100)} | {_ci(r, cr, '.2f')} |"
             )
         err = res.heading_error_deg()
         if err is not None:
             lines += ["", f"Median heading error of the cyclic alignment (true place): {err:.1f} deg."]
-    if n > 1:
-        lines += ["", f"Mean over {n} trials ± standard deviation over trials."]
+    lines += ["", f"Brackets: {res.ci_method()}."]
     return "\n".join(lines) + "\n"
 
 
