@@ -170,3 +170,92 @@ def test_parallel_simulation_matches_serial():
         b = simulate_trial(p, (3, 1), executor=ex)
     for x, y in zip(a.measurements, b.measurements, strict=True):
         assert x.observation == y.observation
+
+
+def test_t_interval_matches_hand_computation():
+    from fingerloc.experiments.robot import t_interval
+
+    v = [0.8, 0.9, 0.7, 1.0]
+    # mean 0.85, s = sqrt(0.05 / 3), t_{0.975, 3} = 3.182446305
+    h = 3.182446305284263 * math.sqrt(0.05 / 3) / 2
+    lo, hi = t_interval(v)
+    assert lo == pytest.approx(0.85 - h) and hi == pytest.approx(0.85 + h)
+    assert t_interval([0.5]) is None
+
+
+def test_wilson_interval_known_values():
+    from fingerloc.experiments.robot import wilson_interval
+
+    z2 = 1.959963984540054**2
+    lo, hi = wilson_interval(0, 20)
+    assert lo == 0.0 and hi == pytest.approx(z2 / (20 + z2))  # all wrong: upper bound z^2 / (n + z^2)
+    lo, hi = wilson_interval(20, 20)
+    assert hi == 1.0 and lo == pytest.approx(20 / (20 + z2))
+    lo, hi = wilson_interval(10, 20)  # symmetric about one half
+    assert lo + hi == pytest.approx(1.0) and lo < 0.5 < hi
+    assert wilson_interval(0, 0) is None
+
+
+def test_json_has_confidence_intervals(trial):
+    p, _, ev = trial
+    one = json.loads(json.dumps(RobotResult(protocol=p, seed=0, trials=[ev]).to_json()))
+    cell = one["ci95"]["table4"]["VE+Ex+Fp"]["3"]
+    top1 = one["table4"]["VE+Ex+Fp"]["3"]["top1"]
+    assert cell["top1"][0] <= top1 <= cell["top1"][1]
+    assert cell["top1"][1] - cell["top1"][0] > 0.05  # eight queries: a wide interval
+    assert set(one["ci95"]["table2"]) >= {"VE", "Ex", "CP", "B"}
+    assert "Wilson" in one["protocol"]["ci95"]
+    two = RobotResult(protocol=p, seed=0, trials=[ev, ev]).to_json()
+    # two identical trials: a zero-width interval at the mean
+    assert two["ci95"]["table3"]["global_alignment"]["top1"] == [two["table3"]["global_alignment"]["top1"]] * 2
+    assert "Student" in two["protocol"]["ci95"]
+
+
+def test_worlds_and_profiles():
+    from fingerloc.experiments.robot import WORLD_PROFILES
+
+    assert set(WORLD_PROFILES) == set(sim.WORLDS) == {"paper", "alike"}
+    assert RobotProtocol().world == "paper" and RobotProtocol().office_similarity == 0.8
+    assert RobotProtocol(world="alike").office_similarity == 0.5
+    assert RobotProtocol(world="alike", similarity=0.95).office_similarity == 0.95
+    with pytest.raises(InvalidParameterError, match="world"):
+        RobotProtocol(world="zillow")
+
+
+def test_reproduce_robot_bad_world(capsys):
+    code, _, err = run(capsys, "reproduce", "robot", "--world", "mall")
+    assert code == 2 and "--world" in err and "mall" in err
+
+
+def test_explain_query_names_the_terms_that_pulled_wrong(trial):
+    from fingerloc.experiments.report import explain_query
+
+    _, data, ev = trial
+    why = explain_query(data, ev)
+    assert why is not None
+    answers = np.argmax(ev.posterior, axis=1)
+    wrong = np.flatnonzero(answers != ev.truth)
+    if wrong.size:
+        assert why.index == int(wrong[0]) and why.truth != why.answer
+        pulling = [t for t, (lt, la) in why.terms.items() if la > lt]
+        assert pulling and all(
+            t in why.reason or {"VE": "vertical-edge", "Ex": "extremity", "Fp": "fingerprint"}[t] in why.reason
+            for t in pulling
+        )
+    else:
+        assert why.truth == why.answer and "right" in why.reason
+    # the term log-likelihoods are the model's, and the joint favours the answer
+    assert sum(b for _, b in why.terms.values()) >= sum(a for a, _ in why.terms.values()) - 1e-9
+    assert why.posterior.sum() == pytest.approx(1.0)
+    # the nearest training fingerprints and their costs are the global-alignment minima
+    from fingerloc.align import alignment_costs
+    from fingerloc.fingerprint import make_fingerprint
+
+    q = make_fingerprint(data.observations("test")[why.index])
+    own = [make_fingerprint(o) for o in data.observations("train") if o.label == why.truth]
+    assert why.nearest["truth"][1] == pytest.approx(float(np.min(alignment_costs([q], own))))
+    # an explicit index: a right answer explains itself as right
+    right = np.flatnonzero(answers == ev.truth)
+    if right.size:
+        r = explain_query(data, ev, int(right[0]))
+        assert r is not None and r.truth == r.answer

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,18 @@ from .robot import (
     TrialEvaluation,
 )
 
-__all__ = ["FIGURES", "confusion_matrix", "robot_tables_markdown", "write_demo_report"]
+__all__ = [
+    "FIGURES",
+    "QUERY_FIGURE",
+    "QueryExplanation",
+    "confusion_matrix",
+    "explain_query",
+    "robot_tables_markdown",
+    "write_demo_report",
+]
+
+#: The figure of the explained query (written when the trial has a test query).
+QUERY_FIGURE = "query.png"
 
 #: Figure files of the report, in page order, with their captions.
 FIGURES: dict[str, str] = {
@@ -122,6 +134,155 @@ def robot_tables_markdown(res: RobotResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass(frozen=True, slots=True)
+class QueryExplanation:
+    """Why the full program answered one test query as it did (what the demo report shows).
+
+    Attributes
+    ----------
+    index : int
+        Position of the query among the trial's test measurements.
+    truth, answer : str
+        The true place and the program's answer (the posterior's argmax).
+    posterior : ndarray, shape (P,)
+        The full program's posterior over ``classes``.
+    classes : list of str
+    terms : dict
+        Term (``"VE"``, ``"Ex"``, ``"Fp"``) -> (log-likelihood under ``truth``, under ``answer``), nats.
+    fingerprint : str
+        The query's fingerprint.
+    nearest : dict
+        ``"truth"`` / ``"answer"`` -> (the place's training fingerprint nearest the query by
+        global alignment, its alignment cost).
+    counts : dict
+        Feature type -> (count in the query, mean count in the true place's training views).
+    reason : str
+        One paragraph: which terms pulled towards the answer, by how much, and what the query lacked.
+    """
+
+    index: int
+    truth: str
+    answer: str
+    posterior: np.ndarray
+    classes: list[str]
+    terms: dict[str, tuple[float, float]]
+    fingerprint: str
+    nearest: dict[str, tuple[str, float]]
+    counts: dict[str, tuple[int, float]]
+    reason: str
+
+
+def explain_query(data: TrialData, ev: TrialEvaluation, index: int | None = None) -> QueryExplanation | None:
+    """Explain one test query of the full program (``ev.model``, the largest k).
+
+    Parameters
+    ----------
+    data : TrialData
+    ev : TrialEvaluation
+        With ``ev.model`` and ``ev.posterior`` set.
+    index : int, optional
+        The test query; default the first one the program gets wrong, else the right one
+        won by the smallest margin. None when the trial has no test query.
+    """
+    from ..align import alignment_costs
+    from ..fingerprint import make_fingerprint
+
+    test = data.observations("test")
+    train = data.observations("train")
+    if not test or ev.posterior.size == 0 or ev.model is None:
+        return None
+    answers = np.argmax(ev.posterior, axis=1)
+    if index is None:
+        wrong = np.flatnonzero(answers != ev.truth)
+        if wrong.size:
+            index = int(wrong[0])
+        else:
+            other = ev.posterior.copy()
+            other[np.arange(len(test)), ev.truth] = -np.inf
+            index = int(np.argmin(ev.posterior[np.arange(len(test)), ev.truth] - other.max(axis=1)))
+    q = test[index]
+    t_col, a_col = int(ev.truth[index]), int(answers[index])
+    truth, answer = ev.classes[t_col], ev.classes[a_col]
+    ll = ev.model.term_log_likelihoods([q])
+    terms = {t: (float(v[0, t_col]), float(v[0, a_col])) for t, v in ll.items()}
+    fp = make_fingerprint(q)
+    nearest: dict[str, tuple[str, float]] = {}
+    for role, name in (("truth", truth), ("answer", answer)):
+        own = [o for o in train if o.label == name]
+        fps = [make_fingerprint(o) for o in own]
+        costs = np.asarray(alignment_costs([fp], fps))[0]
+        j = int(np.argmin(costs))
+        nearest[role] = (fps[j].letters, float(costs[j]))
+    own_truth = [o for o in train if o.label == truth]
+    counts = {
+        t: (int(q.bearings(t).size), float(np.mean([o.bearings(t).size for o in own_truth])))
+        for t in ("VE", "Ex", "c", "B", "CP")
+    }
+    return QueryExplanation(
+        index=index,
+        truth=truth,
+        answer=answer,
+        posterior=np.asarray(ev.posterior[index], dtype=np.float64),
+        classes=list(ev.classes),
+        terms=terms,
+        fingerprint=fp.letters,
+        nearest=nearest,
+        counts=counts,
+        reason=_reason(truth, answer, terms, nearest, counts),
+    )
+
+
+_TERM_NAMES = {"VE": "the vertical-edge mixture", "Ex": "the extremity mixture", "Fp": "the fingerprint"}
+
+
+def _reason(
+    truth: str,
+    answer: str,
+    terms: dict[str, tuple[float, float]],
+    nearest: dict[str, tuple[str, float]],
+    counts: dict[str, tuple[int, float]],
+) -> str:
+    if truth == answer:
+        return f"The program answered this query right ({truth})."
+    pull = {t: a - b for t, (b, a) in terms.items()}  # > 0: the term prefers the answer
+    towards = [t for t, d in sorted(pull.items(), key=lambda kv: -kv[1]) if d > 0]
+    against = [t for t, d in sorted(pull.items(), key=lambda kv: kv[1]) if d <= 0]
+    parts = [f"The program answered {answer} instead of {truth}."]
+    if towards:
+        parts.append(
+            "Pulling towards the wrong office: "
+            + "; ".join(f"{_TERM_NAMES.get(t, t)} by {pull[t]:.1f} nats" for t in towards)
+            + "."
+        )
+    if against:
+        parts.append(
+            "For the true office: "
+            + "; ".join(f"{_TERM_NAMES.get(t, t)} by {-pull[t]:.1f} nats" for t in against)
+            + f", not enough against a net {sum(pull.values()):.1f} nats for {answer}."
+        )
+    (_, c_t), (_, c_a) = nearest["truth"], nearest["answer"]
+    parts.append(
+        f"The query's fingerprint is {c_t:.0f} alignment cost from the nearest training fingerprint of {truth} "
+        f"and {c_a:.0f} from that of {answer}."
+    )
+    missing = [
+        f"{n} {t} (the true office's training views: {m:.1f} on average)"
+        for t, (n, m) in counts.items()
+        if m >= 1.0 and n <= 0.6 * m
+    ]
+    extra = [f"{n} {t} (training: {m:.1f})" for t, (n, m) in counts.items() if n >= 1.6 * max(m, 1.0)]
+    if missing:
+        parts.append("The query saw fewer features than its office usually shows: " + ", ".join(missing) + ".")
+    if extra:
+        parts.append("It saw more than usual: " + ", ".join(extra) + ".")
+    if not missing and not extra:
+        parts.append(
+            "Its feature counts are ordinary for its office: the offices are alike (one corridor, the same "
+            "furniture), and the bearings it saw fit the other office's mixtures and strings about as well."
+        )
+    return " ".join(parts)
+
+
 def confusion_matrix(ev: TrialEvaluation) -> np.ndarray:
     """Counts (true place, answer) of the full program's answers, shape (P, P)."""
     p = len(ev.classes)
@@ -208,9 +369,30 @@ def write_demo_report(
     plot.plot_posterior(ev.classes, ev.posterior[test_idx], out / "posterior.png", truth=world.name)
     plot.plot_confusion(confusion_matrix(ev), ev.classes, out / "confusion.png")
 
+    why = explain_query(data, ev)
+    if why is not None:
+        verdict = "wrong" if why.truth != why.answer else "right, by the smallest margin"
+        plot.plot_posterior(
+            why.classes,
+            why.posterior,
+            out / QUERY_FIGURE,
+            truth=why.truth,
+            title=f"test query {why.index + 1} ({why.truth}): answered {why.answer}, {verdict}",
+        )
     js = res.to_json()
+    if why is not None:
+        js["explained_query"] = {
+            "index": why.index,
+            "truth": why.truth,
+            "answer": why.answer,
+            "posterior": dict(zip(why.classes, (float(v) for v in why.posterior), strict=True)),
+            "term_log_likelihood": {t: {"truth": a, "answer": b} for t, (a, b) in why.terms.items()},
+            "fingerprint": why.fingerprint,
+            "nearest_training_fingerprint": {r: {"letters": f, "cost": c} for r, (f, c) in why.nearest.items()},
+            "reason": why.reason,
+        }
     (out / "results.json").write_text(json.dumps(js, indent=2) + "\n", encoding="utf-8")
-    page = _page(data, ev, res, world.name, fp.letters, timings or {}, out)
+    page = _page(data, ev, res, world.name, fp.letters, timings or {}, out, why)
     path = out / "index.md"
     path.write_text(page, encoding="utf-8")
     return path
@@ -224,6 +406,7 @@ def _page(
     letters: str,
     timings: dict[str, float],
     out: Path,
+    why: QueryExplanation | None = None,
 ) -> str:
     p = res.protocol
     n_meas = sum(1 for m in data.measurements if m.role in ("train", "test"))
@@ -262,6 +445,40 @@ def _page(
             title = fname.removesuffix(".png")
             lines += [f"### {title}", "", f"![{title}]({fname})", "", caption, ""]
     lines += [f"Fingerprint of the first test measurement of {name}: `{letters}`", ""]
+    if why is not None:
+        wrong = why.truth != why.answer
+        lines += [
+            "## One query the program gets wrong" if wrong else "## The closest call (no query was wrong)",
+            "",
+            f"Test query {why.index + 1} of {len(ev.truth)}, taken in **{why.truth}**; the full program "
+            f"(VE, Ex & fingerprint, k = {max(p.ks)}) answered **{why.answer}** "
+            f"(posterior {why.posterior[why.classes.index(why.answer)]:.2f} against "
+            f"{why.posterior[why.classes.index(why.truth)]:.2f} for {why.truth}).",
+            "",
+            f"![posterior of the query]({QUERY_FIGURE})",
+            "",
+            "| term | log-likelihood, " + why.truth + " | log-likelihood, " + why.answer + " |",
+            "|---|---:|---:|",
+        ]
+        lines += [f"| {t} | {a:.2f} | {b:.2f} |" for t, (a, b) in why.terms.items()]
+        (f_t, c_t), (f_a, c_a) = why.nearest["truth"], why.nearest["answer"]
+        lines += [
+            "",
+            "Fingerprints (the training ones are each place's nearest to the query by global alignment):",
+            "",
+            "| fingerprint | letters | alignment cost to the query |",
+            "|---|---|---:|",
+            f"| the query | `{why.fingerprint}` | - |",
+            f"| {why.truth} (true place) | `{f_t}` | {c_t:.0f} |",
+            f"| {why.answer} (the answer) | `{f_a}` | {c_a:.0f} |",
+            "",
+            "Features in the query against the true office's training views (mean): "
+            + ", ".join(f"{t} {n} ({m:.1f})" for t, (n, m) in why.counts.items())
+            + ".",
+            "",
+            f"**Why it failed.** {why.reason}" if wrong else f"**Note.** {why.reason}",
+            "",
+        ]
     if timings:
         lines += ["## Timings", "", "| stage | seconds |", "|---|---:|"]
         lines += [f"| {k} | {v:.1f} |" for k, v in timings.items()]
