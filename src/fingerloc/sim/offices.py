@@ -217,9 +217,9 @@ _COUNTS = {
 #: more beacons, fewer pieces of furniture, and office chairs standing in the room.
 _COUNTS_PAPER = {
     "doors": (1, 2),
-    "furniture": (2, 4),
+    "furniture": (3, 4),
     "pillars": (0, 1),
-    "patches": (3, 5),
+    "patches": (2, 4),
     "beacons": (4, 6),
     "suns": (0, 2),
     "windows": (0, 1),
