@@ -99,8 +99,9 @@ def test_trial_uses_raw_sensor_features(trial):
     assert roles.count("test-random-heading") == p.n_offices * p.n_test
     # features come from the extractors: some of every type, bearings differ from measurement to measurement
     assert all(ev.features[t] > 0 for t in ("VE", "Ex", "CP", "c"))
-    ve = [tuple(np.round(m.observation.ve, 6)) for m in data.measurements]
-    assert len(set(ve)) == len(ve)
+    # (a view of the calibrated world may show no long vertical edge at all: those are left out)
+    ve = [tuple(np.round(m.observation.ve, 6)) for m in data.measurements if m.observation.ve.size]
+    assert len(ve) > len(data.measurements) // 2 and len(set(ve)) == len(ve)
     assert all(m.scan is None for m in data.measurements)  # raw data not kept unless asked
 
 
