@@ -3,8 +3,13 @@
 Protocol (Tapus et al. 2004, section V-B, as restated in SPEC.md §5), with the
 robot replaced by :mod:`fingerloc.sim`:
 
-* ten offices alike (:func:`fingerloc.sim.make_offices` at its default
-  similarity), each with a measurement point (the office's ``anchor``);
+* ten offices alike (:func:`fingerloc.sim.make_offices`), each with a
+  measurement point (the office's ``anchor``). The default world, ``"paper"``,
+  is calibrated so that the extractors find about as many features per
+  measurement as the paper's Table II (see :data:`WORLD_PROFILES`: office
+  chairs, fewer posters, more beacons, a softer camera image, an edge extractor
+  that keeps only long edges, offices of one corridor at similarity 0.8);
+  ``"alike"`` is the original generator, far richer in edges;
 * per office, eight **training** measurements on a circle around that point,
   radius drawn in ``train_radius_m`` (40-70 cm), at eight evenly spaced angles
   (the whole ring turned by a random angle), and two **test** measurements
@@ -46,7 +51,10 @@ What is measured, per trial (new offices, poses and noise each trial):
 Right classification is the share of test measurements whose true place
 ranks first; the rank of the true place counts ties against (two places tied
 for first both get rank 2). Each figure is the mean over trials; the spread is
-the standard deviation over trials.
+the standard deviation over trials, and every cell has a 95 % confidence
+interval: Student t over the trials' figures with two trials or more, or, for
+one trial (the demo), a Wilson interval of the share over its test queries and
+a Student t interval of the mean rank over them.
 """
 
 from __future__ import annotations

@@ -28,11 +28,13 @@ PAPER_TABLE2 = {"VE": 5.6, "Ex": 5.6, "CP": 2.7, "B": 3.9}
 _TYPES = ("VE", "Ex", "c", "CP", "B")
 
 
-def feature_counts(n_offices: int = 10, *, similarity: float = 0.5, seed: int = 0) -> dict[str, float]:
+def feature_counts(
+    n_offices: int = 10, *, similarity: float = 0.5, seed: int = 0, world: str = "alike"
+) -> dict[str, float]:
     """Mean number of ground-truth features per measurement over the protocol poses."""
     rng = np.random.default_rng(seed)
     counts: dict[str, list[int]] = {k: [] for k in _TYPES}
-    for w in make_offices(n_offices, similarity=similarity, random_state=rng):
+    for w in make_offices(n_offices, similarity=similarity, random_state=rng, world=world):
         train, test = protocol_poses(w, random_state=rng)
         for pose in np.vstack([train, test]):
             f = true_features(w, tuple(pose))
@@ -94,6 +96,7 @@ def intensity_stats(n_offices: int = 10, *, seed: int = 0) -> dict[str, float]:
 def main() -> dict[str, Any]:
     out: dict[str, Any] = {
         "features_per_measurement": feature_counts(),
+        "features_per_measurement_paper_world": feature_counts(similarity=0.8, world="paper"),
         "paper_table2": PAPER_TABLE2,
         "likeness": {str(s): office_likeness(s) for s in (0.0, 0.5, 0.8, 1.0)},
         "intensity": intensity_stats(),
