@@ -181,8 +181,10 @@ def robot_cmd(
 
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
-    kw = {"similarity": similarity, "world": world}
-    protocol = small_protocol(**kw) if quick else RobotProtocol(**kw)
+    if quick:
+        protocol = small_protocol(similarity=similarity, world=world)
+    else:
+        protocol = RobotProtocol(similarity=similarity, world=world)
     with trial_progress("robot experiment", trials) as on_trial:
         res = run_robot(
             trials=trials,

@@ -616,9 +616,9 @@ def _build(spec: _Spec, name: str) -> World:
             q = [at(lo, off), at(lo, off + size), at(hi, off + size), at(hi, off)]
             for k in range(4):
                 b.add(q[k], q[(k + 1) % 4], (_SEAT_Z, back), m, "chair")
-            c = at((lo + hi) / 2, off + size / 2)
+            centre = at((lo + hi) / 2, off + size / 2)
             r = _CHAIR_POST / 2
-            post = [c + np.array(v) for v in ((-r, -r), (r, -r), (r, r), (-r, r))]
+            post = [centre + np.array(v) for v in ((-r, -r), (r, -r), (r, r), (-r, r))]
             for k in range(4):
                 b.add(post[k], post[(k + 1) % 4], (0.0, _SEAT_Z), m, "chair")
 
