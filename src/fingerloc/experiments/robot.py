@@ -612,14 +612,21 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         for k in protocol.ks:
             cm = PlaceModel(k, terms=("VE", "Ex", "Fp"), cyclic=True, random_state=random_state).fit(train)
             fp_ll = cm.term_log_likelihoods(rtest)["Fp"]
+            # The mixtures alone (the same fit as cm's: one batch over the same places and terms), for the
+            # observations turned back by each place's heading: one call for all places, no Fp recomputed.
+            mixtures = PlaceModel(k, terms=("VE", "Ex"), random_state=random_state).fit(train)
             mog = np.zeros_like(fp_ll)
             head = np.full((len(rtest), len(classes)), np.nan)
+            turned: list[Observation] = []
             for j, name in enumerate(classes):
                 h = cm.headings(rtest, [name] * len(rtest))
                 head[:, j] = h
-                turned = [o.rotated(-math.radians(v)) if np.isfinite(v) else o for o, v in zip(rtest, h, strict=True)]
-                ll = cm.term_log_likelihoods(turned)
-                mog[:, j] = ll["VE"][:, j] + ll["Ex"][:, j]
+                turned += [o.rotated(-math.radians(v)) if np.isfinite(v) else o for o, v in zip(rtest, h, strict=True)]
+            ll = mixtures.term_log_likelihoods(turned)
+            n_r = len(rtest)
+            for j in range(len(classes)):
+                rows = slice(j * n_r, (j + 1) * n_r)
+                mog[:, j] = ll["VE"][rows, j] + ll["Ex"][rows, j]
             record(("random_heading", "VE+Ex+Fp", str(k)), mog + fp_ll, rtruth)
             if k == protocol.ks[-1]:
                 # the robot's heading relative to the training heading (about 0): heading_deg = -theta... see below
