@@ -169,10 +169,13 @@ def robot_cmd(
         help="Simulated offices and sensors: 'paper' (calibrated to the paper's Table II) or 'alike' (the original).",
     ),
     workers: int | None = typer.Option(
-        None, "--workers", min=1, help="Processes simulating offices (default: cores, at most 4)."
+        None, "--workers", min=1, help="Processes running trials (default: cores, at most 4)."
     ),
     quick: bool = typer.Option(
         False, "--quick", help="Four small offices and small images: a smoke test, not the protocol."
+    ),
+    random_heading: bool = typer.Option(
+        True, "--random-heading/--no-random-heading", help="Also run the random-heading rows (not in the paper)."
     ),
 ) -> None:
     """Simulate the paper's robot experiment (10 offices, 8 training + 2 test measurements each) and print Tables II-IV."""
@@ -182,9 +185,9 @@ def robot_cmd(
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
     if quick:
-        protocol = small_protocol(similarity=similarity, world=world)
+        protocol = small_protocol(similarity=similarity, world=world, random_heading=random_heading)
     else:
-        protocol = RobotProtocol(similarity=similarity, world=world)
+        protocol = RobotProtocol(similarity=similarity, world=world, random_heading=random_heading)
     with trial_progress("robot experiment", trials) as on_trial:
         res = run_robot(
             trials=trials,

@@ -830,7 +830,9 @@ def run_robot(
         Trial ``t`` uses the seed sequence ``(seed, t)``: results do not depend on ``workers``.
     protocol : RobotProtocol, optional
     workers : int, optional
-        Processes simulating offices in parallel; default :func:`default_workers`.
+        Processes; default :func:`default_workers`. With two or more trials, each process runs
+        whole trials; with one, the offices are simulated in parallel. The figures do not
+        depend on it.
     on_trial : callable(done), optional
         Called after each trial.
     """
@@ -841,15 +843,32 @@ def run_robot(
     p = protocol if protocol is not None else RobotProtocol()
     n_workers = default_workers() if workers is None else int(workers)
     results = []
+    if n_workers >= 2 and trials >= 2:
+        # Whole trials in parallel (simulate and evaluate in one process each): no process waits
+        # for another, and each trial's figures are the same as when run alone.
+        with simulation_pool(min(n_workers, trials)) as ex:
+            assert ex is not None
+            jobs = [(p, seed, t) for t in range(trials)]
+            for t, ev in enumerate(ex.map(_trial_job, jobs)):
+                results.append(ev)
+                if on_trial is not None:
+                    on_trial(t + 1)
+        return RobotResult(protocol=p, seed=seed, trials=results)
     with simulation_pool(n_workers) as ex:
         for t in range(trials):
-            data = simulate_trial(p, (seed, t), executor=ex)
-            ev = evaluate_trial(data, p, random_state=seed * 1000 + t)
-            ev.model = None  # keep results small
-            results.append(ev)
+            results.append(_trial_job((p, seed, t), executor=ex))
             if on_trial is not None:
                 on_trial(t + 1)
     return RobotResult(protocol=p, seed=seed, trials=results)
+
+
+def _trial_job(args: tuple[RobotProtocol, int, int], executor: Executor | None = None) -> TrialEvaluation:
+    """Simulate and evaluate trial ``t`` (seed sequence ``(seed, t)``); the model is dropped to keep results small."""
+    p, seed, t = args
+    data = simulate_trial(p, (seed, t), executor=executor)
+    ev = evaluate_trial(data, p, random_state=seed * 1000 + t)
+    ev.model = None
+    return ev
 
 
 def small_protocol(**changes: Any) -> RobotProtocol:
