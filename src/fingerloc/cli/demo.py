@@ -25,6 +25,9 @@ def demo_cmd(
     workers: int | None = typer.Option(
         None, "--workers", min=1, help="Processes simulating offices (default: cores, at most 4)."
     ),
+    random_heading: bool = typer.Option(
+        False, "--random-heading", help="Also the random-heading rows (not in the paper; about 10 s more)."
+    ),
     world: str = typer.Option(
         "paper",
         "--world",
@@ -47,10 +50,13 @@ def demo_cmd(
 
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
-    protocol = small(world=world) if quick else RobotProtocol(world=world)
+    if quick:
+        protocol = small(world=world, random_heading=random_heading)
+    else:
+        protocol = RobotProtocol(world=world, random_heading=random_heading)
     n_workers = default_workers() if workers is None else workers
     timings: dict[str, float] = {}
-    n_meas = protocol.n_offices * (protocol.n_train + 2 * protocol.n_test)
+    n_meas = protocol.n_offices * (protocol.n_train + (2 if random_heading else 1) * protocol.n_test)
     with Progress(
         SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=err_console, transient=True
     ) as progress:

@@ -42,7 +42,7 @@ QUERY_FIGURE = "query.png"
 FIGURES: dict[str, str] = {
     "map.png": "The office of the example from above: walls, door frames, furniture, beacons (gold) and "
     "coloured posters; the eight training poses on the 40-70 cm circle (blue), the two test poses inside it "
-    "(red) and the same two positions with a random heading (green).",
+    "(red) and, with `--random-heading`, the same two positions with a random heading (green).",
     "omni.png": "The raw omnidirectional image (equiangular mirror) at the first test pose: this donut, "
     "not the simulator's geometry, is what the vision extractor sees.",
     "panorama.png": "The donut unwarped into a panorama (columns = bearing) with the vertical edges (cyan) "
