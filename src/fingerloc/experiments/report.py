@@ -144,15 +144,17 @@ class QueryExplanation:
         Position of the query among the trial's test measurements.
     truth, answer : str
         The true place and the program's answer (the posterior's argmax).
+    rival : str
+        The place compared with the true one: the answer when it is wrong, else the runner-up.
     posterior : ndarray, shape (P,)
         The full program's posterior over ``classes``.
     classes : list of str
     terms : dict
-        Term (``"VE"``, ``"Ex"``, ``"Fp"``) -> (log-likelihood under ``truth``, under ``answer``), nats.
+        Term (``"VE"``, ``"Ex"``, ``"Fp"``) -> (log-likelihood under ``truth``, under ``rival``), nats.
     fingerprint : str
         The query's fingerprint.
     nearest : dict
-        ``"truth"`` / ``"answer"`` -> (the place's training fingerprint nearest the query by
+        ``"truth"`` / ``"rival"`` -> (the place's training fingerprint nearest the query by
         global alignment, its alignment cost).
     counts : dict
         Feature type -> (count in the query, mean count in the true place's training views).
@@ -163,6 +165,7 @@ class QueryExplanation:
     index: int
     truth: str
     answer: str
+    rival: str
     posterior: np.ndarray
     classes: list[str]
     terms: dict[str, tuple[float, float]]
@@ -202,12 +205,18 @@ def explain_query(data: TrialData, ev: TrialEvaluation, index: int | None = None
             index = int(np.argmin(ev.posterior[np.arange(len(test)), ev.truth] - other.max(axis=1)))
     q = test[index]
     t_col, a_col = int(ev.truth[index]), int(answers[index])
-    truth, answer = ev.classes[t_col], ev.classes[a_col]
+    if a_col == t_col:  # right: compare with the runner-up
+        others = np.array(ev.posterior[index], dtype=np.float64)
+        others[t_col] = -np.inf
+        r_col = int(np.argmax(others))
+    else:
+        r_col = a_col
+    truth, answer, rival = ev.classes[t_col], ev.classes[a_col], ev.classes[r_col]
     ll = ev.model.term_log_likelihoods([q])
-    terms = {t: (float(v[0, t_col]), float(v[0, a_col])) for t, v in ll.items()}
+    terms = {t: (float(v[0, t_col]), float(v[0, r_col])) for t, v in ll.items()}
     fp = make_fingerprint(q)
     nearest: dict[str, tuple[str, float]] = {}
-    for role, name in (("truth", truth), ("answer", answer)):
+    for role, name in (("truth", truth), ("rival", rival)):
         own = [o for o in train if o.label == name]
         fps = [make_fingerprint(o) for o in own]
         costs = np.asarray(alignment_costs([fp], fps))[0]
@@ -222,13 +231,14 @@ def explain_query(data: TrialData, ev: TrialEvaluation, index: int | None = None
         index=index,
         truth=truth,
         answer=answer,
+        rival=rival,
         posterior=np.asarray(ev.posterior[index], dtype=np.float64),
         classes=list(ev.classes),
         terms=terms,
         fingerprint=fp.letters,
         nearest=nearest,
         counts=counts,
-        reason=_reason(truth, answer, terms, nearest, counts),
+        reason=_reason(truth, answer, rival, terms, nearest, counts),
     )
 
 
@@ -238,12 +248,18 @@ _TERM_NAMES = {"VE": "the vertical-edge mixture", "Ex": "the extremity mixture",
 def _reason(
     truth: str,
     answer: str,
+    rival: str,
     terms: dict[str, tuple[float, float]],
     nearest: dict[str, tuple[str, float]],
     counts: dict[str, tuple[int, float]],
 ) -> str:
     if truth == answer:
-        return f"The program answered this query right ({truth})."
+        margin = sum(a - b for a, b in terms.values())
+        return (
+            f"The program answered this query right ({truth}), {margin:.1f} nats ahead of the runner-up {rival}; "
+            f"nearest training fingerprints: cost {nearest['truth'][1]:.0f} ({truth}) against "
+            f"{nearest['rival'][1]:.0f} ({rival})."
+        )
     pull = {t: a - b for t, (b, a) in terms.items()}  # > 0: the term prefers the answer
     towards = [t for t, d in sorted(pull.items(), key=lambda kv: -kv[1]) if d > 0]
     against = [t for t, d in sorted(pull.items(), key=lambda kv: kv[1]) if d <= 0]
@@ -260,7 +276,7 @@ def _reason(
             + "; ".join(f"{_TERM_NAMES.get(t, t)} by {-pull[t]:.1f} nats" for t in against)
             + f", not enough against a net {sum(pull.values()):.1f} nats for {answer}."
         )
-    (_, c_t), (_, c_a) = nearest["truth"], nearest["answer"]
+    (_, c_t), (_, c_a) = nearest["truth"], nearest["rival"]
     parts.append(
         f"The query's fingerprint is {c_t:.0f} alignment cost from the nearest training fingerprint of {truth} "
         f"and {c_a:.0f} from that of {answer}."
@@ -386,8 +402,9 @@ def write_demo_report(
             "truth": why.truth,
             "answer": why.answer,
             "posterior": dict(zip(why.classes, (float(v) for v in why.posterior), strict=True)),
-            "term_log_likelihood": {t: {"truth": a, "answer": b} for t, (a, b) in why.terms.items()},
+            "term_log_likelihood": {t: {"truth": a, "rival": b} for t, (a, b) in why.terms.items()},
             "fingerprint": why.fingerprint,
+            "rival": why.rival,
             "nearest_training_fingerprint": {r: {"letters": f, "cost": c} for r, (f, c) in why.nearest.items()},
             "reason": why.reason,
         }
@@ -452,16 +469,20 @@ def _page(
             "",
             f"Test query {why.index + 1} of {len(ev.truth)}, taken in **{why.truth}**; the full program "
             f"(VE, Ex & fingerprint, k = {max(p.ks)}) answered **{why.answer}** "
-            f"(posterior {why.posterior[why.classes.index(why.answer)]:.2f} against "
-            f"{why.posterior[why.classes.index(why.truth)]:.2f} for {why.truth}).",
+            f"(posterior {why.posterior[why.classes.index(why.answer)]:.2f}"
+            + (
+                f" against {why.posterior[why.classes.index(why.truth)]:.2f} for {why.truth})."
+                if wrong
+                else f"; runner-up {why.rival} at {why.posterior[why.classes.index(why.rival)]:.2f})."
+            ),
             "",
             f"![posterior of the query]({QUERY_FIGURE})",
             "",
-            "| term | log-likelihood, " + why.truth + " | log-likelihood, " + why.answer + " |",
+            "| term | log-likelihood, " + why.truth + " (true) | log-likelihood, " + why.rival + " |",
             "|---|---:|---:|",
         ]
         lines += [f"| {t} | {a:.2f} | {b:.2f} |" for t, (a, b) in why.terms.items()]
-        (f_t, c_t), (f_a, c_a) = why.nearest["truth"], why.nearest["answer"]
+        (f_t, c_t), (f_a, c_a) = why.nearest["truth"], why.nearest["rival"]
         lines += [
             "",
             "Fingerprints (the training ones are each place's nearest to the query by global alignment):",
@@ -470,7 +491,7 @@ def _page(
             "|---|---|---:|",
             f"| the query | `{why.fingerprint}` | - |",
             f"| {why.truth} (true place) | `{f_t}` | {c_t:.0f} |",
-            f"| {why.answer} (the answer) | `{f_a}` | {c_a:.0f} |",
+            f"| {why.rival} ({'the answer' if wrong else 'the runner-up'}) | `{f_a}` | {c_a:.0f} |",
             "",
             "Features in the query against the true office's training views (mean): "
             + ", ".join(f"{t} {n} ({m:.1f})" for t, (n, m) in why.counts.items())

@@ -738,7 +738,9 @@ class RobotResult:
             else:
                 r = self.trials[0].ranks.get(key, np.empty(0, dtype=np.int64))
                 out[key] = (wilson_interval(int((r == 1).sum()), int(r.size)), t_interval(r))
-        return out
+        # a share lies in [0, 1] and a rank in [1, places]: clip the t intervals to what can be
+        n_places = max(len(self.trials[0].classes), 1)
+        return {key: (_clip(a, 0.0, 1.0), _clip(r, 1.0, float(n_places))) for key, (a, r) in out.items()}
 
     def heading_error_deg(self) -> float | None:
         """Median absolute heading error of the random-heading measurements (true place), degrees."""
@@ -801,6 +803,10 @@ class RobotResult:
 
 def _std(v: FArray) -> float:
     return float(v.std(ddof=1)) if v.size > 1 else 0.0
+
+
+def _clip(v: tuple[float, float] | None, lo: float, hi: float) -> tuple[float, float] | None:
+    return None if v is None else (min(max(v[0], lo), hi), min(max(v[1], lo), hi))
 
 
 def _pair(v: tuple[float, float] | None) -> list[float] | None:
