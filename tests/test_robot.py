@@ -2,6 +2,7 @@
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -262,3 +263,13 @@ def test_explain_query_names_the_terms_that_pulled_wrong(trial):
     if right.size:
         r = explain_query(data, ev, int(right[0]))
         assert r is not None and r.truth == r.answer != r.rival and "right" in r.reason
+
+
+def test_random_heading_rows_leave_tables_2_to_4_unchanged():
+    p = small_protocol(n_offices=2, n_train=2, n_test=1, omni_size=(160, 120), panorama_width=180)
+    a = simulate_trial(p, (7, 0))
+    b = simulate_trial(replace(p, random_heading=False), (7, 0))
+    keep = [m for m in a.measurements if m.role != "test-random-heading"]
+    assert len(keep) == len(b.measurements) < len(a.measurements)
+    for x, y in zip(keep, b.measurements, strict=True):
+        assert x.pose == y.pose and x.observation == y.observation

@@ -367,7 +367,10 @@ def simulate_office(
     train, test = measurement_poses(world, protocol, rng)
     jobs = [("train", p) for p in train] + [("test", p) for p in test]
     if protocol.random_heading:
-        jobs += [("test-random-heading", (x, y, float(rng.uniform(-math.pi, math.pi)))) for x, y, _ in test]
+        # headings from their own stream, so that the training and test measurements (Tables II-IV)
+        # are the same with and without the random-heading rows
+        turn = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        jobs += [("test-random-heading", (x, y, float(turn.uniform(-math.pi, math.pi)))) for x, y, _ in test]
     out = []
     for role, pose in jobs:
         obs, scan, pano, im = _measure(world, pose, protocol, rng)
