@@ -12,6 +12,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -147,7 +148,11 @@ class QueryExplanation:
     rival : str
         The place compared with the true one: the answer when it is wrong, else the runner-up.
     posterior : ndarray, shape (P,)
-        The full program's posterior over ``classes``.
+        The program's posterior over ``classes``.
+    k : int
+        Mixture components of the program explained.
+    program : tuple of str
+        Its terms: ``("VE", "Ex", "Fp")`` (the full program) or fewer.
     classes : list of str
     terms : dict
         Term (``"VE"``, ``"Ex"``, ``"Fp"``) -> (log-likelihood under ``truth``, under ``rival``), nats.
@@ -169,51 +174,103 @@ class QueryExplanation:
     posterior: np.ndarray
     classes: list[str]
     terms: dict[str, tuple[float, float]]
+    k: int
+    program: tuple[str, ...]
     fingerprint: str
     nearest: dict[str, tuple[str, float]]
     counts: dict[str, tuple[int, float]]
     reason: str
 
 
-def explain_query(data: TrialData, ev: TrialEvaluation, index: int | None = None) -> QueryExplanation | None:
-    """Explain one test query of the full program (``ev.model``, the largest k).
+#: Configurations searched, in order, for a wrongly answered query: (terms, largest k first).
+_SEARCH: tuple[tuple[str, ...], ...] = (("VE", "Ex", "Fp"), ("VE", "Ex"), ("Ex",), ("VE",))
+
+
+def _posterior(model: Any, test: list[Any], terms: tuple[str, ...]) -> np.ndarray:
+    """Posterior of the program restricted to ``terms`` (weights 1), shape (n, P)."""
+    from scipy.special import logsumexp
+
+    ll = model.term_log_likelihoods(test)
+    joint = np.asarray(sum(ll[t] for t in terms), dtype=np.float64)
+    return np.asarray(np.exp(joint - logsumexp(joint, axis=1, keepdims=True)))
+
+
+def explain_query(
+    data: TrialData,
+    ev: TrialEvaluation,
+    index: int | None = None,
+    *,
+    k: int | None = None,
+    terms: tuple[str, ...] | None = None,
+) -> QueryExplanation | None:
+    """Explain one test query of the Bayesian program.
 
     Parameters
     ----------
     data : TrialData
     ev : TrialEvaluation
-        With ``ev.model`` and ``ev.posterior`` set.
+        With ``ev.models`` (or ``ev.model``) set.
     index : int, optional
-        The test query; default the first one the program gets wrong, else the right one
-        won by the smallest margin. None when the trial has no test query.
+        The test query. Default: the first query the full program (VE, Ex, Fp) gets wrong
+        with the largest k, else with the next smaller k, else the first one a program with
+        fewer terms gets wrong (VE & Ex, then Ex, then VE; the explanation says which);
+        when every configuration is right everywhere, the query the full program wins by
+        the smallest margin.
+    k, terms : optional
+        Explain this configuration (mixture components, terms) instead of searching.
+
+    Returns
+    -------
+    QueryExplanation or None
+        None when the trial has no test query or no fitted model.
     """
     from ..align import alignment_costs
     from ..fingerprint import make_fingerprint
 
     test = data.observations("test")
     train = data.observations("train")
-    if not test or ev.posterior.size == 0 or ev.model is None:
+    models = dict(ev.models) if ev.models else ({ev.model.n_components: ev.model} if ev.model is not None else {})
+    if not test or not models:
         return None
-    answers = np.argmax(ev.posterior, axis=1)
+    ks = sorted(models, reverse=True)
+    configs = [(kk, t) for t in _SEARCH for kk in ks] if (k is None and terms is None) else []
+    if k is not None or terms is not None:
+        configs = [(ks[0] if k is None else k, ("VE", "Ex", "Fp") if terms is None else tuple(terms))]
+        if configs[0][0] not in models:
+            raise ValueError(f"no model with k = {configs[0][0]} in this evaluation")
+    chosen = None
+    for kk, tt in configs:
+        post = _posterior(models[kk], test, tt)
+        wrong = np.flatnonzero(np.argmax(post, axis=1) != ev.truth)
+        if index is not None or wrong.size or len(configs) == 1:
+            chosen = (kk, tt, post, int(wrong[0]) if index is None and wrong.size else index)
+            break
+    if chosen is None:  # every configuration right: the full program's closest call
+        kk, tt = ks[0], ("VE", "Ex", "Fp")
+        post = _posterior(models[kk], test, tt)
+        chosen = (kk, tt, post, None)
+    k_used, terms_used, posterior, index = chosen
+    answers = np.argmax(posterior, axis=1)
     if index is None:
         wrong = np.flatnonzero(answers != ev.truth)
         if wrong.size:
             index = int(wrong[0])
         else:
-            other = ev.posterior.copy()
-            other[np.arange(len(test)), ev.truth] = -np.inf
-            index = int(np.argmin(ev.posterior[np.arange(len(test)), ev.truth] - other.max(axis=1)))
+            rows = np.arange(len(test))
+            other = posterior.copy()
+            other[rows, ev.truth] = -np.inf
+            index = int(np.argmin(posterior[rows, ev.truth] - other.max(axis=1)))
     q = test[index]
     t_col, a_col = int(ev.truth[index]), int(answers[index])
     if a_col == t_col:  # right: compare with the runner-up
-        others = np.array(ev.posterior[index], dtype=np.float64)
+        others = np.array(posterior[index], dtype=np.float64)
         others[t_col] = -np.inf
         r_col = int(np.argmax(others))
     else:
         r_col = a_col
     truth, answer, rival = ev.classes[t_col], ev.classes[a_col], ev.classes[r_col]
-    ll = ev.model.term_log_likelihoods([q])
-    terms = {t: (float(v[0, t_col]), float(v[0, r_col])) for t, v in ll.items()}
+    ll = models[k_used].term_log_likelihoods([q])
+    term_ll = {t: (float(v[0, t_col]), float(v[0, r_col])) for t, v in ll.items() if t in terms_used}
     fp = make_fingerprint(q)
     nearest: dict[str, tuple[str, float]] = {}
     for role, name in (("truth", truth), ("rival", rival)):
@@ -232,15 +289,24 @@ def explain_query(data: TrialData, ev: TrialEvaluation, index: int | None = None
         truth=truth,
         answer=answer,
         rival=rival,
-        posterior=np.asarray(ev.posterior[index], dtype=np.float64),
+        posterior=np.asarray(posterior[index], dtype=np.float64),
         classes=list(ev.classes),
-        terms=terms,
+        terms=term_ll,
+        k=int(k_used),
+        program=tuple(terms_used),
         fingerprint=fp.letters,
         nearest=nearest,
         counts=counts,
-        reason=_reason(truth, answer, rival, terms, nearest, counts),
+        reason=_reason(truth, answer, rival, term_ll, nearest, counts),
     )
 
+
+_PROGRAM_NAMES = {
+    ("VE", "Ex", "Fp"): "VE, Ex & fingerprint",
+    ("VE", "Ex"): "VE & Ex, no fingerprint",
+    ("Ex",): "Ex only",
+    ("VE",): "VE only",
+}
 
 _TERM_NAMES = {"VE": "the vertical-edge mixture", "Ex": "the extremity mixture", "Fp": "the fingerprint"}
 
@@ -281,6 +347,11 @@ def _reason(
         f"The query's fingerprint is {c_t:.0f} alignment cost from the nearest training fingerprint of {truth} "
         f"and {c_a:.0f} from that of {answer}."
     )
+    if "Fp" not in terms and c_t < c_a:
+        parts.append(
+            "The fingerprint, which this program leaves out, points to the true office: the order of the "
+            "features around the robot tells what their bearings alone do not."
+        )
     missing = [
         f"{n} {t} (the true office's training views: {m:.1f} on average)"
         for t, (n, m) in counts.items()
@@ -294,7 +365,7 @@ def _reason(
     if not missing and not extra:
         parts.append(
             "Its feature counts are ordinary for its office: the offices are alike (one corridor, the same "
-            "furniture), and the bearings it saw fit the other office's mixtures and strings about as well."
+            "furniture), and the bearings it saw fit the other office's mixtures about as well."
         )
     return " ".join(parts)
 
@@ -399,6 +470,8 @@ def write_demo_report(
     if why is not None:
         js["explained_query"] = {
             "index": why.index,
+            "k": why.k,
+            "terms": list(why.program),
             "truth": why.truth,
             "answer": why.answer,
             "posterior": dict(zip(why.classes, (float(v) for v in why.posterior), strict=True)),
@@ -467,8 +540,14 @@ def _page(
         lines += [
             "## One query the program gets wrong" if wrong else "## The closest call (no query was wrong)",
             "",
-            f"Test query {why.index + 1} of {len(ev.truth)}, taken in **{why.truth}**; the full program "
-            f"(VE, Ex & fingerprint, k = {max(p.ks)}) answered **{why.answer}** "
+            (
+                ""
+                if why.program == ("VE", "Ex", "Fp")
+                else "The full program (VE, Ex & fingerprint) answered every test query of this trial right at "
+                "every k; here is one that a program with fewer terms gets wrong. "
+            )
+            + f"Test query {why.index + 1} of {len(ev.truth)}, taken in **{why.truth}**; the program "
+            f"({_PROGRAM_NAMES.get(why.program, ' & '.join(why.program))}, k = {why.k}) answered **{why.answer}** "
             f"(posterior {why.posterior[why.classes.index(why.answer)]:.2f}"
             + (
                 f" against {why.posterior[why.classes.index(why.truth)]:.2f} for {why.truth})."

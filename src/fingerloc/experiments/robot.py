@@ -532,6 +532,9 @@ class TrialEvaluation:
         Full program's posterior (largest k) on the test measurements.
     heading_error_deg : ndarray
         Absolute heading error of the random-heading test measurements (true place), degrees.
+    model, models : PlaceModel, dict
+        The full program (terms VE, Ex, Fp) fit with the largest k, and with each k
+        (k -> model); dropped by :func:`run_robot` to keep results small.
     ranks : dict
         Path -> rank of the true place for each test query, shape (n_test,) (what ``cells`` averages).
     counts : dict
@@ -547,6 +550,7 @@ class TrialEvaluation:
     posterior: FArray = field(default_factory=lambda: np.empty((0, 0)))
     heading_error_deg: FArray = field(default_factory=lambda: np.empty(0))
     model: Any = None
+    models: dict[int, Any] = field(default_factory=dict)
 
 
 def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: int = 0) -> TrialEvaluation:
@@ -591,8 +595,10 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     # Table IV: the Bayesian program, one model per k, term sets by summing terms
     posterior = np.empty((0, 0))
     model: Any = None
+    models: dict[int, Any] = {}
     for k in protocol.ks:
         model = PlaceModel(k, terms=("VE", "Ex", "Fp"), random_state=random_state).fit(train)
+        models[k] = model
         if list(model.classes_) != classes:
             raise RuntimeError("PlaceModel changed the order of the places")  # pragma: no cover
         ll = model.term_log_likelihoods(test)
@@ -648,6 +654,7 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         posterior=posterior,
         heading_error_deg=heading_err,
         model=model,
+        models=models,
     )
 
 
@@ -877,6 +884,7 @@ def _trial_job(args: tuple[RobotProtocol, int, int], executor: Executor | None =
     data = simulate_trial(p, (seed, t), executor=executor)
     ev = evaluate_trial(data, p, random_state=seed * 1000 + t)
     ev.model = None
+    ev.models = {}
     return ev
 
 
