@@ -59,9 +59,7 @@ def _parse_weights(text: str) -> str | dict[str, float]:
 def learn_cmd(
     data: Path = typer.Argument(..., help="Labelled observations, JSON Lines ('place' on every line)."),
     db: Path = typer.Option(..., "--db", help="Place database (SQLite); created, or extended if it exists."),
-    components: int | None = typer.Option(
-        None, "-k", "--components", help="Mixture components per place and feature type [5]."
-    ),
+    components: int | None = typer.Option(None, "-k", "--components", help="Mixture components per place and feature type [5]."),
     terms: str | None = typer.Option(
         None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [VE,CP,Ex,B,Fp]."
     ),
@@ -70,9 +68,7 @@ def learn_cmd(
     ),
     fp_likelihood: str | None = typer.Option(None, help="'paper' (1/(cost+1)) or 'exp' (exp(-lambda cost)) [paper]."),
     fp_reference: str | None = typer.Option(None, help="'all', 'medoid' or 'consensus' [all]."),
-    cyclic: bool | None = typer.Option(
-        None, "--cyclic/--no-cyclic", help="Align over all rotations (unknown heading)."
-    ),
+    cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Align over all rotations (unknown heading)."),
     costs: str | None = typer.Option(None, help="Alignment costs: 'unit' (Levenshtein) or 'feature' [unit]."),
     unknown_prior: float | None = typer.Option(None, help="Prior probability of an unknown place [0]."),
     weights: str | None = typer.Option(
@@ -119,9 +115,7 @@ def learn_cmd(
             sv = stored[k]
             if k == "costs":
                 same = (sv is None and v is None) or (
-                    sv is not None
-                    and v is not None
-                    and np.array_equal(sv.substitution, v.substitution)
+                    sv is not None and v is not None and np.array_equal(sv.substitution, v.substitution)
                     and np.array_equal(sv.indel, v.indel)
                 )
             else:

@@ -242,9 +242,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                 geo = {"centres": centres, "n_train": len(train),
                        "fov": 2 * math.pi * float(np.median([o.fov_coverage() for o in train]))}  # fmt: skip
             else:
-                geo = {
-                    "why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"
-                }
+                geo = {"why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"}
     graph = load_graph(db, classes)
     obs = read_observations(data)
     if not obs:
