@@ -1,9 +1,12 @@
 """``fingerloc demo``: the report folder (quick size)."""
 
+import json
+
+import pytest
 from PIL import Image
 
 from fingerloc.cli import main
-from fingerloc.experiments.report import FIGURES
+from fingerloc.experiments.report import FIGURES, QUERY_FIGURE
 from tests._browser import assert_page_ok
 
 
@@ -25,6 +28,16 @@ def test_demo_writes_report(tmp_path, capsys):
             assert im.format == "PNG" and im.size[0] > 200 and im.size[1] > 150
     assert "Table II" in page and "paper" in page
     assert (out / "results.json").exists()
+    # one query explained: its posterior, its fingerprint against the true place's and the answer's, why
+    assert (out / QUERY_FIGURE).exists() and f"]({QUERY_FIGURE})" in page
+    js = json.loads((out / "results.json").read_text())
+    q = js["explained_query"]
+    assert sum(q["posterior"].values()) == pytest.approx(1.0)
+    assert q["truth"] in page and q["answer"] in page and q["fingerprint"] in page
+    assert q["nearest_training_fingerprint"]["truth"]["letters"] in page
+    assert ("Why it failed" in page) == (q["truth"] != q["answer"])
+    assert "95" in page and "[" in page  # confidence intervals beside the figures
+    assert js["ci95"]["table4"]["VE+Ex+Fp"]["3"]["top1"] is not None
     # last: the same page as HTML in a real browser (where none can run, the test is skipped after the checks above)
     assert_page_ok(out / "index.html", min_images=len(FIGURES))
 

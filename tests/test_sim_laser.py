@@ -258,3 +258,27 @@ def test_generated_geometry_is_consistent() -> None:
             assert not np.any(w.contains(mids[corridor])), w.name
             n_leaves += int((w.part == PARTS.index("door_leaf")).sum())
     assert n_leaves > 0
+
+
+def test_paper_world_has_chairs_and_alike_is_unchanged():
+    from fingerloc.sim import PARTS
+
+    chair = PARTS.index("chair")
+    paper = make_offices(3, random_state=11, world="paper")
+    assert all((w.part == chair).sum() >= 8 for w in paper)  # two chairs or more: seat block + column
+    for w in paper:
+        seats = w.segments[(w.part == chair) & (w.z_range[:, 0] > 0.3)]
+        # chairs stand inside the room
+        assert w.contains(seats[:, :2]).all() and w.contains(seats[:, 2:]).all()
+    alike = make_offices(3, random_state=11)
+    assert not any((w.part == chair).any() for w in alike)
+    again = make_offices(3, random_state=11, world="alike")
+    assert all(np.array_equal(a.segments, b.segments) for a, b in zip(alike, again, strict=True))
+    # the same offices as the generator gave before the "paper" world existed (measured on commit f8aeaf3)
+    assert sum(w.n_segments for w in alike) == 124
+    assert float(sum(np.abs(w.segments).sum() for w in alike)) == pytest.approx(1224.483013603562, rel=1e-12)
+
+
+def test_make_offices_bad_world():
+    with pytest.raises(InvalidParameterError, match="world"):
+        make_offices(2, world="villa")

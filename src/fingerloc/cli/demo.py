@@ -25,10 +25,20 @@ def demo_cmd(
     workers: int | None = typer.Option(
         None, "--workers", min=1, help="Processes simulating offices (default: cores, at most 4)."
     ),
+    random_heading: bool = typer.Option(
+        False, "--random-heading", help="Also the random-heading rows (not in the paper; about 10 s more)."
+    ),
+    world: str = typer.Option(
+        "paper",
+        "--world",
+        help="Simulated offices and sensors: 'paper' (calibrated to the paper's Table II) or 'alike' (the original).",
+    ),
 ) -> None:
     """Simulate 10 offices, extract features from raw scans and images, learn, localize, print tables, write a report."""
+    from ..errors import InvalidParameterError
     from ..experiments.report import write_demo_report
     from ..experiments.robot import (
+        WORLD_PROFILES,
         RobotProtocol,
         RobotResult,
         default_workers,
@@ -38,10 +48,15 @@ def demo_cmd(
     )
     from ..experiments.robot import small_protocol as small
 
-    protocol = small() if quick else RobotProtocol()
+    if world not in WORLD_PROFILES:
+        raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
+    if quick:
+        protocol = small(world=world, random_heading=random_heading)
+    else:
+        protocol = RobotProtocol(world=world, random_heading=random_heading)
     n_workers = default_workers() if workers is None else workers
     timings: dict[str, float] = {}
-    n_meas = protocol.n_offices * (protocol.n_train + 2 * protocol.n_test)
+    n_meas = protocol.n_offices * (protocol.n_train + (2 if random_heading else 1) * protocol.n_test)
     with Progress(
         SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=err_console, transient=True
     ) as progress:
@@ -66,7 +81,8 @@ def demo_cmd(
     from .robot import print_robot_tables
 
     console.print(
-        f"[bold]fingerloc demo[/bold]: {protocol.n_offices} simulated offices alike, "
+        f"[bold]fingerloc demo[/bold]: {protocol.n_offices} simulated offices alike "
+        f"(world {world}, similarity {protocol.office_similarity:g}), "
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )
     print_robot_tables(res, console, title_note=f"seed {seed}")
@@ -74,4 +90,4 @@ def demo_cmd(
     console.print(
         f"report: {page} (map, scan, panorama, fingerprint, mixture, posterior, confusion matrix); {total:.1f} s in all"
     )
-    console.print("average over many trials: fingerloc reproduce robot --trials 10")
+    console.print("average over many trials: fingerloc reproduce robot --trials 20")

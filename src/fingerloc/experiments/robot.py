@@ -3,8 +3,13 @@
 Protocol (Tapus et al. 2004, section V-B, as restated in SPEC.md §5), with the
 robot replaced by :mod:`fingerloc.sim`:
 
-* ten offices alike (:func:`fingerloc.sim.make_offices` at its default
-  similarity), each with a measurement point (the office's ``anchor``);
+* ten offices alike (:func:`fingerloc.sim.make_offices`), each with a
+  measurement point (the office's ``anchor``). The default world, ``"paper"``,
+  is calibrated so that the extractors find about as many features per
+  measurement as the paper's Table II (see :data:`WORLD_PROFILES`: office
+  chairs, fewer posters, more beacons, a softer camera image, an edge extractor
+  that keeps only long edges, offices of one corridor at similarity 0.8);
+  ``"alike"`` is the original generator, far richer in edges;
 * per office, eight **training** measurements on a circle around that point,
   radius drawn in ``train_radius_m`` (40-70 cm), at eight evenly spaced angles
   (the whole ring turned by a random angle), and two **test** measurements
@@ -46,7 +51,10 @@ What is measured, per trial (new offices, poses and noise each trial):
 Right classification is the share of test measurements whose true place
 ranks first; the rank of the true place counts ties against (two places tied
 for first both get rank 2). Each figure is the mean over trials; the spread is
-the standard deviation over trials.
+the standard deviation over trials, and every cell has a 95 % confidence
+interval: Student t over the trials' figures with two trials or more, or, for
+one trial (the demo), a Wilson interval of the share over its test queries and
+a Student t interval of the mean rank over them.
 """
 
 from __future__ import annotations
@@ -61,12 +69,13 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidParameterError
 from ..observation import Observation
 
 __all__ = [
+    "CI_LEVEL",
     "PAPER_K",
     "PAPER_TABLE2",
     "PAPER_TABLE3",
@@ -74,6 +83,7 @@ __all__ = [
     "TABLE4_FITTED",
     "TABLE4_NAMES",
     "TABLE4_TERMS",
+    "WORLD_PROFILES",
     "Measurement",
     "RobotProtocol",
     "RobotResult",
@@ -87,6 +97,8 @@ __all__ = [
     "simulate_trial",
     "simulation_pool",
     "small_protocol",
+    "t_interval",
+    "wilson_interval",
 ]
 
 FArray = NDArray[np.float64]
@@ -129,6 +141,26 @@ PAPER_TABLE4: dict[str, dict[int, tuple[float, float]]] = {
 TABLE2_TYPES: tuple[str, ...] = ("VE", "Ex", "CP", "B", "c")
 
 
+#: The offices' likeness, the robot's sensors and its extractor settings per simulated world
+#: (``RobotProtocol.world``). ``"paper"``: calibrated to the paper's Table II (docs/RESULTS.md,
+#: "Robot experiment, calibrated to Table II"): offices of one institute corridor (similarity
+#: 0.8: same room grid and furniture), a softer, noisier camera image (the paper's 640x480
+#: mirror camera: defocus 1.5 px, pixel noise 2.5 %, JPEG 75) and a vertical-edge extractor
+#: that keeps only long, strong edges (a run over 35 % of the elevation range or edge pixels
+#: over half of it, a step of 0.15 in log luminance). ``"alike"``: the original generator and
+#: settings, with the library's default extractor (for comparison with earlier runs).
+WORLD_PROFILES: dict[str, dict[str, Any]] = {
+    "paper": {
+        "similarity": 0.8,
+        "blur": 1.5,
+        "noise": 0.025,
+        "jpeg_quality": 75,
+        "extractor": {"min_extent": 0.35, "min_support": 0.5, "min_contrast": 0.15},
+    },
+    "alike": {"similarity": 0.5, "blur": 0.7, "noise": 0.015, "jpeg_quality": 85, "extractor": {}},
+}
+
+
 @dataclass(frozen=True, slots=True)
 class RobotProtocol:
     """Settings of the simulated robot experiment (defaults: the paper's protocol).
@@ -148,15 +180,20 @@ class RobotProtocol:
         Least distance from a pose to an obstacle, metres (closer poses are redrawn).
     similarity : float or None
         How alike the offices are (:func:`fingerloc.sim.make_offices`); None:
-        the simulator's default.
+        the world's (:data:`WORLD_PROFILES`: 0.8 for ``"paper"``, 0.5 for ``"alike"``).
     n_beams : int, default 720
         Laser beams over 360 deg.
     omni_size : (int, int), default (640, 480)
         Size of the raw omnidirectional image, pixels.
     panorama_width : int, default 720
         Columns of the unwarped panorama (0.5 deg each).
-    jpeg_quality : int or None, default 85
-        JPEG round trip of the camera image (None: none).
+    jpeg_quality : int or None, optional
+        JPEG round trip of the camera image; default the world's sensor
+        profile (:data:`WORLD_PROFILES`: 75 for ``"paper"``, 85 for ``"alike"``).
+    world : {"paper", "alike"}, default "paper"
+        The office generator (:data:`fingerloc.sim.WORLDS`) and the matching
+        sensor profile (:data:`WORLD_PROFILES`). ``"paper"`` is calibrated to
+        the paper's Table II; ``"alike"`` is the original generator.
     ks : tuple of int, default (3, 4, 5)
         Mixture components to evaluate.
     random_heading : bool, default True
@@ -174,9 +211,15 @@ class RobotProtocol:
     n_beams: int = 720
     omni_size: tuple[int, int] = (640, 480)
     panorama_width: int = 720
-    jpeg_quality: int | None = 85
+    jpeg_quality: int | None = None
     ks: tuple[int, ...] = PAPER_K
     random_heading: bool = True
+    world: str = "paper"
+
+    @property
+    def office_similarity(self) -> float:
+        """The similarity of the offices used: ``similarity``, else the world's (:data:`WORLD_PROFILES`)."""
+        return float(WORLD_PROFILES[self.world]["similarity"] if self.similarity is None else self.similarity)
 
     def __post_init__(self) -> None:
         for name in ("n_offices", "n_train", "n_test"):
@@ -191,6 +234,8 @@ class RobotProtocol:
             raise InvalidParameterError(f"test_radius_m must be >= 0 metres, got {self.test_radius_m!r}")
         if not (math.isfinite(self.heading_jitter_deg) and self.heading_jitter_deg >= 0):
             raise InvalidParameterError(f"heading_jitter_deg must be >= 0, got {self.heading_jitter_deg!r}")
+        if self.world not in WORLD_PROFILES:
+            raise InvalidParameterError(f"world must be one of {', '.join(WORLD_PROFILES)}, got {self.world!r}")
         if not self.ks or any(isinstance(k, bool) or not isinstance(k, int) or k < 1 for k in self.ks):
             raise InvalidParameterError(f"ks must be positive integers, got {self.ks!r}")
 
@@ -269,6 +314,8 @@ def _measure(
     from .. import sim
     from ..features.vision import observation_from_views, unwarp_omni
 
+    profile = WORLD_PROFILES[protocol.world]
+    jpeg = profile["jpeg_quality"] if protocol.jpeg_quality is None else protocol.jpeg_quality
     scan = sim.simulate_scan(world, pose, n_beams=protocol.n_beams, random_state=rng)
     scale = protocol.omni_size[0] / 640.0  # the simulator's default mirror ring, scaled to the image
     im = sim.render_omni(
@@ -276,7 +323,9 @@ def _measure(
         pose,
         size=protocol.omni_size,
         radii=(60.0 * scale, 230.0 * scale),
-        jpeg_quality=protocol.jpeg_quality,
+        jpeg_quality=jpeg,
+        blur=profile["blur"],
+        noise=profile["noise"],
         random_state=rng,
     )
     # OmniImage: bearing = forward - phi (clockwise) or phi - forward (counter-clockwise)
@@ -290,7 +339,7 @@ def _measure(
         mirror=im.clockwise,
         width=protocol.panorama_width,
     )
-    obs = observation_from_views(scan=scan, panorama=pano, label=world.name)
+    obs = observation_from_views(scan=scan, panorama=pano, label=world.name, **profile["extractor"])
     return obs, scan, pano, im
 
 
@@ -318,7 +367,10 @@ def simulate_office(
     train, test = measurement_poses(world, protocol, rng)
     jobs = [("train", p) for p in train] + [("test", p) for p in test]
     if protocol.random_heading:
-        jobs += [("test-random-heading", (x, y, float(rng.uniform(-math.pi, math.pi)))) for x, y, _ in test]
+        # headings from their own stream, so that the training and test measurements (Tables II-IV)
+        # are the same with and without the random-heading rows
+        turn = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        jobs += [("test-random-heading", (x, y, float(turn.uniform(-math.pi, math.pi)))) for x, y, _ in test]
     out = []
     for role, pose in jobs:
         obs, scan, pano, im = _measure(world, pose, protocol, rng)
@@ -369,9 +421,8 @@ def simulate_trial(
 
     ss = np.random.SeedSequence(seed)
     office_seq, *meas_seqs = ss.spawn(protocol.n_offices + 1)
-    kwargs: dict[str, Any] = {"random_state": np.random.default_rng(office_seq)}
-    if protocol.similarity is not None:
-        kwargs["similarity"] = protocol.similarity
+    kwargs: dict[str, Any] = {"random_state": np.random.default_rng(office_seq), "world": protocol.world}
+    kwargs["similarity"] = protocol.office_similarity
     worlds = sim.make_offices(protocol.n_offices, **kwargs)
     keep = set(range(protocol.n_offices)) if keep_raw is True else set() if keep_raw is False else set(keep_raw)
     jobs = [
@@ -406,6 +457,54 @@ def _cell(ranks: NDArray[np.int64]) -> tuple[float, float]:
     return float(np.mean(ranks == 1)), float(np.mean(ranks))
 
 
+#: Two-sided coverage of the confidence intervals.
+CI_LEVEL = 0.95
+
+
+def t_interval(values: ArrayLike, level: float = CI_LEVEL) -> tuple[float, float] | None:
+    """Student-t confidence interval of the mean of ``values`` (None for fewer than two values).
+
+    Parameters
+    ----------
+    values : array_like, shape (n,)
+        Independent measurements (one per trial, or one per query).
+    level : float
+        Coverage, e.g. 0.95.
+
+    Returns
+    -------
+    (low, high) or None
+        ``mean -+ t_{(1 + level) / 2, n - 1} s / sqrt(n)``, ``s`` the sample standard deviation.
+    """
+    from scipy.stats import t as student_t
+
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.size < 2:
+        return None
+    m = float(v.mean())
+    h = float(student_t.ppf(0.5 + level / 2, v.size - 1)) * float(v.std(ddof=1)) / math.sqrt(v.size)
+    return (m - h, m + h)
+
+
+def wilson_interval(successes: int, n: int, level: float = CI_LEVEL) -> tuple[float, float] | None:
+    """Wilson score interval of a proportion ``successes / n`` (None for ``n == 0``).
+
+    ``(p + z^2/2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)`` with ``z`` the
+    normal quantile of ``(1 + level) / 2``; unlike the normal approximation it stays inside
+    [0, 1] and is not empty at 0 % or 100 %.
+    """
+    from scipy.stats import norm
+
+    if n <= 0:
+        return None
+    z = float(norm.ppf(0.5 + level / 2))
+    p = successes / n
+    den = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
 def _min_per_place(d: FArray, owner: NDArray[np.int64], n_places: int) -> FArray:
     out = np.full((d.shape[0], n_places), np.inf)
     for j in range(n_places):
@@ -433,15 +532,25 @@ class TrialEvaluation:
         Full program's posterior (largest k) on the test measurements.
     heading_error_deg : ndarray
         Absolute heading error of the random-heading test measurements (true place), degrees.
+    model, models : PlaceModel, dict
+        The full program (terms VE, Ex, Fp) fit with the largest k, and with each k
+        (k -> model); dropped by :func:`run_robot` to keep results small.
+    ranks : dict
+        Path -> rank of the true place for each test query, shape (n_test,) (what ``cells`` averages).
+    counts : dict
+        Feature type -> count per measurement, shape (n_measurements,) (what ``features`` averages).
     """
 
     features: dict[str, float]
     cells: dict[tuple[str, ...], tuple[float, float]]
+    ranks: dict[tuple[str, ...], NDArray[np.int64]] = field(default_factory=dict)
+    counts: dict[str, NDArray[np.int64]] = field(default_factory=dict)
     classes: list[str] = field(default_factory=list)
     truth: NDArray[np.int64] = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     posterior: FArray = field(default_factory=lambda: np.empty((0, 0)))
     heading_error_deg: FArray = field(default_factory=lambda: np.empty(0))
     model: Any = None
+    models: dict[int, Any] = field(default_factory=dict)
 
 
 def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: int = 0) -> TrialEvaluation:
@@ -459,7 +568,8 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     from ..model import PlaceModel
 
     all_obs = [m.observation for m in data.measurements if m.role in ("train", "test")]
-    features = {t: float(np.mean([o.bearings(t).size for o in all_obs])) for t in TABLE2_TYPES}
+    counts = {t: np.array([o.bearings(t).size for o in all_obs], dtype=np.int64) for t in TABLE2_TYPES}
+    features = {t: float(np.mean(c)) for t, c in counts.items()}
     train = data.observations("train")
     test = data.observations("test")
     classes = [w.name for w in data.worlds]
@@ -467,29 +577,37 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     owner = np.array([col[str(o.label)] for o in train], dtype=np.int64)
     truth = np.array([col[str(o.label)] for o in test], dtype=np.int64)
     cells: dict[tuple[str, ...], tuple[float, float]] = {}
+    ranks: dict[tuple[str, ...], NDArray[np.int64]] = {}
+
+    def record(key: tuple[str, ...], scores: Any, true_cols: NDArray[np.int64]) -> None:
+        r = rank_of_truth(np.asarray(scores), true_cols)
+        ranks[key] = r
+        cells[key] = _cell(r)
 
     # Table III: string matching alone, nearest place by least cost
     train_fp = [make_fingerprint(o) for o in train]
     test_fp = [make_fingerprint(o) for o in test]
     me = _min_per_place(minimum_energy_costs(test_fp, train_fp), owner, len(classes))
     ga = _min_per_place(alignment_costs(test_fp, train_fp), owner, len(classes))
-    cells[("table3", "minimum_energy")] = _cell(rank_of_truth(-me, truth))
-    cells[("table3", "global_alignment")] = _cell(rank_of_truth(-ga, truth))
+    record(("table3", "minimum_energy"), -me, truth)
+    record(("table3", "global_alignment"), -ga, truth)
 
     # Table IV: the Bayesian program, one model per k, term sets by summing terms
     posterior = np.empty((0, 0))
     model: Any = None
+    models: dict[int, Any] = {}
     for k in protocol.ks:
         model = PlaceModel(k, terms=("VE", "Ex", "Fp"), random_state=random_state).fit(train)
+        models[k] = model
         if list(model.classes_) != classes:
             raise RuntimeError("PlaceModel changed the order of the places")  # pragma: no cover
         ll = model.term_log_likelihoods(test)
         for row, terms in TABLE4_TERMS.items():
             joint = sum(ll[t] for t in terms)
-            cells[("table4", row, str(k))] = _cell(rank_of_truth(np.asarray(joint), truth))
+            record(("table4", row, str(k)), joint, truth)
         posterior = model.predict_proba(test)
         fitted = PlaceModel(k, terms=("VE", "Ex", "Fp"), weights="fit", random_state=random_state).fit(train)
-        cells[("table4", TABLE4_FITTED, str(k))] = _cell(rank_of_truth(fitted.predict_log_proba(test), truth))
+        record(("table4", TABLE4_FITTED, str(k)), fitted.predict_log_proba(test), truth)
 
     # Random heading: cyclic matching, per-place heading estimate for the mixture terms
     heading_err = np.empty(0)
@@ -498,20 +616,27 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         rtruth = np.array([col[str(o.label)] for o in rtest], dtype=np.int64)
         rfp = [make_fingerprint(o) for o in rtest]
         gc = _min_per_place(alignment_costs(rfp, train_fp, cyclic=True), owner, len(classes))
-        cells[("random_heading", "global_alignment")] = _cell(rank_of_truth(-gc, rtruth))
+        record(("random_heading", "global_alignment"), -gc, rtruth)
         poses = [m.pose for m in data.measurements if m.role == "test-random-heading"]
         for k in protocol.ks:
             cm = PlaceModel(k, terms=("VE", "Ex", "Fp"), cyclic=True, random_state=random_state).fit(train)
             fp_ll = cm.term_log_likelihoods(rtest)["Fp"]
+            # The mixtures alone (the same fit as cm's: one batch over the same places and terms), for the
+            # observations turned back by each place's heading: one call for all places, no Fp recomputed.
+            mixtures = PlaceModel(k, terms=("VE", "Ex"), random_state=random_state).fit(train)
             mog = np.zeros_like(fp_ll)
             head = np.full((len(rtest), len(classes)), np.nan)
+            turned: list[Observation] = []
             for j, name in enumerate(classes):
                 h = cm.headings(rtest, [name] * len(rtest))
                 head[:, j] = h
-                turned = [o.rotated(-math.radians(v)) if np.isfinite(v) else o for o, v in zip(rtest, h, strict=True)]
-                ll = cm.term_log_likelihoods(turned)
-                mog[:, j] = ll["VE"][:, j] + ll["Ex"][:, j]
-            cells[("random_heading", "VE+Ex+Fp", str(k))] = _cell(rank_of_truth(mog + fp_ll, rtruth))
+                turned += [o.rotated(-math.radians(v)) if np.isfinite(v) else o for o, v in zip(rtest, h, strict=True)]
+            ll = mixtures.term_log_likelihoods(turned)
+            n_r = len(rtest)
+            for j in range(len(classes)):
+                rows = slice(j * n_r, (j + 1) * n_r)
+                mog[:, j] = ll["VE"][rows, j] + ll["Ex"][rows, j]
+            record(("random_heading", "VE+Ex+Fp", str(k)), mog + fp_ll, rtruth)
             if k == protocol.ks[-1]:
                 # the robot's heading relative to the training heading (about 0): heading_deg = -theta... see below
                 est = head[np.arange(len(rtest)), rtruth]
@@ -522,11 +647,14 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     return TrialEvaluation(
         features=features,
         cells=cells,
+        ranks=ranks,
+        counts=counts,
         classes=classes,
         truth=truth,
         posterior=posterior,
         heading_error_deg=heading_err,
         model=model,
+        models=models,
     )
 
 
@@ -583,6 +711,47 @@ class RobotResult:
             out[key] = (float(v[:, 0].mean()), _std(v[:, 0]), float(v[:, 1].mean()), _std(v[:, 1]))
         return out
 
+    def ci_method(self) -> str:
+        """How :meth:`feature_ci` and :meth:`cell_ci` are computed, in words."""
+        if len(self.trials) >= 2:
+            return f"{CI_LEVEL:.0%} Student-t interval of the mean over {len(self.trials)} trials"
+        return (
+            f"one trial: {CI_LEVEL:.0%} Wilson interval of the right-classification share over the test queries, "
+            "Student-t interval of the mean rank over the queries and of the counts over the measurements"
+        )
+
+    def feature_ci(self) -> dict[str, tuple[float, float] | None]:
+        """Feature type -> 95 % confidence interval of the mean count per measurement.
+
+        Over trials (Student t on the per-trial means) with two or more trials; with one
+        trial, over its measurements.
+        """
+        out: dict[str, tuple[float, float] | None] = {}
+        for t in TABLE2_TYPES:
+            if len(self.trials) >= 2:
+                out[t] = t_interval([tr.features[t] for tr in self.trials])
+            else:
+                out[t] = t_interval(self.trials[0].counts.get(t, np.empty(0)))
+        return out
+
+    def cell_ci(self) -> dict[tuple[str, ...], tuple[tuple[float, float] | None, tuple[float, float] | None]]:
+        """Path -> (95 % interval of the right-classification share, 95 % interval of the mean rank).
+
+        Over trials (Student t on the per-trial figures) with two or more trials; with one
+        trial, over its test queries (Wilson for the share, Student t for the rank).
+        """
+        out = {}
+        for key in self.trials[0].cells:
+            if len(self.trials) >= 2:
+                v = np.array([tr.cells[key] for tr in self.trials])
+                out[key] = (t_interval(v[:, 0]), t_interval(v[:, 1]))
+            else:
+                r = self.trials[0].ranks.get(key, np.empty(0, dtype=np.int64))
+                out[key] = (wilson_interval(int((r == 1).sum()), int(r.size)), t_interval(r))
+        # a share lies in [0, 1] and a rank in [1, places]: clip the t intervals to what can be
+        n_places = max(len(self.trials[0].classes), 1)
+        return {key: (_clip(a, 0.0, 1.0), _clip(r, 1.0, float(n_places))) for key, (a, r) in out.items()}
+
     def heading_error_deg(self) -> float | None:
         """Median absolute heading error of the random-heading measurements (true place), degrees."""
         errs = np.concatenate([tr.heading_error_deg for tr in self.trials]) if self.trials else np.empty(0)
@@ -606,6 +775,10 @@ class RobotResult:
             out["random_heading"]["heading_error_deg"] = self.heading_error_deg()
         spread["table2"] = {t: s for t, (_, s) in fs.items()}
         out["spread"] = spread
+        ci: dict[str, Any] = {"table2": {t: _pair(v) for t, v in self.feature_ci().items()}}
+        for key, (a, r) in self.cell_ci().items():
+            _put(ci, key, {"top1": _pair(a), "mean_rank": _pair(r)})
+        out["ci95"] = ci
         out["paper"] = {
             "table2": dict(PAPER_TABLE2),
             "table3": {m: {"top1": a, "mean_rank": r} for m, (a, r) in PAPER_TABLE3.items()},
@@ -624,19 +797,30 @@ class RobotResult:
             "train_radius_m": list(p.train_radius_m),
             "test_radius_m": p.test_radius_m,
             "heading_jitter_deg": p.heading_jitter_deg,
-            "similarity": p.similarity,
+            "similarity": p.office_similarity,
             "n_beams": p.n_beams,
             "omni_size": list(p.omni_size),
             "panorama_width": p.panorama_width,
-            "jpeg_quality": p.jpeg_quality,
+            "jpeg_quality": WORLD_PROFILES[p.world]["jpeg_quality"] if p.jpeg_quality is None else p.jpeg_quality,
+            "world": p.world,
+            "sensor_profile": WORLD_PROFILES[p.world],
             "ks": list(p.ks),
             "spread": "standard deviation over trials",
+            "ci95": self.ci_method() + " (null where undefined)",
         }
         return out
 
 
 def _std(v: FArray) -> float:
     return float(v.std(ddof=1)) if v.size > 1 else 0.0
+
+
+def _clip(v: tuple[float, float] | None, lo: float, hi: float) -> tuple[float, float] | None:
+    return None if v is None else (min(max(v[0], lo), hi), min(max(v[1], lo), hi))
+
+
+def _pair(v: tuple[float, float] | None) -> list[float] | None:
+    return None if v is None else [float(v[0]), float(v[1])]
 
 
 def _put(d: dict[str, Any], key: tuple[str, ...], value: Any) -> None:
@@ -662,7 +846,9 @@ def run_robot(
         Trial ``t`` uses the seed sequence ``(seed, t)``: results do not depend on ``workers``.
     protocol : RobotProtocol, optional
     workers : int, optional
-        Processes simulating offices in parallel; default :func:`default_workers`.
+        Processes; default :func:`default_workers`. With two or more trials, each process runs
+        whole trials; with one, the offices are simulated in parallel. The figures do not
+        depend on it.
     on_trial : callable(done), optional
         Called after each trial.
     """
@@ -673,15 +859,33 @@ def run_robot(
     p = protocol if protocol is not None else RobotProtocol()
     n_workers = default_workers() if workers is None else int(workers)
     results = []
+    if n_workers >= 2 and trials >= 2:
+        # Whole trials in parallel (simulate and evaluate in one process each): no process waits
+        # for another, and each trial's figures are the same as when run alone.
+        with simulation_pool(min(n_workers, trials)) as ex:
+            assert ex is not None
+            jobs = [(p, seed, t) for t in range(trials)]
+            for t, ev in enumerate(ex.map(_trial_job, jobs)):
+                results.append(ev)
+                if on_trial is not None:
+                    on_trial(t + 1)
+        return RobotResult(protocol=p, seed=seed, trials=results)
     with simulation_pool(n_workers) as ex:
         for t in range(trials):
-            data = simulate_trial(p, (seed, t), executor=ex)
-            ev = evaluate_trial(data, p, random_state=seed * 1000 + t)
-            ev.model = None  # keep results small
-            results.append(ev)
+            results.append(_trial_job((p, seed, t), executor=ex))
             if on_trial is not None:
                 on_trial(t + 1)
     return RobotResult(protocol=p, seed=seed, trials=results)
+
+
+def _trial_job(args: tuple[RobotProtocol, int, int], executor: Executor | None = None) -> TrialEvaluation:
+    """Simulate and evaluate trial ``t`` (seed sequence ``(seed, t)``); the model is dropped to keep results small."""
+    p, seed, t = args
+    data = simulate_trial(p, (seed, t), executor=executor)
+    ev = evaluate_trial(data, p, random_state=seed * 1000 + t)
+    ev.model = None
+    ev.models = {}
+    return ev
 
 
 def small_protocol(**changes: Any) -> RobotProtocol:

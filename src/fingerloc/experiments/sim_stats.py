@@ -7,6 +7,10 @@
    also has within 5 deg at its anchor (same heading), against the same share
    between two poses of one office.
 3. Laser intensities: beams on beacons against all other beams.
+
+``python -m fingerloc.experiments.sim_stats calibrate``: the features the
+extractors find per measurement in each world of the robot experiment
+(:data:`~fingerloc.experiments.robot.WORLD_PROFILES`), beside Table II.
 """
 
 from __future__ import annotations
@@ -22,17 +26,19 @@ from ..sim import make_offices, protocol_poses, simulate_scan, true_features
 from ..sim.laser import LASER_HEIGHT
 from ..sim.world import cast_rays
 
-__all__ = ["feature_counts", "intensity_stats", "main", "office_likeness"]
+__all__ = ["calibration_counts", "feature_counts", "intensity_stats", "main", "office_likeness"]
 
 PAPER_TABLE2 = {"VE": 5.6, "Ex": 5.6, "CP": 2.7, "B": 3.9}
 _TYPES = ("VE", "Ex", "c", "CP", "B")
 
 
-def feature_counts(n_offices: int = 10, *, similarity: float = 0.5, seed: int = 0) -> dict[str, float]:
+def feature_counts(
+    n_offices: int = 10, *, similarity: float = 0.5, seed: int = 0, world: str = "alike"
+) -> dict[str, float]:
     """Mean number of ground-truth features per measurement over the protocol poses."""
     rng = np.random.default_rng(seed)
     counts: dict[str, list[int]] = {k: [] for k in _TYPES}
-    for w in make_offices(n_offices, similarity=similarity, random_state=rng):
+    for w in make_offices(n_offices, similarity=similarity, random_state=rng, world=world):
         train, test = protocol_poses(w, random_state=rng)
         for pose in np.vstack([train, test]):
             f = true_features(w, tuple(pose))
@@ -91,9 +97,90 @@ def intensity_stats(n_offices: int = 10, *, seed: int = 0) -> dict[str, float]:
     }
 
 
-def main() -> dict[str, Any]:
+def calibration_counts(
+    *,
+    world: str = "paper",
+    similarity: float = 0.8,
+    templates: int = 5,
+    blur: float = 1.5,
+    noise: float = 0.025,
+    jpeg_quality: int = 75,
+    edge_params: dict[str, float] | None = None,
+    seed: int = 100,
+) -> dict[str, float]:
+    """Features the extractors find per measurement, for calibrating a world to the paper's Table II.
+
+    ``templates`` sets of ten offices (seeds ``seed``, ``seed + 1``, ...; each set shares one
+    template, so several are needed to average over templates), two measurements per office
+    (the first training pose and the first test pose of the protocol), the raw sensors (the
+    robot experiment's 360 deg laser and 640x480 omnidirectional camera with the given
+    ``blur`` (pixels), ``noise`` and JPEG quality), then the extractors: laser ``Ex``, ``B``,
+    ``c`` with their defaults, colour patches with theirs, vertical edges with
+    ``edge_params`` (fields of :class:`~fingerloc.features.vision.EdgeParams`).
+
+    Returns
+    -------
+    dict
+        Feature type -> mean count per measurement; ``"truth_VE"`` etc.: the simulator's
+        ground truth (:func:`~fingerloc.sim.true_features`) at the same poses; ``"n"``.
+    """
+    from ..features.laser import extract_laser_features
+    from ..features.vision import colour_patches, unwarp_omni, vertical_edges
+    from ..sim import render_omni
+    from .robot import RobotProtocol, measurement_poses
+
+    p = RobotProtocol(random_heading=False, world=world)
+    got: dict[str, list[int]] = {k: [] for k in _TYPES}
+    truth: dict[str, list[int]] = {k: [] for k in _TYPES}
+    for t in range(templates):
+        rng = np.random.default_rng(seed + t)
+        for w in make_offices(10, random_state=rng, world=world, similarity=similarity):
+            train, test = measurement_poses(w, p, rng)
+            for pose in (train[0], test[0]):
+                scan = simulate_scan(w, pose, random_state=rng)
+                im = render_omni(w, pose, jpeg_quality=jpeg_quality, blur=blur, noise=noise, random_state=rng)
+                off = im.forward_angle if im.clockwise else -im.forward_angle
+                pano = unwarp_omni(
+                    im.image, im.center, im.radii[0], im.radii[1], bearing_offset=off, mirror=im.clockwise, width=720
+                )
+                lf = extract_laser_features(scan)
+                got["Ex"].append(lf.extremities.size)
+                got["B"].append(lf.beacons.size)
+                got["c"].append(lf.corners.size)
+                got["CP"].append(colour_patches(pano)[0].size)
+                got["VE"].append(vertical_edges(pano, **(edge_params or {})).size)
+                tf = true_features(w, pose)
+                for k in _TYPES:
+                    truth[k].append(int(tf[k].size))
+    out = {k: float(np.mean(v)) for k, v in got.items()}
+    out.update({f"truth_{k}": float(np.mean(v)) for k, v in truth.items()})
+    out["n"] = float(len(got["VE"]))
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """Print the figures as JSON; ``calibrate`` as the first argument: :func:`calibration_counts` of both worlds."""
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["calibrate"]:
+        from .robot import WORLD_PROFILES
+
+        cal: dict[str, Any] = {}
+        for world, prof in WORLD_PROFILES.items():
+            cal[world] = calibration_counts(
+                world=world,
+                similarity=prof["similarity"],
+                blur=prof["blur"],
+                noise=prof["noise"],
+                jpeg_quality=prof["jpeg_quality"],
+                edge_params=prof["extractor"],
+            )
+        cal["paper_table2"] = PAPER_TABLE2
+        json.dump(cal, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+        return cal
     out: dict[str, Any] = {
         "features_per_measurement": feature_counts(),
+        "features_per_measurement_paper_world": feature_counts(similarity=0.8, world="paper"),
         "paper_table2": PAPER_TABLE2,
         "likeness": {str(s): office_likeness(s) for s in (0.0, 0.5, 0.8, 1.0)},
         "intensity": intensity_stats(),

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from .camera import CAMERA_HEIGHT, ELEVATION_DEG, OmniImage, render_omni, render_panorama
 from .laser import LASER_HEIGHT, simulate_scan
-from .offices import make_office, make_offices
+from .offices import WORLDS, make_office, make_offices
 from .poses import protocol_poses
 from .truth import true_features, true_observation
 from .world import PARTS, Material, World, cast_rays
@@ -33,6 +33,7 @@ __all__ = [
     "ELEVATION_DEG",
     "LASER_HEIGHT",
     "PARTS",
+    "WORLDS",
     "Material",
     "OmniImage",
     "World",

@@ -17,7 +17,7 @@ from __future__ import annotations
 import colorsys
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -25,11 +25,13 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .world import PARTS, Material, World
 
-__all__ = ["make_office", "make_offices"]
+__all__ = ["WORLDS", "make_office", "make_offices"]
 
 _WALL_THICKNESS = 0.12  # metres: depth of a door frame
 _DOOR_TOP = 2.05  # metres: height of a door opening
 _FURN_GAP = 0.02  # metres between furniture and the wall it stands against
+_SEAT_Z = 0.45  # metres: height of a chair's seat (below it, only the chair's column)
+_CHAIR_POST = 0.06  # metres: width of a chair's column
 
 #: Furniture kinds: (width range, depth range, height range), metres.
 #: Door leaves: albedo (low saturation) and laser reflectivity.
@@ -85,6 +87,7 @@ class _Spec:
     suns: list[dict[str, Any]]
     windows: list[dict[str, Any]]
     lamps: list[dict[str, Any]]
+    chairs: list[dict[str, Any]] = field(default_factory=list)
 
 
 def _new_door(rng: np.random.Generator) -> dict[str, Any]:
@@ -165,6 +168,17 @@ def _new_lamp(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
+def _new_chair(rng: np.random.Generator) -> dict[str, Any]:
+    return {
+        "wall": int(rng.integers(0, 6)),
+        "u": float(rng.uniform(0.1, 0.9)),
+        "off": float(rng.uniform(0.35, 0.8)),
+        "size": float(rng.uniform(0.42, 0.5)),
+        "back": float(rng.uniform(0.85, 1.05)),
+        "mat": int(rng.integers(0, len(_FURN_MATS))),
+    }
+
+
 def _new_sun(rng: np.random.Generator) -> dict[str, Any]:
     return {
         "u": float(rng.uniform(0.1, 0.9)),
@@ -186,7 +200,9 @@ _NEW = {
     "suns": _new_sun,
     "windows": _new_window,
     "lamps": _new_lamp,
+    "chairs": _new_chair,
 }
+#: Element counts (low, high) of the ``"alike"`` world, the original generator.
 _COUNTS = {
     "doors": (1, 2),
     "furniture": (3, 6),
@@ -197,14 +213,31 @@ _COUNTS = {
     "windows": (0, 1),
     "lamps": (1, 3),
 }
+#: Element counts of the ``"paper"`` world (see :data:`WORLDS`): fewer posters,
+#: more beacons, fewer pieces of furniture, and office chairs standing in the room.
+_COUNTS_PAPER = {
+    "doors": (1, 2),
+    "furniture": (3, 4),
+    "pillars": (0, 1),
+    "patches": (2, 4),
+    "beacons": (4, 6),
+    "suns": (0, 2),
+    "windows": (0, 1),
+    "lamps": (1, 3),
+    "chairs": (2, 4),
+}
+#: The office generators: name -> element counts.
+WORLDS: dict[str, dict[str, tuple[int, int]]] = {"alike": _COUNTS, "paper": _COUNTS_PAPER}
 
 
-def _new_spec(rng: np.random.Generator) -> _Spec:
+def _new_spec(rng: np.random.Generator, world: str = "alike") -> _Spec:
     width, depth = float(rng.uniform(3.8, 6.5)), float(rng.uniform(3.2, 5.5))
     notch = (
         (float(rng.uniform(0.8, 0.4 * width)), float(rng.uniform(0.8, 0.4 * depth))) if rng.uniform() < 0.35 else None
     )
-    lists = {k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in _COUNTS.items()}
+    counts = WORLDS[world]
+    lists = {k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in counts.items()}
+    lists.setdefault("chairs", [])
     return _Spec(
         width=width,
         depth=depth,
@@ -240,6 +273,8 @@ def _jitter(x: dict[str, Any], amount: float, rng: np.random.Generator) -> dict[
         "hy": 0.2,
         "z": 0.3,
         "hz": 0.3,
+        "off": 0.15,
+        "back": 0.05,
     }
     for k, s in scale.items():
         if k in out:
@@ -253,6 +288,8 @@ def _jitter(x: dict[str, Any], amount: float, rng: np.random.Generator) -> dict[
     for k in ("sat", "val"):
         if k in out:
             out[k] = float(np.clip(out[k], 0.5 if k == "sat" else 0.4, 0.92))
+    if "off" in out:
+        out["off"] = float(np.clip(out["off"], 0.3, 1.2))
     for k in ("width", "depth", "size", "hx", "hy", "hz", "corridor"):
         if k in out:
             out[k] = float(max(out[k], 0.04 if k == "width" else 0.2))
@@ -261,9 +298,9 @@ def _jitter(x: dict[str, Any], amount: float, rng: np.random.Generator) -> dict[
     return out
 
 
-def _perturb(t: _Spec, similarity: float, rng: np.random.Generator) -> _Spec:
+def _perturb(t: _Spec, similarity: float, rng: np.random.Generator, world: str = "alike") -> _Spec:
     q = 1.0 - similarity
-    fresh = _new_spec(rng)
+    fresh = _new_spec(rng, world)
     s = replace(t)
     if rng.uniform() < q:
         s.width, s.depth, s.notch = fresh.width, fresh.depth, fresh.notch
@@ -273,7 +310,7 @@ def _perturb(t: _Spec, similarity: float, rng: np.random.Generator) -> _Spec:
     for name in ("wall_rgb", "floor_rgb", "frame_rgb", "corridor_rgb", "wall_refl", "height", "light_angle"):
         if rng.uniform() < q:
             setattr(s, name, getattr(fresh, name))
-    for key in _NEW:
+    for key in WORLDS[world]:
         items = []
         for item in getattr(t, key):
             r = rng.uniform()
@@ -459,6 +496,26 @@ def _build(spec: _Spec, name: str) -> World:
         blocked[p[0]].append((p[1] - 0.05, p[2] + 0.05))
         pillar_boxes.append((p[0], p[1], p[2], inset))
 
+    # Office chairs: a seat and back (a block from 0.45 m up) on a thin column, standing free in the room.
+    chair_boxes: list[tuple[int, float, float, float, float, int]] = []
+    for ch in spec.chairs:
+        size = float(ch["size"])
+        found_c = None
+        for du, doff in itertools.product((0.0, 0.12, -0.12, 0.25, -0.25), (0.0, 0.4, 0.8)):
+            p = place(ch["wall"], float(np.clip(ch["u"] + du, 0.0, 1.0)), size, 0.1)
+            if p is None:
+                continue
+            off = float(ch["off"]) + doff
+            box = footprint(p[0], p[1], p[2], off, off + size)
+            if not clash(box, taken) and world_inside(box):
+                found_c = p, off, box
+                break
+        if found_c is None:
+            continue
+        p, off, box = found_c
+        taken.append(box)
+        chair_boxes.append((p[0], p[1], p[2], off, float(ch["back"]), furn_m[ch["mat"] % len(furn_m)]))
+
     def first_fit(
         wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]
     ) -> tuple[int, float, float] | None:
@@ -552,6 +609,19 @@ def _build(spec: _Spec, name: str) -> World:
             for k in range(3 if inset == 0.0 else 4):
                 b.add(q[k], q[(k + 1) % 4], (0.0, H), wall_m, "pillar")
 
+        for wi, lo, hi, off, back, m in chair_boxes:
+            if wi != i:
+                continue
+            size = hi - lo
+            q = [at(lo, off), at(lo, off + size), at(hi, off + size), at(hi, off)]
+            for k in range(4):
+                b.add(q[k], q[(k + 1) % 4], (_SEAT_Z, back), m, "chair")
+            centre = at((lo + hi) / 2, off + size / 2)
+            r = _CHAIR_POST / 2
+            post = [centre + np.array(v) for v in ((-r, -r), (r, -r), (r, r), (-r, r))]
+            for k in range(4):
+                b.add(post[k], post[(k + 1) % 4], (0.0, _SEAT_Z), m, "chair")
+
     sun = []
     lo_xy, hi_xy = poly.min(axis=0), poly.max(axis=0)
     for sn in spec.suns:
@@ -595,13 +665,25 @@ def _anchor(world: World) -> tuple[float, float]:
     return float(best[0]), float(best[1])
 
 
-def make_office(*, random_state: int | np.random.Generator | None = None, name: str = "office") -> World:
-    """One random office (a template drawn afresh)."""
-    return _build(_new_spec(_rng(random_state)), name)
+def _check_world(world: str) -> str:
+    if world not in WORLDS:
+        raise InvalidParameterError(f"world must be one of {', '.join(WORLDS)}, got {world!r}")
+    return world
+
+
+def make_office(
+    *, random_state: int | np.random.Generator | None = None, name: str = "office", world: str = "alike"
+) -> World:
+    """One random office (a template drawn afresh); ``world`` as in :func:`make_offices`."""
+    return _build(_new_spec(_rng(random_state), _check_world(world)), name)
 
 
 def make_offices(
-    n: int, *, similarity: float = 0.5, random_state: int | np.random.Generator | None = None
+    n: int,
+    *,
+    similarity: float = 0.5,
+    random_state: int | np.random.Generator | None = None,
+    world: str = "alike",
 ) -> list[World]:
     """Generate ``n`` offices that resemble each other.
 
@@ -618,6 +700,14 @@ def make_offices(
         proportional to ``1 - similarity``.
     random_state : int or numpy.random.Generator, optional
         Seed or generator; the same seed gives the same offices.
+    world : {"alike", "paper"}, default "alike"
+        The generator (:data:`WORLDS`). ``"alike"``: the original offices,
+        rich in furniture and posters. ``"paper"``: offices furnished as the
+        paper's robot saw them (Table II): two to four posters, five or six
+        retro-reflective beacons, two to four pieces of furniture, and two to
+        four office chairs standing in the room, which hide the lower part of
+        whatever is behind them from the camera and, with their column, cut
+        the laser's view.
 
     Returns
     -------
@@ -628,6 +718,7 @@ def make_offices(
         raise InvalidParameterError(f"n must be a positive integer, got {n!r}")
     if not (isinstance(similarity, int | float) and 0.0 <= float(similarity) <= 1.0):
         raise InvalidParameterError(f"similarity must be in [0, 1], got {similarity!r}")
+    _check_world(world)
     rng = _rng(random_state)
-    template = _new_spec(rng)
-    return [_build(_perturb(template, float(similarity), rng), f"office-{i}") for i in range(int(n))]
+    template = _new_spec(rng, world)
+    return [_build(_perturb(template, float(similarity), rng, world), f"office-{i}") for i in range(int(n))]

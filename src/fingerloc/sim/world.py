@@ -29,7 +29,7 @@ FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
 
 #: Names of the structural parts a segment can belong to (``World.part`` indexes this).
-PARTS: tuple[str, ...] = ("wall", "door_frame", "lintel", "furniture", "pillar", "corridor", "door_leaf")
+PARTS: tuple[str, ...] = ("wall", "door_frame", "lintel", "furniture", "pillar", "corridor", "door_leaf", "chair")
 
 #: Rays hitting closer than this (metres) are ignored, so a ray does not hit the surface it starts on.
 _MIN_HIT = 1e-6
