@@ -170,3 +170,13 @@ def test_range_term_grows_a_place_without_its_old_scans():
     for a, b in zip(full.descriptors_, restored.descriptors_, strict=True):
         np.testing.assert_array_equal(a, b)
     assert restored.descriptors_[1].shape[0] == 2
+
+
+def test_filters_refuse_bad_parameters_with_fingerloc_errors():
+    from fingerloc.map.filter import TransitionModel
+    from fingerloc.map.pose_filter import PoseFilter
+
+    with pytest.raises(InvalidParameterError, match="random_state"):
+        PoseFilter(np.zeros((2, 2)), 1.0, random_state="x")
+    with pytest.raises(InvalidParameterError, match="n_places must be an integer"):
+        TransitionModel.uniform(2.5)

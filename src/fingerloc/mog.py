@@ -70,6 +70,7 @@ from . import _mog_kernels as _k
 from ._numba_guard import try_parallel
 from .angles import wrap
 from .errors import InvalidParameterError, NotFittedError
+from .validation import check_random_state
 
 __all__ = [
     "DEFAULT_MIN_SIGMA_DEG",
@@ -97,20 +98,6 @@ Float64Array = NDArray[np.float64]
 
 class ConvergenceWarning(UserWarning):
     """EM reached ``max_iter`` before its log-likelihood gain fell below ``tol``."""
-
-
-def _check_random_state(random_state: int | np.random.Generator | None) -> np.random.Generator:
-    if random_state is None:
-        return np.random.default_rng()
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    if isinstance(random_state, numbers.Integral) and not isinstance(random_state, bool):
-        if int(random_state) < 0:
-            raise InvalidParameterError(f"random_state must be a non-negative int or a Generator, got {random_state}")
-        return np.random.default_rng(int(random_state))
-    raise InvalidParameterError(
-        f"random_state must be None, an int or a numpy.random.Generator, got {type(random_state).__name__}"
-    )
 
 
 def _check_int(name: str, value: object, minimum: int) -> int:
@@ -278,7 +265,7 @@ def fit_mixtures(
     threads; the results do not depend on it.
     """
     k, tol_f, it, ni, msd = _check_params(n_components, tol, max_iter, n_init, min_sigma_deg)
-    rng = _check_random_state(random_state)
+    rng = check_random_state(random_state)
     if isinstance(samples, np.ndarray) and samples.ndim == 1 and samples.dtype != object:
         raise InvalidParameterError(
             "samples must be a sequence of bearing arrays, got one 1-D array (wrap it in a list)"
@@ -342,7 +329,7 @@ def _em_traces(
     run stopped).
     """
     k, tol_f, it, ni, msd = _check_params(n_components, tol, max_iter, n_init, min_sigma_deg)
-    rng = _check_random_state(random_state)
+    rng = check_random_state(random_state)
     xa = _as_bearings(x, "x")
     if xa.size == 0:
         raise InvalidParameterError("x is empty")
@@ -526,7 +513,7 @@ class AngularMixture:
         k, tol_f, it, ni, msd = _check_params(
             self.n_components, self.tol, self.max_iter, self.n_init, self.min_sigma_deg
         )
-        rng = _check_random_state(self.random_state)
+        rng = check_random_state(self.random_state)
         xa = _as_bearings(X, "X")
         if xa.size == 0:
             raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
@@ -631,7 +618,7 @@ class AngularMixture:
         """
         self._check_fitted()
         n = _check_int("n_samples", n_samples, 1)
-        rng = _check_random_state(self.random_state if random_state is None else random_state)
+        rng = check_random_state(self.random_state if random_state is None else random_state)
         labels = rng.choice(self.weights_.size, size=n, p=self.weights_ / self.weights_.sum())
         z = np.empty(n)
         todo = np.arange(n)

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import EmptyInputError, InvalidParameterError
+from ..metrics import max_per_place
 from ..pipeline.presets import model_options
 from ..sensors import Scan
 from .protocol import (
@@ -86,16 +87,6 @@ __all__ = [
 
 FArray = NDArray[np.float64]
 IArray = NDArray[np.int64]
-
-
-def _max_per_place(sim: FArray, labels: IArray, n_places: int) -> FArray:
-    """Best similarity per place: ``sim`` (n_q, n_train) -> (n_q, n_places)."""
-    out = np.full((sim.shape[0], n_places), -np.inf)
-    for j in range(n_places):
-        cols = labels == j
-        if np.any(cols):
-            out[:, j] = sim[:, cols].max(axis=1)
-    return out
 
 
 def _check_fit_input(scans: Sequence[Scan], labels: Any) -> IArray:
@@ -198,7 +189,7 @@ class ScanContextBaseline:
                 den = both
             sim = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
             sims[i] = sim.max(axis=0)
-        return _max_per_place(sims, self.labels_, self.n_places_)
+        return max_per_place(sims, self.labels_, self.n_places_)
 
 
 class HistogramBaseline:
@@ -248,7 +239,7 @@ class HistogramBaseline:
         """Minus the least cumulative-histogram L1 distance to each place's scans, shape (n_queries, n_places)."""
         q = np.stack([self.descriptor(s) for s in scans]) if len(scans) else np.zeros((0, self.n_bins + 1))
         d = np.abs(q[:, None, :] - self.hists_[None, :, :]).sum(axis=2)
-        return _max_per_place(-d, self.labels_, self.n_places_)
+        return max_per_place(-d, self.labels_, self.n_places_)
 
 
 class FingerprintMethod:

@@ -69,6 +69,7 @@ from ..pipeline.tracker import (
 )
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
+from ..validation import check_random_state
 from .protocol import METHODS, Method, Split, load_methods, make_split, rank_metrics, register_method, true_place_ranks
 
 __all__ = [
@@ -614,7 +615,7 @@ def with_synthetic_likelihood(
     """
     if not (math.isfinite(separation) and separation >= 0):
         raise InvalidParameterError(f"separation must be a finite number >= 0, got {separation!r}")
-    rng = random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
+    rng = check_random_state(random_state)
     q = data.truth >= 0
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
@@ -722,7 +723,7 @@ def kidnap_experiment(
     """
     if n_trials < 1 or stretch < 2:
         raise InvalidParameterError(f"n_trials >= 1 and stretch >= 2 are needed, got {n_trials}, {stretch}")
-    rng = random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
+    rng = check_random_state(random_state)
     n = data.truth.size
     full = data.run()
     has_q = data.truth >= 0

@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataFormatError, InvalidParameterError
 from ..features.vision import PHOTO_EDGE_PARAMS
+from ..metrics import min_per_place, true_place_ranks
 from ..observation import Observation
 
 __all__ = [
@@ -397,21 +398,6 @@ PANORAMA_METHODS: tuple[str, ...] = (
 WEIGHTED_TERMS: tuple[str, ...] = ("VE", "CP", "Fp", "A")
 
 
-def _rank(scores: FArray, truth: int) -> int:
-    """Rank of the true place (1 = best), ties counted against."""
-    return int(np.sum(scores >= scores[truth]))
-
-
-def _per_place(d: FArray, owner: NDArray[np.int64], n_places: int) -> FArray:
-    """Least distance of each row to each place's columns, shape ``(n, P)`` (inf for none)."""
-    out = np.full((d.shape[0], n_places), np.inf)
-    for j in range(n_places):
-        cols = owner == j
-        if cols.any():
-            out[:, j] = d[:, cols].min(axis=1)
-    return out
-
-
 def _loo_distance_ll(d: FArray, owner: NDArray[np.int64], n_places: int, queries: Sequence[int]) -> FArray:
     """Log-likelihoods ``-lambda d`` of each query (rows of ``queries``), query left out of the references.
 
@@ -426,11 +412,11 @@ def _loo_distance_ll(d: FArray, owner: NDArray[np.int64], n_places: int, queries
     for k, q in enumerate(queries):
         keep = np.arange(d.shape[0]) != q
         sub = dd[np.ix_(keep, keep)]
-        per = _per_place(sub, owner[keep], n_places)
+        per = min_per_place(sub, owner[keep], n_places)
         t = owner[keep]
         ok = np.isfinite(per[np.arange(t.size), t])
         lam = fit_lambda(per[ok], t[ok]) if ok.any() else 1.0
-        row = _per_place(dd[q : q + 1][:, keep], owner[keep], n_places)[0]
+        row = min_per_place(dd[q : q + 1][:, keep], owner[keep], n_places)[0]
         row = np.where(np.isfinite(row), row, np.nanmax(np.where(np.isfinite(row), row, np.nan)))
         out[k] = -lam * row
     return out
@@ -520,7 +506,7 @@ def _loo_scores(
     h = np.stack(hists)
     dj = jeffrey_divergence(h, h)
     np.fill_diagonal(dj, np.inf)
-    out["hsv-baseline"] = -_per_place(dj[list(queries)], owner, n_places)
+    out["hsv-baseline"] = -min_per_place(dj[list(queries)], owner, n_places)
     return out, owner[list(queries)]
 
 
@@ -584,7 +570,7 @@ def run_panorama_bench(
         if on_step is not None:
             on_step(name, 0, len(queries))
         scores, truth = _loo_scores(sub_obs, sub_lab, sub_h, queries, n_components)  # type: ignore[arg-type]
-        ranks = {m: [_rank(scores[m][k], int(truth[k])) for k in range(len(queries))] for m in PANORAMA_METHODS}
+        ranks = {m: true_place_ranks(scores[m], truth).tolist() for m in PANORAMA_METHODS}
         res["places"][name] = {
             "n_places": len(counts),
             "n_queries": len(queries),

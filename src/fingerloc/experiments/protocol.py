@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
+from ..metrics import rank_metrics, true_place_ranks
 from ..pipeline.places import PLACE_RADIUS_M as _PLACE_RADIUS_M
 from ..pipeline.places import PLACE_SPACING_M as _PLACE_SPACING_M
 from ..pipeline.places import PlaceSplit, places_from_trajectory
@@ -98,43 +99,8 @@ def make_split(
 
 
 # ---------------------------------------------------------------------------------------------------
-# Metrics
+# Metrics: fingerloc.metrics (true_place_ranks, rank_metrics), re-exported here for the experiments
 # ---------------------------------------------------------------------------------------------------
-
-
-def true_place_ranks(scores: Any, labels: Any) -> IArray:
-    """Rank (1 = best) of each query's true place; ties count against.
-
-    ``rank_i = #{j : scores[i, j] >= scores[i, labels[i]]}``: a place scoring
-    the same as the true one ranks before it. NaN scores count as ``-inf``.
-
-    Parameters
-    ----------
-    scores : array_like, shape (n_queries, n_places)
-        Higher is better.
-    labels : array_like of int, shape (n_queries,)
-
-    Returns
-    -------
-    ndarray of int, shape (n_queries,)
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    y = np.asarray(labels, dtype=np.int64).reshape(-1)
-    if s.ndim != 2 or s.shape[0] != y.size:
-        raise InvalidParameterError(f"scores must have shape (n_queries, n_places) = ({y.size}, ...), got {s.shape}")
-    if y.size and (y.min() < 0 or y.max() >= s.shape[1]):
-        raise InvalidParameterError(f"labels must be place indices in [0, {s.shape[1]}), got {y.min()}..{y.max()}")
-    s = np.where(np.isnan(s), -np.inf, s)
-    true = s[np.arange(y.size), y]
-    return (s >= true[:, None]).sum(axis=1).astype(np.int64)
-
-
-def rank_metrics(ranks: Any) -> dict[str, float]:
-    """``top1`` (fraction at rank 1), ``mean_rank`` and ``recall5`` (fraction at rank <= 5) of true-place ranks."""
-    r = np.asarray(ranks, dtype=np.float64).reshape(-1)
-    if r.size == 0:
-        return {"top1": float("nan"), "mean_rank": float("nan"), "recall5": float("nan")}
-    return {"top1": float(np.mean(r == 1)), "mean_rank": float(np.mean(r)), "recall5": float(np.mean(r <= 5))}
 
 
 # ---------------------------------------------------------------------------------------------------

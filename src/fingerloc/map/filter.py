@@ -43,6 +43,7 @@ from scipy.optimize import minimize_scalar
 from scipy.special import logsumexp
 
 from ..errors import InvalidParameterError
+from ..validation import check_int
 from .graph import PlaceGraph
 
 __all__ = [
@@ -136,8 +137,7 @@ class TransitionModel:
     @classmethod
     def uniform(cls, n_places: int) -> TransitionModel:
         """Every place equally likely after every step (``T = 1 / P``): the filter is then single-shot."""
-        if n_places < 1:
-            raise InvalidParameterError(f"n_places must be >= 1, got {n_places!r}")
+        n_places = check_int("n_places", n_places, minimum=1)
         move = np.full((n_places, n_places), 1.0 / max(1, n_places - 1))
         np.fill_diagonal(move, 0.0)
         if n_places == 1:

@@ -57,6 +57,7 @@ from scipy.special import logsumexp
 
 from ..angles import wrap
 from ..errors import InvalidParameterError
+from ..validation import check_random_state
 from .filter import FilterResult, MarkovFilter
 
 __all__ = [
@@ -208,7 +209,7 @@ def simulate_odometry(
     """
     err = OdometryError() if error is None else error
     inc = odometry_increments(poses)
-    rng = random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
+    rng = check_random_state(random_state)
     n = inc.shape[0]
     dist = np.hypot(inc[:, 0], inc[:, 1])
     out = inc.copy()
@@ -337,7 +338,7 @@ class PoseFilter:
                 pp = pp[np.asarray(d) <= self.radius]
                 self._place_poses = [pp[near == k] for k in range(c.shape[0])]
         self._rng = (
-            random_state if isinstance(random_state, np.random.Generator) else np.random.default_rng(random_state)
+            check_random_state(random_state)
         )
         self._tree = cKDTree(c)
         self.reset()
