@@ -18,12 +18,45 @@ from . import basic, bench, demo, features, logs, mog, places, robot, track  # n
 __all__ = ["app", "bench_app", "main", "reproduce_app"]
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())  # one line, whatever the message holds
+
+
+def _fail(msg: str) -> None:
+    sys.stderr.write(f"error: {_one_line(msg)}\n")
+    sys.stderr.flush()
+    raise SystemExit(2)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the ``fingerloc`` console script."""
+    """Entry point of the ``fingerloc`` console script.
+
+    Every failure a user can cause ends here as one line ``error: ...`` on
+    stderr and exit code 2: fingerloc's own errors, the option parser's usage
+    errors, and command-line arguments that are not valid UTF-8.
+    """
+    from typer import _click
+
+    args = sys.argv[1:] if argv is None else list(argv)
+    for a in args:
+        try:
+            str(a).encode("utf-8")
+        except UnicodeEncodeError:
+            _fail(f"argument {str(a).encode('utf-8', 'backslashreplace').decode('ascii', 'replace')!r} is not valid UTF-8")
     try:
-        app(args=argv, prog_name="fingerloc")
+        rc = app(args=args, prog_name="fingerloc", standalone_mode=False)
     except FingerlocError as err:
-        msg = " ".join(str(err).split())  # one line, whatever the message holds
-        sys.stderr.write(f"error: {msg}\n")
-        sys.stderr.flush()
+        _fail(str(err))
+    except _click.exceptions.NoArgsIsHelpError as err:
+        err.show()
         raise SystemExit(2) from None
+    except _click.exceptions.UsageError as err:
+        msg = err.format_message()
+        msg = msg[:1].lower() + msg[1:]
+        cmd = err.ctx.command_path if err.ctx is not None else "fingerloc"
+        _fail(f"{msg} (see '{cmd} --help')")
+    except _click.exceptions.ClickException as err:
+        _fail(err.format_message())
+    except _click.exceptions.Abort:
+        _fail("aborted")
+    raise SystemExit(rc if isinstance(rc, int) else 0)

@@ -14,6 +14,7 @@ from pathlib import Path
 import typer
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+from ._io import check_output
 from .app import app, console, err_console
 
 
@@ -38,6 +39,7 @@ def demo_cmd(
     )
     from ..experiments.robot import small_protocol as small
 
+    check_output(out, "--out", directory=True)
     protocol = small() if quick else RobotProtocol()
     n_workers = default_workers() if workers is None else workers
     timings: dict[str, float] = {}
@@ -66,7 +68,7 @@ def demo_cmd(
     from .robot import print_robot_tables
 
     console.print(
-        f"[bold]fingerloc demo[/bold]: {protocol.n_offices} simulated offices alike, "
+        f"fingerloc demo: {protocol.n_offices} simulated offices alike, "
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )
     print_robot_tables(res, console, title_note=f"seed {seed}")

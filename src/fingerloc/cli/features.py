@@ -20,6 +20,7 @@ from ..errors import DataFormatError, InvalidParameterError
 from ..fingerprint import hue_letter
 from ..observation import Observation
 from ..sensors import Panorama
+from ._io import check_output
 from .app import app, bench_app, console, err_console
 
 __all__ = ["KINDS", "FeatureOptions", "format_observation", "load_image", "panorama_from_file"]
@@ -238,6 +239,7 @@ def features_cmd(
     """Extract vertical edges and colour patches (and laser features) from sensor files; print their bearings."""
     from ..io.jsonl import write_observations
 
+    check_output(json_out, "--json")
     if kind != "auto" and kind not in KINDS:
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
@@ -290,6 +292,7 @@ def bench_features_cmd(
     from ..experiments.extractors import run_extractor_bench
     from .bench import write_json
 
+    check_output(json_out, "--json")
     if not 0 <= jpeg <= 100:
         raise InvalidParameterError(f"--jpeg must be in 0..100, got {jpeg}")
     with Progress(console=err_console, transient=True) as progress:

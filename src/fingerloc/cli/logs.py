@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import check_output
 from .app import bench_app, console, err_console
 from .bench import write_json
 
@@ -161,6 +162,8 @@ def carmen_cmd(
         raise typer.Exit()
     if not logs:
         raise InvalidParameterError("bench carmen needs at least one LOG (e.g. ../shared/data/carmen/*.log.gz)")
+    check_output(json_out, "--json")
+    check_output(plot, "--plot")
     with err_console.status("benchmarking...") as status:
         run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
     js = run.to_json()

@@ -16,6 +16,7 @@ from rich.table import Table
 from ..errors import InvalidParameterError
 from ..io.jsonl import read_observations
 from ..model import TERMS, PlaceModel
+from ._io import check_output
 from .app import app, console, err_console
 from .bench import write_json
 
@@ -151,6 +152,7 @@ def localize_cmd(
 
     if top < 1:
         raise InvalidParameterError(f"--top must be >= 1, got {top}")
+    check_output(json_out, "--json")
     model = load_model(db)
     obs = read_observations(data)
     classes = [str(c) for c in model.classes_]

@@ -10,6 +10,7 @@ import numpy as np
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import check_output
 from .app import app, bench_app, console, err_console
 from .bench import write_json
 
@@ -84,6 +85,7 @@ def track_cmd(
     """
     from ..map.filter import TransitionModel, run_filter
 
+    check_output(json_out, "--json")
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
     if filter_kind not in ("places", "pose"):
@@ -350,6 +352,7 @@ def kidnap_cmd(
     """
     from ..experiments.markov import run_kidnap
 
+    check_output(json_out, "--json")
     if filter_kind not in ("places", "pose"):
         raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
     with err_console.status("kidnapping...") as status:
