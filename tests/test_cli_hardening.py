@@ -126,7 +126,7 @@ def test_output_paths_checked_before_work(tmp_path, capsys, where):
 def test_check_output_directory_kind(tmp_path):
     f = tmp_path / "f"
     f.write_text("x")
-    with pytest.raises(InvalidParameterError, match="--out: .* not a directory"):
+    with pytest.raises(InvalidParameterError, match=r"--out: .* not a directory"):
         check_output(f, "--out", directory=True)
     check_output(tmp_path / "new", "--out", directory=True)
 

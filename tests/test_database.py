@@ -49,7 +49,7 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         save_model(PlaceModel(3).fit(obs, labels), path)
     assert path.read_bytes() == good
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.sqlite"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.sqlite", "p.sqlite.lock"]  # the writers' lock stays
     load_model(path)
 
 

@@ -20,6 +20,27 @@ from ._io import check_output
 from .app import app, console, err_console
 from .bench import write_json
 
+#: PlaceModel parameter -> the ``learn`` option that sets it (messages name the option).
+_FLAGS = {
+    "n_components": "--components",
+    "terms": "--terms",
+    "fp_likelihood": "--fp-likelihood",
+    "fp_reference": "--fp-reference",
+    "cyclic": "--cyclic",
+    "laser_letters": "--laser-letters",
+    "costs": "--costs",
+    "unknown_prior": "--unknown-prior",
+    "weights": "--weights",
+    "random_state": "--seed",
+}
+
+
+def _with_flags(message: str) -> str:
+    """``message`` with PlaceModel's parameter names replaced by the options a user typed."""
+    import re
+
+    return re.sub(r"\b(" + "|".join(_FLAGS) + r")\b", lambda m: _FLAGS[m.group(1)], message)
+
 
 def _parse_terms(text: str) -> tuple[str, ...]:
     terms = tuple(t.strip() for t in text.replace("+", ",").split(",") if t.strip())
@@ -60,7 +81,7 @@ def _parse_weights(text: str) -> str | dict[str, float]:
 def learn_cmd(
     data: Path = typer.Argument(..., help="Labelled observations, JSON Lines ('place' on every line)."),
     db: Path = typer.Option(..., "--db", help="Place database (SQLite); created, or extended if it exists."),
-    components: int | None = typer.Option(None, "-k", "--components", help="Mixture components per place and feature type [5]."),
+    components: int | None = typer.Option(None, "-k", "--components", min=1, max=1000, help="Mixture components per place and feature type [5]."),
     terms: str | None = typer.Option(
         None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [VE,CP,Ex,B,Fp]."
     ),
@@ -76,7 +97,7 @@ def learn_cmd(
         None,
         help="Per-term weights: 'fit' (learned from held-out training views) or TERM=W,... e.g. VE=0.5,Fp=2 [all 1].",
     ),
-    seed: int | None = typer.Option(None, help="Seed of the mixtures' initialisation [0]."),
+    seed: int | None = typer.Option(None, min=0, help="Seed of the mixtures' initialisation [0]."),
 ) -> None:
     """Learn places from labelled observations into a place database.
 
@@ -86,7 +107,7 @@ def learn_cmd(
     (used by ``fingerloc track``). Options then default to the
     database's own, and an option that differs from them is an error.
     """
-    from ..map.database import load_model, read_graph_edges, save_model
+    from ..map.database import load_model, locked, read_graph_edges, save_model
     from ..map.graph import PlaceGraph
 
     given: dict[str, Any] = {
@@ -106,34 +127,40 @@ def learn_cmd(
     missing = [i + 1 for i, o in enumerate(obs) if not o.label]
     if missing:
         raise InvalidParameterError(f"{data}: observation {missing[0]} has no 'place' label; learn needs labels")
-    t0 = time.perf_counter()
-    edges: dict[tuple[str, str], int] = {}
-    if db.exists():
-        model = load_model(db)
-        edges = read_graph_edges(db)
-        stored = model.get_params()
-        for k, v in given.items():
-            sv = stored[k]
-            if k == "costs":
-                same = (sv is None and v is None) or (
-                    sv is not None and v is not None and np.array_equal(sv.substitution, v.substitution)
-                    and np.array_equal(sv.indel, v.indel)
-                )
-            else:
-                same = (tuple(sv) == tuple(v)) if k == "terms" else (sv == v)
-            if not same:
-                raise InvalidParameterError(f"{db} was learned with {k}={sv!r}; got {v!r} (use a new --db)")
-        before = set(model.places_)
-        model.add_places(obs)
-        verb = f"added {len(set(model.places_) - before)} place(s), extended {len(before & {o.label for o in obs})}"
-    else:
-        model = PlaceModel(**given).fit(obs)
-        verb = f"learned {len(model.places_)} place(s)"
-    # The place graph: transitions between consecutive observations of the file, added to the stored ones.
-    graph = PlaceGraph([str(c) for c in model.classes_], edges)
-    for a, b in itertools.pairwise(obs):
-        graph.add_transition(str(a.label), str(b.label))
-    size = save_model(model, db, graph_edges=graph.edges())
+    # read-modify-write under the database's writer lock: a concurrent learn waits, nothing is lost
+    with locked(db):
+        t0 = time.perf_counter()
+        edges: dict[tuple[str, str], int] = {}
+        if db.exists():
+            model = load_model(db)
+            edges = read_graph_edges(db)
+            stored = model.get_params()
+            for k, v in given.items():
+                sv = stored[k]
+                if k == "costs":
+                    same = (sv is None and v is None) or (
+                        sv is not None and v is not None and np.array_equal(sv.substitution, v.substitution)
+                        and np.array_equal(sv.indel, v.indel)
+                    )
+                else:
+                    same = (tuple(sv) == tuple(v)) if k == "terms" else (sv == v)
+                if not same:
+                    flag = _FLAGS.get(k, k)
+                    raise InvalidParameterError(f"{db} was learned with {flag} {sv!r}; got {v!r} (use a new --db)")
+            before = set(model.places_)
+            model.add_places(obs)
+            verb = f"added {len(set(model.places_) - before)} place(s), extended {len(before & {o.label for o in obs})}"
+        else:
+            try:
+                model = PlaceModel(**given).fit(obs)
+            except InvalidParameterError as err:
+                raise InvalidParameterError(_with_flags(str(err))) from err
+            verb = f"learned {len(model.places_)} place(s)"
+        # The place graph: transitions between consecutive observations of the file, added to the stored ones.
+        graph = PlaceGraph([str(c) for c in model.classes_], edges)
+        for a, b in itertools.pairwise(obs):
+            graph.add_transition(str(a.label), str(b.label))
+        size = save_model(model, db, graph_edges=graph.edges())
     err_console.print(
         f"{verb} from {len(obs)} observation(s) in {time.perf_counter() - t0:.2f} s; "
         f"{db}: {len(model.places_)} place(s), {size} bytes"

@@ -71,7 +71,7 @@ def track_cmd(
     radius: float | None = typer.Option(
         None, help="Pose filter, JSON Lines: metres within which a pose is at a place [half the median spacing]."
     ),
-    seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
+    seed: int = typer.Option(0, min=0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
@@ -102,11 +102,19 @@ def track_cmd(
     if kind == "bag":
         raise InvalidParameterError(f"{data}: track reads JSON Lines or CARMEN logs, not ROS bags")
     names: list[str]
+    # writes to --db wait here until every check and the filter have passed: a failed command changes nothing
+    pending: list[Any] = []
+    if db.is_dir():
+        raise InvalidParameterError(f"--db: {db} is a directory, not a place database")
     if kind == "carmen":
         if graph_from is not None:
             raise InvalidParameterError("--graph-from is for JSON Lines; a CARMEN log's graph comes from --map")
+        if map_log and (db.exists() or db.is_symlink()):
+            raise InvalidParameterError(
+                f"--map learns a new place database, and {db} exists (remove it, or give another --db)"
+            )
         ll, truth, dist, graph, classes, beta, metres, names, geo = _carmen_steps(
-            data, db, map_log=map_log, observe=observe, scale=scale
+            data, db, map_log=map_log, observe=observe, scale=scale, pending=pending
         )
         if metres_per_move is not None:
             metres = metres_per_move
@@ -114,7 +122,7 @@ def track_cmd(
         if map_log:
             raise InvalidParameterError("--map needs a CARMEN log (learn JSON Lines places with 'fingerloc learn')")
         ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
-            data, db, scale=scale, graph_from=graph_from
+            data, db, scale=scale, graph_from=graph_from, pending=pending
         )
         if metres_per_move is not None:
             metres = metres_per_move
@@ -129,6 +137,8 @@ def track_cmd(
         res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
     else:
         res = run_filter(beta * ll, transition, distances=dist)
+    for write in pending:
+        write()
     single = np.where(np.isnan(ll), 0.0, ll)
     steps: list[dict[str, Any]] = []
     for t in range(ll.shape[0]):
@@ -212,7 +222,9 @@ def _pose_filter_run(
     return run_pose_filter(ll, inc, f, temper=temper, place_filter=MarkovFilter(transition))
 
 
-def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
+def _jsonl_steps(
+    data: Path, db: Path, *, scale: float | None, graph_from: Path | None, pending: list[Any]
+) -> tuple[Any, ...]:
     from ..experiments.markov import step_distances
     from ..io.jsonl import read_observations
     from ..map.database import load_model, save_model
@@ -222,6 +234,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
     metres = None
+    g: PlaceGraph | None = None
     geo: dict[str, Any] = {"why": "the pose filter needs the places' positions: give --graph-from with poses"}
     if graph_from is not None:
         train = read_observations(graph_from)
@@ -232,8 +245,12 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                 f"{graph_from}:{bad + 1}: place {seq[bad]!r} is not in {db} (every line needs a learned 'place')"
             )
         g = PlaceGraph.from_sequence(classes, [str(lab) for lab in seq])
-        save_model(model, db, graph_edges=g.edges())
-        err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
+
+        def store() -> None:
+            save_model(model, db, graph_edges=g.edges())
+            err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
+
+        pending.append(store)
         if len(train) > 1 and all(o.pose is not None for o in train):
             col = {c: j for j, c in enumerate(classes)}
             tp = np.array([o.pose for o in train if o.pose is not None], dtype=np.float64)
@@ -245,7 +262,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                        "fov": 2 * math.pi * float(np.median([o.fov_coverage() for o in train]))}  # fmt: skip
             else:
                 geo = {"why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"}
-    graph = load_graph(db, classes)
+    graph = load_graph(db, classes) if g is None else g
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
@@ -262,11 +279,13 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     return ll, truth, dist, graph, classes, 1.0 if scale is None else scale, metres, names, geo
 
 
-def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None) -> tuple[Any, ...]:
+def _carmen_steps(
+    data: Path, db: Path, *, map_log: bool, observe: str, scale: float | None, pending: list[Any]
+) -> tuple[Any, ...]:
     from ..experiments.carmen import PLACE_RADIUS_M, load_log_scans, make_method, make_split
     from ..experiments.markov import FilteredMethod, field_of_view, mapping_graph, step_distances
     from ..map.database import load_model, save_model
-    from ..map.graph import load_graph
+    from ..map.graph import PlaceGraph, load_graph
 
     scans, _ = load_log_scans(data)
     pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
@@ -279,8 +298,13 @@ def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: f
         with err_console.status(f"{data.name}: learning {split.n_places} places from the mapping pass..."):
             fm.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
         model = fm.base_.model_  # type: ignore[attr-defined]
-        size = save_model(model, db, graph_edges=fm.graph_.edges())
-        err_console.print(f"{db}: {len(model.classes_)} places and the place graph, {size} bytes", markup=False)
+        mapped = fm.graph_
+
+        def store() -> None:
+            size = save_model(model, db, graph_edges=mapped.edges())
+            err_console.print(f"{db}: {len(model.classes_)} places and the place graph, {size} bytes", markup=False)
+
+        pending.append(store)
         beta = fm.scale_ if scale is None else scale
         base = fm.base_
         metres = fm.transition_.metres_per_move
@@ -291,7 +315,7 @@ def _carmen_steps(data: Path, db: Path, *, map_log: bool, observe: str, scale: f
         beta = 1.0 if scale is None else scale
         metres = mapping_graph(pos, split)[1]
     classes = [str(c) for c in model.classes_]
-    graph = load_graph(db, classes)
+    graph = PlaceGraph(classes, fm.graph_.edges()) if map_log else load_graph(db, classes)
     observed = (
         np.ones(len(qscans), dtype=bool)
         if observe == "all"

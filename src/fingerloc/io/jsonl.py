@@ -53,6 +53,10 @@ def _parse_int(text: str) -> int:
     return int(text)
 
 
+#: Largest |x| or |y| of a pose, metres (beyond it, distances overflow; no map is that large).
+MAX_COORD_M = 1e9
+
+
 class _LimitError(ValueError):
     """A record exceeds a parsing limit (raised inside ``json.loads``)."""
 
@@ -160,6 +164,8 @@ def observation_from_record(record: Any) -> Observation:
         if not isinstance(pose, list) or len(pose) != 3:
             raise DataFormatError(f'"pose" must be [x, y, theta_deg], got {pose!r}')
         pose = [_number(v, "pose value") for v in pose]
+        if max(abs(pose[0]), abs(pose[1])) > MAX_COORD_M:
+            raise DataFormatError(f'"pose" x and y must be within +-{MAX_COORD_M:g} metres, got {record["pose"]!r}')
     fov = record.get("fov")
     if fov is not None:
         if not isinstance(fov, list) or not fov:
