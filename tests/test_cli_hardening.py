@@ -159,3 +159,77 @@ def test_json_through_symlink_keeps_the_link(tmp_path):
     link.symlink_to(real)
     write_json(link, {"a": 2})
     assert link.is_symlink() and json.loads(real.read_text()) == {"a": 2}
+
+
+def _png_header(path, w, h):
+    """A PNG that declares ``w`` x ``h`` pixels in a few bytes (the pixel data is not needed to refuse it)."""
+    import struct
+    import zlib
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 8)) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("side", [20000, 13000])
+def test_image_pixel_limit(tmp_path, capsys, side):
+    png = _png_header(tmp_path / "big.png", side, side)
+    code, _, err = run(capsys, "features", png)
+    assert code == 2 and "--max-pixels" in _one_error_line(err) and f"{side}x{side}" in err
+
+
+def test_image_pixel_limit_can_be_raised(tmp_path):
+    from fingerloc.errors import DataFormatError
+    from fingerloc.io.images import open_image
+
+    png = tmp_path / "small.png"
+    from PIL import Image
+
+    Image.new("RGB", (40, 30), (10, 200, 30)).save(png)
+    with pytest.raises(DataFormatError, match="1,200 pixels"):
+        open_image(png, max_pixels=1000)
+    assert open_image(png, max_pixels=1200).shape == (30, 40, 3)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "needle"),
+    [
+        ("r.log", bytes(range(256)) * 20, "binary data"),
+        ("r.log.gz", bytes(range(256)) * 20, "not gzip"),
+        ("e.log", b"", "empty file"),
+        ("n.log", b"ODOM 1 2 3 0 0 0 1 host 1\n# a comment\n", "no laser scan"),
+    ],
+)
+def test_features_on_a_non_sensor_file(tmp_path, capsys, name, content, needle):
+    f = tmp_path / name
+    f.write_bytes(content)
+    code, _, err = run(capsys, "features", f)
+    assert code == 2 and needle in _one_error_line(err) and name in err
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("features", "x.png", "--kind", "omni", "--center", "1", "1", "--radii", "10", "inf"),
+        ("fingerprint", "x.jsonl", "--empty-step-deg", "1e-9"),
+        ("track", "x.jsonl", "--db", "p.sqlite", "--filter", "pose", "--seed", "-1"),
+        ("learn", "x.jsonl", "--db", "p.sqlite", "-k", "0"),
+    ],
+)
+def test_option_ranges(capsys, args):
+    code, _, err = run(capsys, *args)
+    flag = next(a for a in args if a.startswith("-") and a not in ("--db", "--kind", "--center", "--filter"))
+    assert code == 2 and flag in _one_error_line(err)
+
+
+def test_fingerprint_bound_in_the_library():
+    from fingerloc.fingerprint import make_fingerprint
+    from fingerloc.observation import Observation
+
+    obs = Observation.from_degrees({"VE": [10.0]})
+    with pytest.raises(InvalidParameterError, match="empty_step_deg"):
+        make_fingerprint(obs, empty_step_deg=1e-9)
+    assert make_fingerprint(obs, empty_step_deg=0.1).letters.count("n") == 3600  # 360 deg / 0.1 deg

@@ -200,3 +200,17 @@ def test_crafted_databases_are_refused(tmp_path, capsys, learned, case):
     code, _, err = run(capsys, "localize", data, "--db", db)
     if case != "graph count as text":
         assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
+
+
+def test_track_carmen_log_against_a_json_lines_database(tmp_path, capsys, learned):
+    from tests.test_bench_carmen import _write_log
+    from tests.test_markov import _path
+
+    _, db = learned
+    log = _write_log(tmp_path / "rooms.log", _path())
+    before = db.read_bytes()
+    code, _, err = run(capsys, "track", log, "--db", db)
+    assert code == 2 and "not the log's places" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "track", log, "--db", db, "--map")
+    assert code == 2 and "exists" in err
+    assert db.read_bytes() == before

@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     errors, and command-line arguments that are not valid UTF-8.
     """
     from typer import _click
+    from typer import exceptions as _typer_exceptions
 
     args = sys.argv[1:] if argv is None else list(argv)
     for a in args:
@@ -57,6 +58,6 @@ def main(argv: list[str] | None = None) -> None:
         _fail(f"{msg} (see '{cmd} --help')")
     except _click.exceptions.ClickException as err:
         _fail(err.format_message())
-    except _click.exceptions.Abort:
+    except _typer_exceptions.Abort:
         _fail("aborted")
     raise SystemExit(rc if isinstance(rc, int) else 0)

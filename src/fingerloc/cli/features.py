@@ -56,6 +56,8 @@ class FeatureOptions:
     beacon_threshold : float or None
         Laser logs: absolute intensity threshold of a beacon, overriding the
         detector's per-scan adaptive threshold.
+    max_pixels : int or None
+        Images: largest width x height read (``None``: the default bound).
     """
 
     place: str | None = None
@@ -69,32 +71,26 @@ class FeatureOptions:
     topic: str | None = None
     skip_bad: bool = False
     beacon_threshold: float | None = None
+    max_pixels: int | None = None
 
 
 Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
 
 
-def load_image(path: Path) -> np.ndarray:
+def load_image(path: Path, *, max_pixels: int | None = None) -> np.ndarray:
     """Read an image file (JPEG, PNG, ... via Pillow) as an (h, w, 3) ``uint8`` RGB array.
+
+    At most ``max_pixels`` pixels (default :data:`fingerloc.io.images.DEFAULT_MAX_PIXELS`),
+    checked before decoding.
 
     Raises
     ------
     DataFormatError
-        Naming the path, when the file is missing or not an image.
+        Naming the path, when the file is missing, not an image, or too large.
     """
-    from PIL import Image, UnidentifiedImageError
+    from ..io.images import DEFAULT_MAX_PIXELS, open_image
 
-    try:
-        with Image.open(path) as im:
-            im.load()
-            rgb = im.convert("RGB")
-    except FileNotFoundError as err:
-        raise DataFormatError("no such file", path=path) from err
-    except UnidentifiedImageError as err:
-        raise DataFormatError("not an image file Pillow can read (JPEG, PNG, ...)", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
-        raise DataFormatError(f"cannot read image: {err}", path=path) from err
-    return np.asarray(rgb, dtype=np.uint8)
+    return open_image(path, max_pixels=DEFAULT_MAX_PIXELS if max_pixels is None else max_pixels)
 
 
 def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
@@ -109,7 +105,7 @@ def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
 
 def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
     """A :class:`Panorama` from an equirectangular image file (see :class:`FeatureOptions`)."""
-    img = load_image(path)
+    img = load_image(path, max_pixels=opts.max_pixels)
     h, w = img.shape[:2]
     if w < 64 or h < 8:
         raise DataFormatError(f"image too small for a 360 deg panorama: {w}x{h} pixels", path=path)
@@ -136,7 +132,7 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
 
     if opts.center is None or opts.radii is None:
         raise InvalidParameterError("--kind omni needs --center X Y and --radii R_IN R_OUT (pixels)")
-    img = load_image(path)
+    img = load_image(path, max_pixels=opts.max_pixels)
     width = int(np.clip(round(np.pi * sum(opts.radii) / 360.0) * 360, 360, max(360, opts.max_width)))
     pano = unwarp_omni(
         img,
@@ -234,6 +230,9 @@ def features_cmd(
         help="Laser logs: absolute intensity threshold of a beacon (default: adaptive, per scan).",
         show_default=False,
     ),
+    max_pixels: int = typer.Option(
+        64_000_000, "--max-pixels", min=1, help="Images: refuse an image of more pixels (width x height) than this."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the observations as JSON Lines to this file."),
 ) -> None:
     """Extract vertical edges and colour patches (and laser features) from sensor files; print their bearings."""
@@ -244,6 +243,13 @@ def features_cmd(
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
         raise InvalidParameterError(f"--band must satisfy 0 <= LO < HI <= 1, got {band[0]} {band[1]}")
+    for flag, pair in (("--center", center), ("--radii", radii), ("--band", band)):
+        if pair is not None and not all(np.isfinite(pair)):
+            raise InvalidParameterError(f"{flag} must be finite numbers, got {pair[0]} {pair[1]}")
+    if place is not None:
+        from ..io.jsonl import check_text
+
+        check_text(place, "--place")
     if radii is not None and not (0.0 <= radii[0] < radii[1]):
         raise InvalidParameterError(f"--radii must satisfy 0 <= R_IN < R_OUT, got {radii[0]} {radii[1]}")
     opts = FeatureOptions(
@@ -257,6 +263,7 @@ def features_cmd(
         topic=topic,
         skip_bad=skip_bad,
         beacon_threshold=beacon_threshold,
+        max_pixels=max_pixels,
     )
     from .logs import LASER_KINDS, detect_kind, format_scan_line
 

@@ -53,11 +53,12 @@ def iter_carmen_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple
     ``opts.beacon_threshold`` overrides the beacon detector's adaptive threshold.
     """
     from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser
+    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser, require_laser
 
     skip_bad = bool(getattr(opts, "skip_bad", False))
     params = _feature_params(opts)
     info = inspect_log(path)
+    require_laser(path, info)
     st = ReadStats()
     for rec, scan in iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st):
         yield f"{path.name}:{rec.line} {rec.message}", observation_from_scan(scan, label=opts.place, **params)

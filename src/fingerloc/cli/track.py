@@ -315,6 +315,8 @@ def _carmen_steps(
         beta = 1.0 if scale is None else scale
         metres = mapping_graph(pos, split)[1]
     classes = [str(c) for c in model.classes_]
+    if sorted(int(c) if c.isascii() and c.isdigit() else -1 for c in classes) != list(range(len(classes))):
+        raise InvalidParameterError(f"{db}: its places are not the log's places (learn them with --map)")
     graph = PlaceGraph(classes, fm.graph_.edges()) if map_log else load_graph(db, classes)
     observed = (
         np.ones(len(qscans), dtype=bool)

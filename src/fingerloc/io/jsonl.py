@@ -34,6 +34,7 @@ from ..errors import DataFormatError, EmptyInputError, FingerlocError
 from ..observation import FEATURE_TYPES, Observation
 
 __all__ = [
+    "check_text",
     "iter_observations",
     "observation_from_record",
     "observation_to_record",
@@ -84,7 +85,7 @@ def parse_record(line: str) -> Any:
         raise DataFormatError("record nested too deeply (arrays or objects inside each other)") from err
 
 
-def _check_text(value: str, what: str) -> str:
+def check_text(value: str, what: str) -> str:
     """A string of a record must be valid Unicode text: lone surrogates (``"\\ud800"``) are refused."""
     try:
         value.encode("utf-8")
@@ -158,7 +159,7 @@ def observation_from_record(record: Any) -> Observation:
     if place is not None and not isinstance(place, str):
         raise DataFormatError(f'"place" must be a string or null, got {place!r}')
     if place is not None:
-        _check_text(place, '"place"')
+        check_text(place, '"place"')
     pose = record.get("pose")
     if pose is not None:
         if not isinstance(pose, list) or len(pose) != 3:
