@@ -58,6 +58,9 @@ class FeatureOptions:
         detector's per-scan adaptive threshold.
     max_pixels : int or None
         Images: largest width x height read (``None``: the default bound).
+    beacon_params : tuple of (name, value)
+        Laser logs: other beacon detector parameters of
+        :class:`~fingerloc.features.laser.LaserParams` (``beacon_ratio``, ...).
     """
 
     place: str | None = None
@@ -72,6 +75,7 @@ class FeatureOptions:
     skip_bad: bool = False
     beacon_threshold: float | None = None
     max_pixels: int | None = None
+    beacon_params: tuple[tuple[str, float], ...] = ()
 
 
 Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
@@ -230,6 +234,21 @@ def features_cmd(
         help="Laser logs: absolute intensity threshold of a beacon (default: adaptive, per scan).",
         show_default=False,
     ),
+    beacon_ratio: float | None = typer.Option(
+        None, "--beacon-ratio", min=1.0, max=1e6, help="Laser logs: a beacon is this many times its surroundings [2]."
+    ),
+    beacon_global_ratio: float | None = typer.Option(
+        None, "--beacon-global-ratio", min=1.0, max=1e6, help="Laser logs: ...and this many times the scan's median [2.5]."
+    ),
+    beacon_window_m: float | None = typer.Option(
+        None, "--beacon-window-m", min=0.01, max=10.0, help="Laser logs: half width of the surroundings, metres [0.4]."
+    ),
+    beacon_max_width: float | None = typer.Option(
+        None, "--beacon-max-width", min=0.01, max=10.0, help="Laser logs: widest beacon, metres [0.5]."
+    ),
+    beacon_min_width: float | None = typer.Option(
+        None, "--beacon-min-width", min=0.001, max=10.0, help="Laser logs: narrowest beacon, metres [0.04]."
+    ),
     max_pixels: int = typer.Option(
         64_000_000, "--max-pixels", min=1, help="Images: refuse an image of more pixels (width x height) than this."
     ),
@@ -264,6 +283,17 @@ def features_cmd(
         skip_bad=skip_bad,
         beacon_threshold=beacon_threshold,
         max_pixels=max_pixels,
+        beacon_params=tuple(
+            (name, float(v))
+            for name, v in (
+                ("beacon_ratio", beacon_ratio),
+                ("beacon_global_ratio", beacon_global_ratio),
+                ("beacon_window_m", beacon_window_m),
+                ("beacon_max_width", beacon_max_width),
+                ("beacon_min_width", beacon_min_width),
+            )
+            if v is not None
+        ),
     )
     from .logs import LASER_KINDS, detect_kind, format_scan_line
 

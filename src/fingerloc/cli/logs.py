@@ -42,7 +42,10 @@ def detect_kind(path: Path) -> str | None:
 
 def _feature_params(opts: FeatureOptions) -> dict[str, Any]:
     thr = getattr(opts, "beacon_threshold", None)
-    return {} if thr is None else {"beacon_threshold": float(thr)}
+    out: dict[str, Any] = dict(getattr(opts, "beacon_params", ()))
+    if thr is not None:
+        out["beacon_threshold"] = float(thr)
+    return out
 
 
 def iter_carmen_observations(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
