@@ -231,6 +231,8 @@ def features_cmd(
     beacon_threshold: float | None = typer.Option(
         None,
         "--beacon-threshold",
+        min=0.0,
+        max=1e15,
         help="Laser logs: absolute intensity threshold of a beacon (default: adaptive, per scan).",
         show_default=False,
     ),

@@ -669,9 +669,9 @@ def require_laser(path: str | Path, info: LogInfo) -> None:
     if not head:
         raise DataFormatError("empty file: no laser scan", path=p)
     if head[:2] == b"\x1f\x8b":
-        with gzip.open(p, "rb") as gz:
+        with gzip.open(p, "rb") as zfh:
             try:
-                head = gz.read(4096)
+                head = zfh.read(4096)
             except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
                 raise DataFormatError(f"corrupt gzip file ({err})", path=p) from None
     try:
