@@ -123,6 +123,7 @@ def learn_cmd(
         "random_state": seed,
     }
     given = {k: v for k, v in given.items() if v is not None}
+    check_output(db, "--db")
     obs = read_observations(data)
     missing = [i + 1 for i, o in enumerate(obs) if not o.label]
     if missing:

@@ -113,6 +113,8 @@ def track_cmd(
             raise InvalidParameterError(
                 f"--map learns a new place database, and {db} exists (remove it, or give another --db)"
             )
+        if map_log:
+            check_output(db, "--db")
         ll, truth, dist, graph, classes, beta, metres, names, geo = _carmen_steps(
             data, db, map_log=map_log, observe=observe, scale=scale, pending=pending
         )
