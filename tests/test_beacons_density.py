@@ -71,3 +71,15 @@ def test_bench_beacons_command(tmp_path, capsys):
     assert js["beams"] == 1081 and js["scans"] == 10 and "found in" in text
     code, _, err = run(capsys, "bench", "beacons", "--param", "window=3")
     assert code == 2 and "--param" in err
+
+
+def test_beacon_options_reach_the_detector(capsys):
+    from fingerloc.cli.features import FeatureOptions
+    from fingerloc.cli.logs import _feature_params
+
+    opts = FeatureOptions(beacon_threshold=900.0, beacon_params=(("beacon_ratio", 3.0), ("beacon_window_m", 0.2)))
+    assert _feature_params(opts) == {"beacon_threshold": 900.0, "beacon_ratio": 3.0, "beacon_window_m": 0.2}
+    code, _, err = run(capsys, "features", "x.log", "--beacon-ratio", "0.5")
+    assert code == 2 and "--beacon-ratio" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "features", "x.log", "--beacon-threshold", "inf")
+    assert code == 2 and "--beacon-threshold" in err

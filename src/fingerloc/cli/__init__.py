@@ -35,8 +35,17 @@ def main(argv: list[str] | None = None) -> None:
     stderr and exit code 2: fingerloc's own errors, the option parser's usage
     errors, and command-line arguments that are not valid UTF-8.
     """
-    from typer import _click
-    from typer import exceptions as _typer_exceptions
+    try:  # typer >= 0.23 vendors click as typer._click
+        from typer import _click
+    except ImportError:  # pragma: no cover - older typer on click
+        import click as _click  # type: ignore[no-redef]
+    aborts: tuple[type[BaseException], ...] = (_click.exceptions.Abort,) if hasattr(_click.exceptions, "Abort") else ()
+    try:
+        from typer import exceptions as _typer_exceptions
+
+        aborts += (_typer_exceptions.Abort,)
+    except (ImportError, AttributeError):  # pragma: no cover - older typer
+        pass
 
     args = sys.argv[1:] if argv is None else list(argv)
     for a in args:
@@ -58,6 +67,6 @@ def main(argv: list[str] | None = None) -> None:
         _fail(f"{msg} (see '{cmd} --help')")
     except _click.exceptions.ClickException as err:
         _fail(err.format_message())
-    except _typer_exceptions.Abort:
+    except aborts:
         _fail("aborted")
     raise SystemExit(rc if isinstance(rc, int) else 0)
