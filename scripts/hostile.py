@@ -38,6 +38,16 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
+#: Address-space bound of each command (bytes): an unbounded allocation fails instead of swapping the machine.
+MEMORY_LIMIT = int(os.environ.get("HOSTILE_MEMORY_LIMIT", 6 * 2**30))
+
+
+def _limit_memory() -> None:
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+
+
 @dataclass
 class Result:
     code: int
@@ -52,11 +62,13 @@ class Battery:
         self.verbose = verbose
         self.results: list[tuple[str, bool, str]] = []
 
-    def run(self, *args: object, timeout: float = 300.0, env: dict[str, str] | None = None) -> Result:
+    def run(self, *args: object, timeout: float = 180.0, env: dict[str, str] | None = None) -> Result:
         e = {**os.environ, "PYTHONPATH": str(self.src), **(env or {})}
         cmd = [sys.executable, "-c", "from fingerloc.cli import main; main()", *map(str, args)]
         try:
-            p = subprocess.run(cmd, capture_output=True, timeout=timeout, cwd=self.work, env=e)
+            p = subprocess.run(
+                cmd, capture_output=True, timeout=timeout, cwd=self.work, env=e, preexec_fn=_limit_memory
+            )
         except subprocess.TimeoutExpired:
             return Result(-9, "", "timeout")
         return Result(p.returncode, p.stdout.decode("utf-8", "replace"), p.stderr.decode("utf-8", "replace"))
@@ -306,6 +318,46 @@ def battery(b: Battery, w: Path) -> None:
     else:
         lines = r.err.strip().splitlines()
         b.record("bench carmen on a one-scan log: strict JSON", r.code == 2 and len(lines) == 1, r.err[-200:])
+
+    # -- more files and options that are wrong
+    (w / "bin.jsonl").write_bytes(os.urandom(2000))
+    (w / "zero.sqlite").write_bytes(b"")
+    (w / "text.sqlite").write_text("not a database\n")
+    (w / "text.png").write_text("not an image\n")
+    (w / "trunc.sqlite").write_bytes(db.read_bytes()[:3000])
+    for name, args in {
+        "fingerprint on a directory": ("fingerprint", w / "adir"),
+        "fingerprint on a missing file": ("fingerprint", w / "missing.jsonl"),
+        "fingerprint on binary data": ("fingerprint", w / "bin.jsonl"),
+        "learn on an empty file": ("learn", w / "e.log", "--db", w / "e.sqlite"),
+        "localize with a zero-byte database": ("localize", train, "--db", w / "zero.sqlite"),
+        "localize with a text file as database": ("localize", train, "--db", w / "text.sqlite"),
+        "localize with a truncated database": ("localize", train, "--db", w / "trunc.sqlite"),
+        "localize with JSON Lines as database": ("localize", train, "--db", train),
+        "localize --top 0": ("localize", train, "--db", db, "--top", "0"),
+        "learn --terms XX": ("learn", train, "--db", w / "t.sqlite", "--terms", "XX"),
+        "learn --weights VE=-1": ("learn", train, "--db", w / "t.sqlite", "--weights", "VE=-1"),
+        "learn --unknown-prior 2": ("learn", train, "--db", w / "t.sqlite", "--unknown-prior", "2"),
+        "learn a different -k into an existing database": ("learn", train, "--db", db, "-k", "2"),
+        "track --scale inf": ("track", train, "--db", db, "--scale", "inf"),
+        "track --odometry-error nan": ("track", train, "--db", db, "--odometry-error", "nan"),
+        "track --observe sometimes": ("track", train, "--db", db, "--observe", "sometimes"),
+        "track on a bag name": ("track", w / "x.bag", "--db", db),
+        "bench carmen without a log": ("bench", "carmen"),
+        "bench carmen on a missing log": ("bench", "carmen", w / "missing.log"),
+        "bench kidnap --filter wheels": ("bench", "kidnap", log, "--filter", "wheels"),
+        "reproduce robot --trials 0": ("reproduce", "robot", "--trials", "0"),
+        "features --kind nope": ("features", log, "--kind", "nope"),
+        "features --band 0.8 0.2": ("features", w / "b13.png", "--band", "0.8", "0.2"),
+        "features --max-pixels 0": ("features", w / "b13.png", "--max-pixels", "0"),
+        "features on a missing image": ("features", w / "missing.png"),
+        "features on a text file named .png": ("features", w / "text.png"),
+        "demo --workers 0": ("demo", "--quick", "--workers", "0"),
+        "fingerprint --merge-tol-deg -1": ("fingerprint", train, "--merge-tol-deg", "-1"),
+    }.items():
+        b.expect_error(name, *args, db=db)
+    b.expect_ok("fingerprint --json of a labelled file", "fingerprint", train, "--json",
+                check=lambda r: "" if all(json.loads(x)["place"] for x in r.out.splitlines()) else "bad JSON")  # fmt: skip
 
     # -- database mechanics
     real = w / "store" / "real.sqlite"
