@@ -49,7 +49,7 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         save_model(PlaceModel(3).fit(obs, labels), path)
     assert path.read_bytes() == good
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.sqlite"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.sqlite", "p.sqlite.lock"]  # the writers' lock stays
     load_model(path)
 
 
@@ -112,7 +112,7 @@ def test_cli_learn_localize_places(tmp_path):
     assert edges[("a", "a")] == 5 and edges[("a", "b")] == 1 and edges[("b", "c")] == 1
     # extending with a different option is an error
     r = _cli("learn", str(train), "--db", str(db), "-k", "4")
-    assert r.returncode == 2 and "n_components=3" in r.stderr
+    assert r.returncode == 2 and "--components 3" in r.stderr  # the flag, not the parameter
 
 
 def test_cli_bad_database_exit_2(tmp_path):

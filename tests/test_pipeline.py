@@ -144,7 +144,7 @@ def test_map_refuses_to_replace_and_checks_first(rooms, tmp_path, capsys):
     code, _, err = run_cli(capsys, "map", rooms, "--db", db)
     assert code == 2 and "--overwrite" in err and db.read_bytes() == b"precious"
     code, _, err = run_cli(capsys, "map", rooms, "--db", tmp_path / "new.sqlite", "--json", tmp_path / "no" / "x.jsonl")
-    assert code == 2 and "--json: directory" in err and not (tmp_path / "new.sqlite").exists()
+    assert code == 2 and "--json: " in err and "does not exist" in err and not (tmp_path / "new.sqlite").exists()
     code, _, err = run_cli(capsys, "map", rooms, "--db", db, "--mapping-part", "0", "--overwrite")
     assert code == 2 and "--mapping-part must be a fraction in (0, 1], got 0.0" in err
     assert db.read_bytes() == b"precious"

@@ -252,6 +252,10 @@ def _degrees(rad: NDArray[np.float64]) -> list[float]:
     return [float(x) for x in wrap_deg360(np.rad2deg(rad))] if rad.size else []
 
 
+#: Smallest ``empty_step_deg``: bounds a fingerprint to 3,600 ``n`` letters (memory and alignment time).
+MIN_EMPTY_STEP_DEG = 0.1
+
+
 def make_fingerprint(
     obs: Observation,
     *,
@@ -289,8 +293,11 @@ def make_fingerprint(
     -------
     Fingerprint
     """
-    if not (math.isfinite(empty_step_deg) and empty_step_deg > 0):
-        raise InvalidParameterError(f"empty_step_deg must be a positive number of degrees, got {empty_step_deg!r}")
+    if not (math.isfinite(empty_step_deg) and empty_step_deg >= MIN_EMPTY_STEP_DEG):
+        raise InvalidParameterError(
+            f"empty_step_deg must be a number of degrees >= {MIN_EMPTY_STEP_DEG:g} "
+            f"(at most {round(360 / MIN_EMPTY_STEP_DEG)} 'n' letters), got {empty_step_deg!r}"
+        )
     if not (math.isfinite(merge_tol_deg) and merge_tol_deg >= 0):
         raise InvalidParameterError(f"merge_tol_deg must be >= 0 degrees, got {merge_tol_deg!r}")
 

@@ -25,9 +25,9 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(reproduce_app, name="reproduce")
 
 #: Normal output.
-console = Console(highlight=False)
+console = Console(highlight=False, markup=False, emoji=False)
 #: Progress bars and notes, on stderr so stdout stays clean for pipes.
-err_console = Console(stderr=True, highlight=False, soft_wrap=True)
+err_console = Console(stderr=True, highlight=False, markup=False, emoji=False, soft_wrap=True)
 
 
 @contextmanager

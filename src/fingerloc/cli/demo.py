@@ -14,6 +14,7 @@ from pathlib import Path
 import typer
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+from ._io import check_output
 from .app import app, console, err_console
 
 
@@ -48,6 +49,7 @@ def demo_cmd(
     )
     from ..experiments.robot import small_protocol as small
 
+    check_output(out, "--out", directory=True)
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
     if quick:
@@ -81,7 +83,7 @@ def demo_cmd(
     from .robot import print_robot_tables
 
     console.print(
-        f"[bold]fingerloc demo[/bold]: {protocol.n_offices} simulated offices alike "
+        f"fingerloc demo: {protocol.n_offices} simulated offices alike "
         f"(world {world}, similarity {protocol.office_similarity:g}), "
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )

@@ -17,6 +17,7 @@ from ..errors import InvalidParameterError
 from ..fingerprint import hue_letter
 from ..observation import Observation
 from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind, load_image, panorama_from_file
+from ._io import check_output
 from .app import app, bench_app, console, err_console
 from .options import BASE_FRAME_HELP, POSE_SOURCE_HELP, TOPIC_HELP, bag_options
 
@@ -84,14 +85,42 @@ def features_cmd(
     beacon_threshold: float | None = typer.Option(
         None,
         "--beacon-threshold",
+        min=0.0,
+        max=1e15,
         help="Laser logs: absolute intensity threshold of a beacon (default: adaptive, per scan).",
         show_default=False,
+    ),
+    beacon_ratio: float | None = typer.Option(
+        None, "--beacon-ratio", min=1.0, max=1e6, help="Laser logs: a beacon is this many times its surroundings [2]."
+    ),
+    beacon_global_ratio: float | None = typer.Option(
+        None, "--beacon-global-ratio", min=1.0, max=1e6, help="Laser logs: ...and this many times the scan's median [2.5]."
+    ),
+    beacon_window_m: float | None = typer.Option(
+        None, "--beacon-window-m", min=0.01, max=10.0, help="Laser logs: half width of the surroundings, metres [0.4]."
+    ),
+    beacon_max_width: float | None = typer.Option(
+        None, "--beacon-max-width", min=0.01, max=10.0, help="Laser logs: widest beacon, metres [0.5]."
+    ),
+    beacon_min_width: float | None = typer.Option(
+        None, "--beacon-min-width", min=0.001, max=10.0, help="Laser logs: narrowest beacon, metres [0.04]."
+    ),
+    max_pixels: int = typer.Option(
+        64_000_000, "--max-pixels", min=1, help="Images: refuse an image of more pixels (width x height) than this."
     ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the observations as JSON Lines to this file."),
 ) -> None:
     """Extract vertical edges and colour patches (and laser features) from sensor files; print their bearings."""
     from ..io.jsonl import write_observations
 
+    check_output(json_out, "--json")
+    for flag, pair in (("--center", center), ("--radii", radii), ("--band", band)):
+        if pair is not None and not all(np.isfinite(pair)):
+            raise InvalidParameterError(f"{flag} must be finite numbers, got {pair[0]} {pair[1]}")
+    if place is not None:
+        from ..io.jsonl import check_text
+
+        check_text(place, "--place")
     if kind != "auto" and kind not in KINDS:
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
@@ -113,6 +142,18 @@ def features_cmd(
         pose_source=bag["pose_source"],
         skip_bad=skip_bad,
         beacon_threshold=beacon_threshold,
+        max_pixels=max_pixels,
+        beacon_params=tuple(
+            (name, float(v))
+            for name, v in (
+                ("beacon_ratio", beacon_ratio),
+                ("beacon_global_ratio", beacon_global_ratio),
+                ("beacon_window_m", beacon_window_m),
+                ("beacon_max_width", beacon_max_width),
+                ("beacon_min_width", beacon_min_width),
+            )
+            if v is not None
+        ),
     )
     from .logs import format_scan_line
 

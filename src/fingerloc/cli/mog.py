@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 from rich.table import Table
 
+from ._io import check_output
 from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
@@ -18,7 +19,7 @@ N_EDGES = 6
 
 @reproduce_app.command("table1")
 def table1_cmd(
-    trials: int = typer.Option(20, "--trials", min=1, help="Independent trials to average (new places each)."),
+    trials: int = typer.Option(20, "--trials", min=1, max=100_000, help="Independent trials to average (new places each)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the places, noise and EM seeding."),
     json_out: Path | None = typer.Option(None, "--json", help="Write k, N, accuracy, stderr and paper as JSON."),
     place_spread_deg: float = typer.Option(
@@ -53,6 +54,8 @@ def table1_cmd(
     from ..parallel import check_cluster_options
 
     check_cluster_options(workers, scheduler)
+    check_output(json_out, "--json")
+
     spread, edges = place_spread_deg, n_edges
     with trial_progress("Table I", trials) as on_trial:
         res = run_table1(

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ._io import check_output
 from .app import err_console
 
 __all__ = [
@@ -60,17 +61,6 @@ def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[st
     if run.skipped:
         err_console.print(f"skipped {run.skipped} malformed line(s) / message(s)", markup=False)
     return run
-
-
-def check_output(path: Path | None, flag: str) -> None:
-    """An output file's folder must exist and the path must not be a folder (checked before any write)."""
-    if path is None:
-        return
-    if path.is_dir():
-        raise InvalidParameterError(f"{flag}: {path} is a directory")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise InvalidParameterError(f"{flag}: directory {parent} does not exist")
 
 
 def check_db_target(db: Path, overwrite: bool) -> None:

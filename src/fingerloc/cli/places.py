@@ -28,6 +28,27 @@ from .options import (
     stored_options,
 )
 
+#: PlaceModel parameter -> the ``learn`` option that sets it (messages name the option).
+_FLAGS = {
+    "n_components": "--components",
+    "terms": "--terms",
+    "fp_likelihood": "--fp-likelihood",
+    "fp_reference": "--fp-reference",
+    "cyclic": "--cyclic",
+    "laser_letters": "--laser-letters",
+    "costs": "--costs",
+    "unknown_prior": "--unknown-prior",
+    "weights": "--weights",
+    "random_state": "--seed",
+}
+
+
+def _with_flags(message: str) -> str:
+    """``message`` with PlaceModel's parameter names replaced by the options a user typed."""
+    import re
+
+    return re.sub(r"\b(" + "|".join(_FLAGS) + r")\b", lambda m: _FLAGS[m.group(1)], message)
+
 
 @app.command("learn")
 def learn_cmd(
@@ -39,7 +60,7 @@ def learn_cmd(
         help="paper | laser2d | panorama | multimodal | auto [auto for a new database: picked from the data; "
         "the database's own when it exists]. Explicit options below override it.",
     ),
-    components: int | None = typer.Option(None, "-k", "--components", help="Mixture components per place and feature type [5]."),
+    components: int | None = typer.Option(None, "-k", "--components", min=1, max=1000, help="Mixture components per place and feature type [5]."),
     terms: str | None = typer.Option(
         None, help="Terms, comma-separated among VE,CP,Ex,B,Fp and R (range term, our extension) [the preset's]."
     ),
@@ -55,7 +76,7 @@ def learn_cmd(
         None,
         help="Per-term weights: 'fit' (learned from held-out training views) or TERM=W,... e.g. VE=0.5,Fp=2 [all 1].",
     ),
-    seed: int | None = typer.Option(None, help="Seed of the mixtures' initialisation [0]."),
+    seed: int | None = typer.Option(None, min=0, help="Seed of the mixtures' initialisation [0]."),
     calibrate: bool = typer.Option(
         True,
         "--calibrate/--no-calibration",
@@ -74,7 +95,7 @@ def learn_cmd(
     'fingerloc track'). Options then default to the database's own, and an
     option that differs from them is an error.
     """
-    from ..map.database import MapInfo, observation_hash, read_graph_edges, read_map_info, save_model
+    from ..map.database import MapInfo, locked, observation_hash, read_graph_edges, read_map_info, save_model
     from ..map.graph import PlaceGraph
     from ..pipeline.mapping import load_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms, resolve_preset
@@ -90,70 +111,76 @@ def learn_cmd(
     missing = [i + 1 for i, o in enumerate(obs) if not o.label]
     if missing:
         raise InvalidParameterError(f"{data}: observation {missing[0]} has no 'place' label; learn needs labels")
-    t0 = time.perf_counter()
-    edges: dict[tuple[str, str], int] = {}
-    hashes = [observation_hash(o) for o in obs]
-    if db.exists():
-        lm = load_map(db)
-        model = lm.model
-        edges = read_graph_edges(db)
-        stored = stored_options(model)
-        stored_preset = lm.preset
-        if preset is not None and stored_preset is not None and preset not in ("auto", stored_preset.name):
-            raise InvalidParameterError(f"{db} was learned with preset {stored_preset.name!r}; got --preset {preset} (use a new --db)")
-        if preset is not None and stored_preset is None and preset != "auto":
-            resolved = resolve_preset(preset, obs)
-            for k, v in resolved.options.items():
-                if k in stored and k not in given and stored[k] != v:
-                    raise InvalidParameterError(f"{db} was learned with {k}={stored[k]!r}, not preset {preset} (use a new --db)")
-        for k, v in given.items():
-            sv = stored[k]
-            if sv != v:
-                raise InvalidParameterError(f"{db} was learned with {k}={sv!r}; got {v!r} (use a new --db)")
-        known = set(lm.content_hashes)
-        fresh = []
-        for i, h in enumerate(hashes):
-            if h not in known:
-                fresh.append(i)
-                known.add(h)
-        dup = len(obs) - len(fresh)
-        new_obs = [obs[i] for i in fresh]
-        before = set(model.places_)
-        if new_obs:
-            model.add_places(new_obs)
-        verb = (
-            f"added {len(set(model.places_) - before)} place(s), "
-            f"extended {len(before & {o.label for o in new_obs})}"
-        )
-        if dup:
-            verb += f", skipped {dup} observation(s) already stored"
-        old = read_map_info(db)
-        info = MapInfo(
-            preset=old.preset,
-            positions=old.positions,
-            calibration=old.calibration,
-            content_hashes=set(lm.content_hashes) | {hashes[i] for i in fresh},
-            runs=old.runs,
-        )
-    else:
-        resolved = resolve_preset("auto" if preset is None else preset, obs, given)
-        err_console.print(resolved.reason, markup=False)
-        empty = empty_terms(resolved.options, obs)
-        if empty:
-            err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
-                              "places apart (see --preset / --terms)", markup=False)  # fmt: skip
-        model = resolved.model().fit(obs)
-        verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
-        cal = None
-        if calibrate and len(model.places_) > 1:
-            cal = calibrate_labelled(resolved.options, obs).to_json()
-            verb += f" (likelihood scale beta {cal['beta']:.3g} from {cal['calibration_rows']} held-out views)"
-        info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes), calibration=cal)
-    # The place graph: transitions between consecutive observations of the file, added to the stored ones.
-    graph = PlaceGraph([str(c) for c in model.classes_], edges)
-    for a, b in itertools.pairwise(obs):
-        graph.add_transition(str(a.label), str(b.label))
-    size = save_model(model, db, graph_edges=graph.edges(), info=info)
+    # read-modify-write under the database's writer lock: a concurrent learn waits, nothing is lost
+    with locked(db):
+        t0 = time.perf_counter()
+        edges: dict[tuple[str, str], int] = {}
+        hashes = [observation_hash(o) for o in obs]
+        if db.exists():
+            lm = load_map(db)
+            model = lm.model
+            edges = read_graph_edges(db)
+            stored = stored_options(model)
+            stored_preset = lm.preset
+            if preset is not None and stored_preset is not None and preset not in ("auto", stored_preset.name):
+                raise InvalidParameterError(f"{db} was learned with preset {stored_preset.name!r}; got --preset {preset} (use a new --db)")
+            if preset is not None and stored_preset is None and preset != "auto":
+                resolved = resolve_preset(preset, obs)
+                for k, v in resolved.options.items():
+                    if k in stored and k not in given and stored[k] != v:
+                        raise InvalidParameterError(f"{db} was learned with {k}={stored[k]!r}, not preset {preset} (use a new --db)")
+            for k, v in given.items():
+                sv = stored[k]
+                if sv != v:
+                    flag = _FLAGS.get(k, k)
+                    raise InvalidParameterError(f"{db} was learned with {flag} {sv!r}; got {v!r} (use a new --db)")
+            known = set(lm.content_hashes)
+            fresh = []
+            for i, h in enumerate(hashes):
+                if h not in known:
+                    fresh.append(i)
+                    known.add(h)
+            dup = len(obs) - len(fresh)
+            new_obs = [obs[i] for i in fresh]
+            before = set(model.places_)
+            if new_obs:
+                model.add_places(new_obs)
+            verb = (
+                f"added {len(set(model.places_) - before)} place(s), "
+                f"extended {len(before & {o.label for o in new_obs})}"
+            )
+            if dup:
+                verb += f", skipped {dup} observation(s) already stored"
+            old = read_map_info(db)
+            info = MapInfo(
+                preset=old.preset,
+                positions=old.positions,
+                calibration=old.calibration,
+                content_hashes=set(lm.content_hashes) | {hashes[i] for i in fresh},
+                runs=old.runs,
+            )
+        else:
+            resolved = resolve_preset("auto" if preset is None else preset, obs, given)
+            err_console.print(resolved.reason, markup=False)
+            empty = empty_terms(resolved.options, obs)
+            if empty:
+                err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
+                                  "places apart (see --preset / --terms)", markup=False)  # fmt: skip
+            try:
+                model = resolved.model().fit(obs)
+            except InvalidParameterError as err:
+                raise InvalidParameterError(_with_flags(str(err))) from err
+            verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
+            cal = None
+            if calibrate and len(model.places_) > 1:
+                cal = calibrate_labelled(resolved.options, obs).to_json()
+                verb += f" (likelihood scale beta {cal['beta']:.3g} from {cal['calibration_rows']} held-out views)"
+            info = MapInfo(preset=resolved.to_json(), content_hashes=set(hashes), calibration=cal)
+        # The place graph: transitions between consecutive observations of the file, added to the stored ones.
+        graph = PlaceGraph([str(c) for c in model.classes_], edges)
+        for a, b in itertools.pairwise(obs):
+            graph.add_transition(str(a.label), str(b.label))
+        size = save_model(model, db, graph_edges=graph.edges(), info=info)
     err_console.print(
         f"{verb} from {len(obs)} observation(s) in {time.perf_counter() - t0:.2f} s; "
         f"{db}: {len(model.places_)} place(s), {size} bytes"

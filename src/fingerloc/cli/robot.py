@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ._io import check_output
 from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
@@ -151,13 +152,12 @@ def print_verdict(res: RobotResult, out: Console) -> None:
             )
         )
     for what, ok, detail in checks:
-        mark = "[green]yes[/green]" if ok else "[red]no[/red]"
-        out.print(f"{what}: {mark} ({detail})")
+        out.print(f"{what}: {'yes' if ok else 'no'} ({detail})")
 
 
 @reproduce_app.command("robot")
 def robot_cmd(
-    trials: int = typer.Option(10, "--trials", min=1, help="Independent trials to average (new offices each)."),
+    trials: int = typer.Option(10, "--trials", min=1, max=10_000, help="Independent trials to average (new offices each)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the offices, poses, sensor noise and EM."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the tables (top1 in [0, 1]) as JSON."),
     similarity: float | None = typer.Option(
@@ -182,6 +182,7 @@ def robot_cmd(
     from ..errors import InvalidParameterError
     from ..experiments.robot import WORLD_PROFILES, RobotProtocol, run_robot, small_protocol
 
+    check_output(json_out, "--json")
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
     if quick:

@@ -10,6 +10,7 @@ import numpy as np
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import check_output
 from .app import app, bench_app, console, err_console
 from .bench import write_json
 from .options import (
@@ -19,7 +20,6 @@ from .options import (
     TOPIC_HELP,
     bag_options,
     check_db_target,
-    check_output,
     read_run_files,
 )
 
@@ -83,7 +83,7 @@ def track_cmd(
     radius: float | None = typer.Option(
         None, help="Pose filter, JSON Lines with --graph-from: metres within which a pose is at a place [half the median spacing]."
     ),
-    seed: int = typer.Option(0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
+    seed: int = typer.Option(0, min=0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
@@ -138,12 +138,16 @@ def track_cmd(
         check_db_target(db, overwrite)
     elif overwrite:
         raise InvalidParameterError("--overwrite goes with --map")
+    if db.is_dir():
+        raise InvalidParameterError(f"--db: {db} is a directory, not a place database")
     names: list[str]
+    # writes to --db wait until every check and the filter have passed: a failed command changes nothing
+    pending: list[Any] = []
     if raw_kind != "jsonl" or (graph_from is None and _has_map(db)):
         ll, truth, poses, classes, tracker, names, factor = _run_steps(
             data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe,
             scale=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix,
-            odometry_error=odometry_error, filter_kind=filter_kind,
+            odometry_error=odometry_error, filter_kind=filter_kind, pending=pending,
         )  # fmt: skip
         res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed)
         beta = tracker.calibration.beta
@@ -152,7 +156,7 @@ def track_cmd(
         odometry_error = factor
     else:
         ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
-            data, db, scale=scale, graph_from=graph_from
+            data, db, scale=scale, graph_from=graph_from, pending=pending
         )
         if metres_per_move is not None:
             metres = metres_per_move
@@ -168,6 +172,8 @@ def track_cmd(
             res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
         else:
             res = run_filter(beta * ll, transition, distances=dist)
+    for write in pending:
+        write()
     single = np.where(np.isnan(ll), 0.0, ll)
     steps: list[dict[str, Any]] = []
     for t in range(ll.shape[0]):
@@ -254,7 +260,9 @@ def _pose_filter_run(
     return run_pose_filter(ll, inc, f, temper=temper, place_filter=MarkovFilter(transition))
 
 
-def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path | None) -> tuple[Any, ...]:
+def _jsonl_steps(
+    data: Path, db: Path, *, scale: float | None, graph_from: Path | None, pending: list[Any]
+) -> tuple[Any, ...]:
     from ..io.jsonl import read_observations
     from ..map.database import load_model, read_map_info, save_model
     from ..map.filter import metres_per_move
@@ -264,6 +272,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
     metres = None
+    g: PlaceGraph | None = None
     geo: dict[str, Any] = {"why": "the pose filter needs the places' positions: give --graph-from with poses"}
     if graph_from is not None:
         train = read_observations(graph_from)
@@ -274,8 +283,12 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                 f"{graph_from}:{bad + 1}: place {seq[bad]!r} is not in {db} (every line needs a learned 'place')"
             )
         g = PlaceGraph.from_sequence(classes, [str(lab) for lab in seq])
-        save_model(model, db, graph_edges=g.edges(), info=read_map_info(db))  # keep the preset, hashes...
-        err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
+
+        def store() -> None:
+            save_model(model, db, graph_edges=g.edges(), info=read_map_info(db))  # keep the preset, hashes...
+            err_console.print(f"{db}: stored the place graph of {graph_from} ({len(g.edges())} edges)", markup=False)
+
+        pending.append(store)
         if len(train) > 1 and all(o.pose is not None for o in train):
             col = {c: j for j, c in enumerate(classes)}
             tp = np.array([o.pose for o in train if o.pose is not None], dtype=np.float64)
@@ -287,7 +300,7 @@ def _jsonl_steps(data: Path, db: Path, *, scale: float | None, graph_from: Path 
                        "fov": 2 * math.pi * float(np.median([o.fov_coverage() for o in train]))}  # fmt: skip
             else:
                 geo = {"why": f"{graph_from}: not every place of {db} has a view there, so not every place has a position"}
-    graph = load_graph(db, classes)
+    graph = load_graph(db, classes) if g is None else g
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
@@ -331,8 +344,13 @@ def _run_steps(
     uniform_mix: float | None,
     odometry_error: float | None,
     filter_kind: str,
+    pending: list[Any],
 ) -> tuple[Any, ...]:
-    """A run tracked with a map's stored places, positions and calibration (the library's tracker)."""
+    """A run tracked with a map's stored places, positions and calibration (the library's tracker).
+
+    With ``map_log``, the map is made from the run and its database write is
+    appended to ``pending`` (done once the filter has run), not written here.
+    """
     import dataclasses
 
     from ..pipeline.mapping import load_map, make_map, save_map
@@ -344,10 +362,16 @@ def _run_steps(
         with err_console.status("mapping...") as status:
             pm = make_map(run, on_step=lambda s: status.update(s))
         err_console.print(pm.preset.reason, markup=False)
-        size = save_map(pm, db)
-        err_console.print(f"{db}: {pm.split.n_places} places, the place graph and the calibration, {size} bytes",
-                          markup=False)  # fmt: skip
-    lm = load_map(db)
+
+        def store() -> None:
+            size = save_map(pm, db)
+            err_console.print(f"{db}: {pm.split.n_places} places, the place graph and the calibration, {size} bytes",
+                              markup=False)  # fmt: skip
+
+        pending.append(store)
+        lm = pm.loaded()
+    else:
+        lm = load_map(db)
     if lm.positions is None or lm.calibration is None:
         raise InvalidParameterError(
             f"{db}: no place positions or calibration stored; make the database with 'fingerloc map' (or track "
@@ -427,6 +451,7 @@ def kidnap_cmd(
     """
     from ..experiments.markov import run_kidnap
 
+    check_output(json_out, "--json")
     if filter_kind not in ("places", "pose"):
         raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
     with err_console.status("kidnapping...") as status:

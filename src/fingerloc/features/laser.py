@@ -28,7 +28,11 @@ The pipeline, after Arras and Siegwart (the paper's reference [1]):
 5. **Beacons** from the intensity (remission) channel: narrow runs of beams
    brighter by a factor than their neighbours (the local median, which
    follows the smooth fall of intensity with range and incidence) and than
-   the scan's median. Only ratios are used, so sensors with intensity scales
+   the scan's median. The neighbourhood is measured in metres at each
+   beam's range (and at least a few degrees), not in beams, so a reflector
+   of up to 15 cm stays narrower than its background window at any beam
+   density and range: a 9 cm cylinder at 1 m covers 20 beams of a 0.25 deg
+   scanner and 5 of a 1 deg one. Only ratios are used, so sensors with intensity scales
    from hundreds to tens of thousands give the same beacons;
    ``beacon_threshold`` overrides this with an absolute value in the sensor's
    unit. No intensities, no beacons.
@@ -126,11 +130,26 @@ class LaserParams:
         ``None``: adapt to the scan (see ``beacon_ratio``, ``beacon_global_ratio``).
     beacon_ratio : float, default 2
         Adaptive threshold: a bright beam is at least this factor above the
-        median intensity of the ``beacon_window`` beams on each side...
-    beacon_global_ratio : float, default 1.5
-        ...and at least this factor above the scan's median intensity.
-    beacon_window : int, default 12
-        Half width, in beams, of the local background window.
+        median intensity of the beams around it (``beacon_window_m``)...
+    beacon_global_ratio : float, default 2.5
+        ...and at least this factor above the scan's median intensity
+        (retro-reflectors return 3 to 10 times a wall; a glossy surface at
+        twice the median is not a beacon).
+    beacon_window_m : float, default 0.4
+        Half width of the local background window, metres at the beam's
+        range (so wider in bearing for near beams): at least twice the
+        widest reflector (15 cm), so that the window's median is background.
+    beacon_window_deg : float, default 3
+        ...and at least this many degrees, and at least three beams, on each
+        side (far beams); at most 60 degrees.
+    beacon_gap_deg : float, default 1
+        Bright beams at most this far apart (degrees; at least two beam
+        steps) join one beacon: dim or missing beams inside a reflector.
+    beacon_min_width : float, default 0.04
+        A beacon has at least as many bright beams as this width (metres)
+        spans at its range, and at least one: on a dense scanner a lone
+        bright beam, or a few on a glossy surface, is noise, not a reflector
+        (retro-reflective targets are 4 to 15 cm wide).
     beacon_max_width : float, default 0.5
         A bright run wider than this (metres) is a reflective surface, not a
         beacon.
@@ -157,8 +176,11 @@ class LaserParams:
     extremity_max_tail: float = 0.3
     beacon_threshold: float | None = None
     beacon_ratio: float = 2.0
-    beacon_global_ratio: float = 1.5
-    beacon_window: int = 12
+    beacon_global_ratio: float = 2.5
+    beacon_window_m: float = 0.4
+    beacon_window_deg: float = 3.0
+    beacon_gap_deg: float = 1.0
+    beacon_min_width: float = 0.04
     beacon_max_width: float = 0.5
     beacon_max_fraction: float = 0.2
 
@@ -174,6 +196,10 @@ class LaserParams:
             "bridge_max_gap",
             "beacon_max_width",
             "beacon_max_fraction",
+            "beacon_window_m",
+            "beacon_window_deg",
+            "beacon_gap_deg",
+            "beacon_min_width",
         )
         for name in positive:
             v = getattr(self, name)
@@ -198,7 +224,6 @@ class LaserParams:
             ("min_line_points", 2),
             ("min_segment_points", 1),
             ("bridge_min_points", 1),
-            ("beacon_window", 2),
         ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
@@ -622,6 +647,40 @@ def _bridge(a: _Line, b: _Line, prep: _Prepared, p: LaserParams) -> list[FArray]
     return [np.array(a.p1), np.array(b.p0)]
 
 
+#: Widest background window of the beacon detector, degrees on each side.
+_BEACON_WINDOW_MAX_DEG = 60.0
+
+
+def _local_background(values: FArray, prep: _Prepared, p: LaserParams) -> FArray:
+    """Running median of ``values`` over a window of ``beacon_window_m`` metres at each beam's range.
+
+    The half width in beams, ``max(3, atan(window_m / r) / step, window_deg / step)``,
+    is rounded up to a geometric ladder of sizes (ratio 1.25), and one median
+    filter runs per size used: a few filters over the scan, whatever its length.
+    """
+    n = values.size
+    step = abs(prep.step) if prep.step else np.pi / 180
+    r = prep.r
+    finite = np.isfinite(r) & (r > 0)
+    r_use = np.where(finite, r, np.median(r[finite]) if np.any(finite) else 1.0)
+    half = np.maximum(np.arctan(p.beacon_window_m / r_use), np.deg2rad(p.beacon_window_deg))
+    half = np.minimum(half, np.deg2rad(_BEACON_WINDOW_MAX_DEG))
+    beams = np.maximum(3, np.ceil(half / step)).astype(np.int64)
+    beams = np.minimum(beams, max(3, (n - 1) // 2))
+    ladder = np.unique(np.ceil(3 * 1.25 ** np.arange(0, 64)).astype(np.int64))
+    ladder = ladder[ladder <= max(3, (n - 1) // 2)]
+    if ladder.size == 0 or ladder[-1] < beams.max():
+        ladder = np.r_[ladder, beams.max()]
+    size_idx = np.searchsorted(ladder, beams)
+    mode = "wrap" if prep.circular else "nearest"
+    out = np.empty_like(values)
+    for j in np.unique(size_idx):
+        w = int(ladder[j])
+        sel = size_idx == j
+        out[sel] = ndimage.median_filter(values, size=2 * w + 1, mode=mode)[sel]
+    return out
+
+
 def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
     if scan.intensities is None:
         return np.empty(0)
@@ -629,6 +688,7 @@ def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
     valid = np.isfinite(prep.r) & np.isfinite(inten)
     if not np.any(valid):
         return np.empty(0)
+    contrast: FArray | None = None
     if p.beacon_threshold is not None:
         bright = valid & (inten > p.beacon_threshold)
     else:
@@ -641,25 +701,37 @@ def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
         # local background: median log intensity of the beams around (beams without a return
         # count as the scan's median); smooth trends with range and incidence cancel out
         filled = np.where(pos, li, med)
-        mode = "wrap" if prep.circular else "nearest"
-        local = ndimage.median_filter(filled, size=2 * p.beacon_window + 1, mode=mode)
-        bright = pos & (filled - local > np.log(p.beacon_ratio)) & (filled - med > np.log(p.beacon_global_ratio))
+        local = _local_background(filled, prep, p)
+        contrast = np.minimum(filled - local - np.log(p.beacon_ratio), filled - med - np.log(p.beacon_global_ratio))
+        contrast[~pos] = np.nan
+        bright = pos & (contrast > 0)
         if np.count_nonzero(bright) > p.beacon_max_fraction * np.count_nonzero(valid):
             return np.empty(0)
     idx = np.flatnonzero(bright)
     if idx.size == 0:
         return np.empty(0)
-    # group consecutive bright beams (allowing one dim beam inside a run)
+    # group bright beams closer than beacon_gap_deg (dim or missing beams inside a reflector)
+    max_step = max(2, int(np.ceil(np.deg2rad(p.beacon_gap_deg) / abs(prep.step) - 1e-9)))
     groups: list[list[int]] = [[int(idx[0])]]
     for k in idx[1:]:
-        if k - groups[-1][-1] <= 2:
+        if k - groups[-1][-1] <= max_step:
             groups[-1].append(int(k))
         else:
             groups.append([int(k)])
-    if prep.circular and len(groups) > 1 and groups[0][0] + prep.r.size - groups[-1][-1] <= 2:
+    if prep.circular and len(groups) > 1 and groups[0][0] + prep.r.size - groups[-1][-1] <= max_step:
         groups[0] = groups.pop() + groups[0]
     out = []
+    n = prep.r.size
     for g in groups:
+        if contrast is not None:
+            # the run as a whole, dim beams inside included, must stand out (not only its noisiest beams)
+            span = np.arange(g[0], g[-1] + (n if g[-1] < g[0] else 0) + 1) % n
+            c_span = contrast[span]
+            if not float(np.nanmedian(c_span)) > 0:
+                continue
+            r_g = float(np.median(prep.r[g]))
+            if len(g) < max(1, int(p.beacon_min_width / (r_g * abs(prep.step)))):
+                continue
         pts = prep.pts[g]
         width = float(np.linalg.norm(pts[-1] - pts[0]))
         if width > p.beacon_max_width:

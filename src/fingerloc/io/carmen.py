@@ -76,6 +76,7 @@ __all__ = [
     "iter_scans",
     "parse_line",
     "read_scans",
+    "require_laser",
 ]
 
 #: Laser message types this reader turns into scans.
@@ -646,6 +647,42 @@ def iter_scans(
     """
     for _, scan in iter_laser(path, skip_bad=skip_bad, messages=messages, max_range=max_range, stats=stats):
         yield scan
+
+
+def require_laser(path: str | Path, info: LogInfo) -> None:
+    """Raise unless the log holds a laser line; the message says what the file is instead.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the path: an empty file, binary data (not a text log, or a
+        ``.gz`` that is not gzip), or a text log without any laser message.
+    """
+    if any(info.counts.get(m, 0) for m in LASER_MESSAGES):
+        return
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
+    if not head:
+        raise DataFormatError("empty file: no laser scan", path=p)
+    if head[:2] == b"\x1f\x8b":
+        with gzip.open(p, "rb") as zfh:
+            try:
+                head = zfh.read(4096)
+            except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
+                raise DataFormatError(f"corrupt gzip file ({err})", path=p) from None
+    try:
+        head.decode("utf-8")
+        binary = b"\x00" in head
+    except UnicodeDecodeError as err:
+        binary = err.start < len(head) - 4  # not only a character cut at the end of the block
+    if binary:
+        gz = " (and not gzip)" if p.name.lower().endswith(".gz") and head[:2] != b"\x1f\x8b" else ""
+        raise DataFormatError(f"not a CARMEN log: binary data, not text{gz}", path=p)
+    raise DataFormatError(f"no laser scan: not one {', '.join(LASER_MESSAGES)} line in this log", path=p)
 
 
 def default_messages(info: LogInfo) -> tuple[str, ...]:

@@ -38,12 +38,64 @@ from ..errors import DataFormatError, EmptyInputError, FingerlocError
 from ..observation import FEATURE_TYPES, Observation
 
 __all__ = [
+    "check_text",
     "iter_observations",
     "observation_from_record",
     "observation_to_record",
+    "parse_record",
     "read_observations",
     "write_observations",
 ]
+
+
+#: Most digits of an integer in a record (a longer one is refused before Python converts it).
+MAX_INT_DIGITS = 40
+
+
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise _LimitError(f"integer of {len(text.lstrip('-'))} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
+
+
+#: Largest |x| or |y| of a pose, metres (beyond it, distances overflow; no map is that large).
+MAX_COORD_M = 1e9
+
+
+class _LimitError(ValueError):
+    """A record exceeds a parsing limit (raised inside ``json.loads``)."""
+
+
+def parse_record(line: str) -> Any:
+    """Decode one JSON Lines record with fingerloc's limits.
+
+    Integers of more than :data:`MAX_INT_DIGITS` digits are refused (they
+    would overflow a float or cost quadratic time), and so is nesting deeper
+    than the interpreter's recursion limit. ``NaN`` and ``Infinity`` decode
+    (as Python's json does) and are refused by the field checks.
+
+    Raises
+    ------
+    DataFormatError
+        Without a location (callers add it).
+    """
+    try:
+        return json.loads(line, parse_int=_parse_int)
+    except json.JSONDecodeError as err:
+        raise DataFormatError(f"malformed JSON ({err.msg} at column {err.colno})") from err
+    except _LimitError as err:
+        raise DataFormatError(str(err)) from err
+    except RecursionError as err:
+        raise DataFormatError("record nested too deeply (arrays or objects inside each other)") from err
+
+
+def check_text(value: str, what: str) -> str:
+    """A string of a record must be valid Unicode text: lone surrogates (``"\\ud800"``) are refused."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as err:
+        raise DataFormatError(f"{what} holds an unpaired surrogate ({value!r}); use valid Unicode text") from err
+    return value
 
 
 def _number(value: Any, what: str) -> float:
@@ -110,11 +162,15 @@ def observation_from_record(record: Any) -> Observation:
     place = record.get("place")
     if place is not None and not isinstance(place, str):
         raise DataFormatError(f'"place" must be a string or null, got {place!r}')
+    if place is not None:
+        check_text(place, '"place"')
     pose = record.get("pose")
     if pose is not None:
         if not isinstance(pose, list) or len(pose) != 3:
             raise DataFormatError(f'"pose" must be [x, y, theta_deg], got {pose!r}')
         pose = [_number(v, "pose value") for v in pose]
+        if max(abs(pose[0]), abs(pose[1])) > MAX_COORD_M:
+            raise DataFormatError(f'"pose" x and y must be within +-{MAX_COORD_M:g} metres, got {record["pose"]!r}')
     fov = record.get("fov")
     if fov is not None:
         if not isinstance(fov, list) or not fov:
@@ -233,12 +289,7 @@ def iter_observations(path: str | Path) -> Iterator[Observation]:
                 if not line.strip():
                     continue
                 try:
-                    record = json.loads(line)
-                except json.JSONDecodeError as err:
-                    raise DataFormatError(
-                        f"malformed JSON ({err.msg} at column {err.colno})", path=p, line=lineno
-                    ) from err
-                try:
+                    record = parse_record(line)
                     obs = observation_from_record(record)
                 except DataFormatError as err:
                     raise err.at(path=p, line=lineno) from err
@@ -265,12 +316,21 @@ def write_observations(path: str | Path, observations: Iterable[Observation]) ->
     """
     p = Path(path)
     n = 0
+    if p.is_symlink():  # write through the link: it stays a link
+        p = Path(os.path.realpath(p))
+    if p.is_file():
+        mode = p.stat().st_mode & 0o7777
+    else:
+        mask = os.umask(0o022)
+        os.umask(mask)
+        mode = 0o666 & ~mask
     fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             for obs in observations:
-                fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": ")) + "\n")
+                fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
                 n += 1
+        os.chmod(tmp, mode)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -28,15 +28,29 @@ whose content hash is stored again does not duplicate it.
 Arrays are little-endian float64 blobs (radians). A save writes a complete new
 file next to the target in one transaction, syncs it, and renames it over the
 target: a crash mid-write leaves the old file as it was.
+
+Writers are serialised by an exclusive lock (``flock``) on ``<db>.lock`` next
+to the database: :func:`locked` holds it around a read-modify-write (``learn``
+into an existing database), and :func:`save_model` takes it too, so two
+writers at once never lose each other's places. Under the lock, temporary
+files ``<db>.*.tmp`` that a killed writer left are removed. A symbolic link
+at the target is written through (the link stays, its target is replaced);
+a new file's mode follows the umask, a replaced file keeps its mode.
+Reading opens the file read-only; a hot rollback journal left by a foreign
+SQLite writer is handed to SQLite to roll back (under the lock) first.
+Every value read is checked: a crafted but valid SQLite file gives a
+:class:`~fingerloc.errors.DatabaseError`, never a wrong model or a traceback.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import sqlite3
 import tempfile
+import threading
 from collections.abc import Iterator, Mapping
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, field
@@ -47,7 +61,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import DatabaseError, DataFormatError, FingerlocError
-from ..io.jsonl import observation_from_record, observation_to_record
+from ..io.jsonl import observation_from_record, observation_to_record, parse_record
 from ..model import PlaceModel
 
 __all__ = [
@@ -55,6 +69,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "MapInfo",
     "load_model",
+    "locked",
     "observation_hash",
     "read_graph_edges",
     "read_map_info",
@@ -114,15 +129,14 @@ class MapInfo:
 
 
 def observation_hash(obs: Any) -> str:
-    """A content hash of an observation, its place label left out (SHA-256 hex).
+    """A content hash of an observation with its place label (SHA-256 hex).
 
     The hash of the observation's JSON Lines record (bearings in degrees
-    rounded to 9 digits, keys sorted) without ``place``: two observations
-    with the same features, field of view, pose, timestamp and scan hash
-    alike, whatever place they are labelled with.
+    rounded to 9 digits, keys sorted): two observations with the same place,
+    features, field of view, pose, timestamp, scan and appearance hash alike.
+    The same measurement under another label is another claim, not a copy.
     """
     rec = observation_to_record(obs, ndigits=9)
-    rec.pop("place", None)
     text = json.dumps(rec, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -172,14 +186,95 @@ def read_map_info(path: str | Path) -> MapInfo:
     return info
 
 
+_held: dict[str, int] = {}
+_held_guard = threading.RLock()
+
+
+def _real(path: str | Path) -> Path:
+    """The file a database path names: symbolic links followed (the file need not exist)."""
+    return Path(os.path.realpath(path))
+
+
+@contextmanager
+def locked(path: str | Path) -> Iterator[None]:
+    """Hold the exclusive writer lock of a place database (``<db>.lock``), re-entrantly.
+
+    Wrap a read-modify-write (load, change, :func:`save_model`) in it so that
+    no other process writes the database in between; other processes wait.
+
+    Raises
+    ------
+    DatabaseError
+        When the lock file cannot be created (a missing or read-only directory).
+    """
+    real = _real(path)
+    key = str(real)
+    with _held_guard:
+        if _held.get(key):
+            _held[key] += 1
+            reentrant = True
+        else:
+            reentrant = False
+    if reentrant:
+        try:
+            yield
+        finally:
+            with _held_guard:
+                _held[key] -= 1
+        return
+    directory = real.parent
+    if not directory.is_dir():
+        raise DatabaseError(f"{path}: directory {directory} does not exist")
+    lock_path = real.with_name(real.name + ".lock")
+    try:
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as err:
+        raise DatabaseError(f"{path}: cannot create the lock file {lock_path} ({err.strerror or err})") from err
+    try:
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX: no inter-process lock
+            fcntl = None  # type: ignore[assignment]
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        with _held_guard:
+            _held[key] = 1
+        try:
+            yield
+        finally:
+            with _held_guard:
+                _held.pop(key, None)
+    finally:
+        os.close(fd)  # closing releases the flock
+
+
+def _remove_stale(real: Path) -> None:
+    """Remove temporary files of dead writers (call under :func:`locked`: no live writer has any)."""
+    for tmp in real.parent.glob(f"{real.name}.*.tmp"):
+        for f in (tmp, Path(str(tmp) + "-journal")):
+            try:
+                f.unlink(missing_ok=True)
+            except OSError:
+                pass
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _blob(a: np.ndarray) -> bytes:
     return np.ascontiguousarray(a, dtype="<f8").tobytes()
 
 
-def _array(b: bytes) -> np.ndarray:
-    if len(b) % 8:
-        raise DatabaseError("corrupt array blob in the place database")
-    return np.frombuffer(b, dtype="<f8").astype(np.float64)
+def _array(b: Any) -> np.ndarray:
+    if not isinstance(b, bytes) or len(b) % 8:
+        raise DatabaseError(f"corrupt array in the place database (expected a float64 blob, got {type(b).__name__})")
+    a = np.frombuffer(b, dtype="<f8").astype(np.float64)
+    if not np.all(np.isfinite(a)):
+        raise DatabaseError("corrupt array in the place database (a value is not finite)")
+    return a
 
 
 def _costs_to_json(costs: Any) -> Any:
@@ -243,15 +338,36 @@ def save_model(
     params["terms"] = list(params["terms"])
     if params["weights"] is not None and not isinstance(params["weights"], str):
         params["weights"] = dict(params["weights"])
+    if target.is_dir():
+        raise DatabaseError(f"{target} is a directory, not a place database")
+    real = _real(target)
+    directory = real.parent
+    if not directory.is_dir():
+        raise DatabaseError(f"{target}: directory {directory} does not exist")
+    with locked(target):
+        _remove_stale(real)
+        return _save_locked(real, params, state, graph_edges, info)
+
+
+def _save_locked(
+    target: Path,
+    params: dict[str, Any],
+    state: dict[str, Any],
+    graph_edges: Mapping[tuple[str, str], int] | None,
+    info: MapInfo | None,
+) -> int:
+    """Write the tables of the module docstring to a new file beside ``target``, then rename it over ``target``."""
     labels = state["labels"]
     terms = state["terms"]
     fp = terms.get("Fp")
     lambdas = {n: t["lambda"] for n, t in terms.items() if "lambda" in t}
     unknown = {n: t["unknown_cost"] for n, t in terms.items() if t.get("unknown_cost") is not None}
-    directory = target.parent if str(target.parent) else Path(".")
-    if not directory.is_dir():
-        raise DatabaseError(f"{target}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=directory)
+    directory = target.parent
+    mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=directory)
+    except OSError as err:
+        raise DatabaseError(f"{target}: cannot write in {directory} ({err.strerror or err})") from err
     os.close(fd)
     try:
         with closing(sqlite3.connect(tmp)) as con:
@@ -300,6 +416,7 @@ def save_model(
                 _write_map_info(con, info)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -310,10 +427,14 @@ def save_model(
 @contextmanager
 def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
     p = Path(path)
+    if p.is_dir():
+        raise DatabaseError(f"{p} is a directory, not a place database")
     if not p.is_file():
         raise DatabaseError(f"{p}: no such place database")
+    if Path(str(_real(p)) + "-journal").exists():
+        _recover_hot_journal(p)
     try:
-        con = sqlite3.connect(f"file:{p}?mode=ro", uri=True)
+        con = sqlite3.connect(f"file:{_uri_path(p)}?mode=ro", uri=True)
     except sqlite3.Error as err:
         raise DatabaseError(f"{p}: cannot open as a place database ({err})") from err
     try:
@@ -339,61 +460,106 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
         con.close()
 
 
+def _uri_path(p: Path) -> str:
+    from urllib.parse import quote
+
+    return quote(str(p.absolute()))
+
+
+def _recover_hot_journal(p: Path) -> None:
+    """Let SQLite roll back a hot journal next to ``p`` (a write that died): open read-write once."""
+    with locked(p):
+        try:
+            with closing(sqlite3.connect(f"file:{_uri_path(p)}?mode=rw", uri=True)) as con:
+                con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        except sqlite3.Error as err:
+            raise DatabaseError(f"{p}: a rollback journal was left by a failed write and cannot be rolled back ({err})") from err
+
+
 def load_model(path: str | Path) -> PlaceModel:
     """Read a model from a place database without refitting anything.
 
     Raises
     ------
     DatabaseError
-        When the file is missing, not SQLite, truncated or corrupt, of another
-        format, or of an unsupported schema version, or when its rows do not
-        make a consistent model.
+        When the file is missing, a directory, not SQLite, truncated or
+        corrupt, of another format or an unsupported schema version, or when
+        a stored value is of the wrong type or out of range (a medoid beyond
+        the place's observations, a row naming a missing place, a place
+        without observations, an array that is not a float64 blob).
     """
     with _open(path) as con:
-        meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
         try:
-            params = json.loads(meta["params"])
-            if not isinstance(params, dict):
-                raise TypeError(f"params must be a JSON object, got {type(params).__name__}")
-            params["costs"] = _costs_from_json(params.get("costs"))
-            lambdas = {str(k): float(v) for k, v in json.loads(meta["lambdas"]).items()}
-            unknown = {str(k): float(v) for k, v in json.loads(meta["unknown_costs"]).items()}
-            weights = {str(k): float(v) for k, v in json.loads(meta.get("fitted_weights", "{}")).items()}
-            typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
-        except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
-            raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
-        labels: list[Any] = []
-        medoids: list[int] = []
-        consensus: list[Any] = []
-        index: dict[int, int] = {}
-        rows = con.execute("SELECT id, label, medoid, consensus_letters, consensus_bearings FROM places ORDER BY id")
-        for pid, label, medoid, cl, cb in rows:
-            index[pid] = len(labels)
-            labels.append(label)
-            medoids.append(medoid)
-            consensus.append(None if cl is None else (cl, _array(cb)))
-        observations: list[list[Any]] = [[] for _ in labels]
-        fingerprints: list[list[Any]] = [[] for _ in labels]
-        q = (
-            "SELECT o.place_id, o.record, f.letters, f.bearings FROM observations o "
-            "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
-        )
-        for pid, record, letters, bearings in con.execute(q):
-            if pid not in index:
-                raise DatabaseError(f"{path}: an observation row points at place id {pid!r}, which does not exist")
-            try:
-                obs = observation_from_record(json.loads(record))
-            except (ValueError, TypeError, DataFormatError) as err:
-                raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
-            observations[index[pid]].append(obs)
-            fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
-        mixtures: dict[str, list[Any]] = {}
-        for pid, term, w, m, s in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
-            if pid not in index:
-                raise DatabaseError(f"{path}: a mixture row points at place id {pid!r}, which does not exist")
-            mixtures.setdefault(str(term), [None] * len(labels))[index[pid]] = (_array(w), _array(m), _array(s))
+            return _load(con, path)
+        except DatabaseError:
+            raise
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError, FingerlocError) as err:
+            raise DatabaseError(f"{path}: invalid place database ({type(err).__name__}: {err})") from err
+
+
+def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
+    meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+    try:
+        params = json.loads(meta["params"])
+        if not isinstance(params, dict):
+            raise TypeError(f"params must be a JSON object, got {type(params).__name__}")
+        params["costs"] = _costs_from_json(params.get("costs"))
+        lambdas = _float_map(meta["lambdas"], "lambdas")
+        unknown = _float_map(meta["unknown_costs"], "unknown_costs")
+        weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
+        typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
+    except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
+        raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
+    labels: list[Any] = []
+    medoids: list[int] = []
+    consensus: list[Any] = []
+    index: dict[int, int] = {}
+    rows = con.execute("SELECT id, label, medoid, consensus_letters, consensus_bearings FROM places ORDER BY id")
+    for pid, label, medoid, cl, cb in rows:
+        if not isinstance(label, str) or not label:
+            raise DatabaseError(f"{path}: place {pid}: label must be non-empty text, got {label!r}")
+        if isinstance(medoid, bool) or not isinstance(medoid, int):
+            raise DatabaseError(f"{path}: place {label!r}: medoid must be an integer, got {medoid!r}")
+        if cl is not None and not isinstance(cl, str):
+            raise DatabaseError(f"{path}: place {label!r}: consensus letters must be text, got {cl!r}")
+        index[pid] = len(labels)
+        labels.append(label)
+        medoids.append(medoid)
+        consensus.append(None if cl is None else (cl, _array(cb)))
+    observations: list[list[Any]] = [[] for _ in labels]
+    fingerprints: list[list[Any]] = [[] for _ in labels]
+    q = (
+        "SELECT o.place_id, o.record, f.letters, f.bearings FROM observations o "
+        "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
+    )
+    for pid, record, letters, bearings in con.execute(q):
+        if pid not in index:
+            raise DatabaseError(f"{path}: an observation row names place id {pid!r}, which the database does not hold")
+        if not isinstance(record, str) or not (letters is None or isinstance(letters, str)):
+            raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: observation row with a malformed record or fingerprint")
+        try:
+            obs = observation_from_record(parse_record(record))
+        except (ValueError, DataFormatError) as err:
+            raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
+        observations[index[pid]].append(obs)
+        fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
+    mixtures: dict[str, list[Any]] = {}
+    for pid, term, w, m, sg in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
+        if pid not in index:
+            raise DatabaseError(f"{path}: a mixture row names place id {pid!r}, which the database does not hold")
+        arrays = (_array(w), _array(m), _array(sg))
+        if not isinstance(term, str) or len({a.size for a in arrays}) != 1 or np.any(arrays[2] <= 0):
+            raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: corrupt mixture of term {term!r}")
+        mixtures.setdefault(term, [None] * len(labels))[index[pid]] = arrays
     if not labels:
         raise DatabaseError(f"{path}: the place database holds no place")
+    for j, group in enumerate(observations):
+        if not group:
+            raise DatabaseError(f"{path}: place {labels[j]!r} has no observation")
+        if not 0 <= medoids[j] < len(group):
+            raise DatabaseError(
+                f"{path}: place {labels[j]!r}: medoid {medoids[j]} is not one of its {len(group)} observations"
+            )
     if typed_labels is not None:
         if not isinstance(typed_labels, list) or len(typed_labels) != len(labels):
             raise DatabaseError(f"{path}: the stored label types do not match the places")
@@ -413,11 +579,24 @@ def load_model(path: str | Path) -> PlaceModel:
         return PlaceModel.from_state(state)
     except DatabaseError as err:
         raise DatabaseError(f"{path}: {err}") from err
-    except (FingerlocError, TypeError, ValueError, IndexError, KeyError) as err:
-        raise DatabaseError(f"{path}: the place database does not hold a consistent model ({err})") from err
+
+
+def _float_map(text: Any, what: str) -> dict[str, float]:
+    data = json.loads(text)
+    if not isinstance(data, dict):
+        raise TypeError(f"{what} must be a JSON object, got {type(data).__name__}")
+    out = {str(k): float(v) for k, v in data.items()}
+    if not all(math.isfinite(v) or v == -math.inf for v in out.values()):
+        raise ValueError(f"{what}: a value is NaN or +inf")
+    return out
 
 
 def read_graph_edges(path: str | Path) -> dict[tuple[str, str], int]:
     """The place-graph transitions stored in a place database: ``{(src, dst): count}``."""
+    out: dict[tuple[str, str], int] = {}
     with _open(path) as con:
-        return {(s, d): int(c) for s, d, c in con.execute("SELECT src, dst, count FROM graph_edges")}
+        for s, d, c in con.execute("SELECT src, dst, count FROM graph_edges"):
+            if not isinstance(s, str) or not isinstance(d, str) or isinstance(c, bool) or not isinstance(c, int) or c < 0:
+                raise DatabaseError(f"{path}: invalid place-graph edge ({s!r}, {d!r}, count {c!r})")
+            out[(s, d)] = c
+    return out

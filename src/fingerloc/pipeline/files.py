@@ -63,6 +63,11 @@ class FeatureOptions:
         detector's per-scan adaptive threshold.
     notify : callable or None
         Laser logs: gets a note on skipped lines.
+    max_pixels : int or None
+        Images: largest width x height read (``None``: the default bound).
+    beacon_params : tuple of (name, value)
+        Laser logs: other beacon detector parameters of
+        :class:`~fingerloc.features.laser.LaserParams` (``beacon_ratio``, ...).
     """
 
     place: str | None = None
@@ -79,32 +84,27 @@ class FeatureOptions:
     skip_bad: bool = False
     beacon_threshold: float | None = None
     notify: Callable[[str], None] | None = None
+    max_pixels: int | None = None
+    beacon_params: tuple[tuple[str, float], ...] = ()
 
 
 Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
 
 
-def load_image(path: Path) -> np.ndarray:
+def load_image(path: Path, *, max_pixels: int | None = None) -> np.ndarray:
     """Read an image file (JPEG, PNG, ... via Pillow) as an (h, w, 3) ``uint8`` RGB array.
+
+    At most ``max_pixels`` pixels (default :data:`fingerloc.io.images.DEFAULT_MAX_PIXELS`),
+    checked before decoding.
 
     Raises
     ------
     DataFormatError
-        Naming the path, when the file is missing or not an image.
+        Naming the path, when the file is missing, not an image, or too large.
     """
-    from PIL import Image, UnidentifiedImageError
+    from ..io.images import DEFAULT_MAX_PIXELS, open_image
 
-    try:
-        with Image.open(path) as im:
-            im.load()
-            rgb = im.convert("RGB")
-    except FileNotFoundError as err:
-        raise DataFormatError("no such file", path=path) from err
-    except UnidentifiedImageError as err:
-        raise DataFormatError("not an image file Pillow can read (JPEG, PNG, ...)", path=path) from err
-    except (OSError, ValueError, SyntaxError) as err:
-        raise DataFormatError(f"cannot read image: {err}", path=path) from err
-    return np.asarray(rgb, dtype=np.uint8)
+    return open_image(path, max_pixels=DEFAULT_MAX_PIXELS if max_pixels is None else max_pixels)
 
 
 def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
@@ -119,7 +119,7 @@ def _shrink(img: np.ndarray, max_width: int) -> np.ndarray:
 
 def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
     """A :class:`Panorama` from an equirectangular image file (see :class:`FeatureOptions`)."""
-    img = load_image(path)
+    img = load_image(path, max_pixels=opts.max_pixels)
     h, w = img.shape[:2]
     if w < 64 or h < 8:
         raise DataFormatError(f"image too small for a 360 deg panorama: {w}x{h} pixels", path=path)
@@ -151,7 +151,7 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
 
     if opts.center is None or opts.radii is None:
         raise InvalidParameterError("--kind omni needs --center X Y and --radii R_IN R_OUT (pixels)")
-    img = load_image(path)
+    img = load_image(path, max_pixels=opts.max_pixels)
     width = int(np.clip(round(np.pi * sum(opts.radii) / 360.0) * 360, 360, max(360, opts.max_width)))
     pano = unwarp_omni(
         img,
@@ -166,7 +166,10 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
 
 
 def _features(opts: FeatureOptions) -> dict[str, Any]:
-    return {} if opts.beacon_threshold is None else {"beacon_threshold": float(opts.beacon_threshold)}
+    out: dict[str, Any] = dict(opts.beacon_params)
+    if opts.beacon_threshold is not None:
+        out["beacon_threshold"] = float(opts.beacon_threshold)
+    return out
 
 
 def _read_carmen(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:

@@ -66,6 +66,25 @@ class PlaceMap:
         """Place centres by label, creation order."""
         return {lab: (float(x), float(y)) for lab, (x, y) in zip(self.labels, self.split.centres, strict=True)}
 
+    def run_record(self) -> dict[str, Any]:
+        """What a database stores of the mapped run (to recognise it later)."""
+        return {"name": self.run_name, "key": self.run_key, "n_scans": self.split.n_scans, "n_mapping": self.split.n_mapping}
+
+    def loaded(self) -> LoadedMap:
+        """The map as :func:`load_map` would read it back from :func:`save_map`'s database, without writing it."""
+        from ..map.database import observation_hash
+
+        return LoadedMap(
+            self.model,
+            list(self.labels),
+            np.asarray(self.split.centres, dtype=np.float64).reshape(-1, 2),
+            self.preset,
+            self.calibration,
+            self.graph,
+            [self.run_record()],
+            {observation_hash(o) for o in self.training},
+        )
+
 
 def make_map(
     run: Run,
@@ -164,7 +183,7 @@ def save_map(place_map: PlaceMap, path: str | Path) -> int:
         positions=pm.positions,
         calibration=pm.calibration.to_json(),
         content_hashes={observation_hash(o) for o in pm.training},
-        runs=[{"name": pm.run_name, "key": pm.run_key, "n_scans": pm.split.n_scans, "n_mapping": pm.split.n_mapping}],
+        runs=[pm.run_record()],
     )
     return save_model(pm.model, path, graph_edges=pm.graph.edges(), info=info)
 

@@ -61,9 +61,10 @@ def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Sc
     ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
     must carry a pose.
     """
-    from ..io.carmen import ReadStats, inspect_log, iter_scans
+    from ..io.carmen import ReadStats, inspect_log, iter_scans, require_laser
 
     info = inspect_log(path)
+    require_laser(path, info)
     msg = "FLASER" if info.counts.get("FLASER", 0) else "ROBOTLASER1"
     if not info.counts.get(msg, 0):
         raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
@@ -86,9 +87,10 @@ def iter_carmen_observations(
     ``features`` go to :func:`fingerloc.features.laser.observation_from_scan`.
     """
     from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser
+    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser, require_laser
 
     info = inspect_log(path)
+    require_laser(path, info)
     st = ReadStats()
     for rec, scan in iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st):
         yield f"{path.name}:{rec.line} {rec.message}", observation_from_scan(scan, label=place, **features)

@@ -1,0 +1,23 @@
+"""Shared test configuration: hypothesis profiles.
+
+``HYPOTHESIS_PROFILE=long`` runs the property and fuzz tests with many more
+examples (minutes; see docs/TESTING.md); the default ``ci`` profile keeps
+the whole fuzz battery under a minute.
+"""
+
+from __future__ import annotations
+
+import os
+
+from hypothesis import HealthCheck, settings
+
+settings.register_profile("ci", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile(
+    "long", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
+)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+def fuzz_examples(n: int) -> int:
+    """``n`` examples in CI, 20 times as many under ``HYPOTHESIS_PROFILE=long``."""
+    return n * 20 if os.environ.get("HYPOTHESIS_PROFILE") == "long" else n
