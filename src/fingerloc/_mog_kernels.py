@@ -62,7 +62,7 @@ def _log_norm(s: float) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum):  # pragma: no cover
+def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
     """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
 
     ``mx`` and ``ssum`` are (n,) scratch. Loops run component-major so the
@@ -227,7 +227,7 @@ def _init_params(x, kmax, u, min_sigma, w, mu, sg, d, r, dmin):  # pragma: no co
 
 
 @njit(cache=True)
-def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, mx, ssum, trace):  # pragma: no cover
+def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pragma: no cover
     """EM from the given parameters, in place. Returns (mean log-lik, converged, n_iter).
 
     Stops when the gain in mean log-likelihood is below ``tol``. A step that
@@ -239,7 +239,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, mx, ssum, trace
     wb = np.empty(k)
     mub = np.empty(k)
     sgb = np.empty(k)
-    ll = _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum)
+    ll = _e_step(x, k, w, mu, sg, d, r, mx, ssum)
     rec = trace.shape[0] > 0
     if rec:
         trace[0] = ll
@@ -252,7 +252,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, mx, ssum, trace
             sgb[j] = sg[j]
         _m_step(x, k, w, mu, sg, d, r, min_sigma)
         it += 1
-        ll_new = _e_step(x, k, w, mu, sg, c, inv, d, r, mx, ssum)
+        ll_new = _e_step(x, k, w, mu, sg, d, r, mx, ssum)
         if rec:
             trace[it] = ll_new
         gain = ll_new - ll
@@ -277,8 +277,6 @@ def _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, w_out, mu_out, sg_out, tra
     w = np.empty(kmax)
     mu = np.empty(kmax)
     sg = np.empty(kmax)
-    c = np.empty(kmax)
-    inv = np.empty(kmax)
     d = np.empty((kmax, n))
     r = np.empty((kmax, n))
     scratch = np.empty(n)
@@ -291,7 +289,7 @@ def _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, w_out, mu_out, sg_out, tra
     for t in range(u_m.shape[0]):
         k = _init_params(xs, kmax, u_m[t], min_sigma, w, mu, sg, d, r, scratch)
         tr = trace_m[t] if rec else empty
-        ll, conv, it = _em(xs, k, w, mu, sg, tol, max_iter, min_sigma, c, inv, d, r, scratch, ssum, tr)
+        ll, conv, it = _em(xs, k, w, mu, sg, tol, max_iter, min_sigma, d, r, scratch, ssum, tr)
         if ll > best or t == 0:
             best = ll
             best_conv = conv

@@ -69,6 +69,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _mog_kernels as _k
 from ._numba_guard import try_parallel
 from .angles import wrap
+from ._estimator import ParamsMixin
 from .errors import InvalidParameterError, NotFittedError
 from .validation import check_random_state
 
@@ -409,7 +410,7 @@ def component_log_density(x: ArrayLike, mean: float, sigma: float) -> Float64Arr
     return np.asarray(log_eta - d * d / (2.0 * sigma * sigma), dtype=np.float64)
 
 
-class AngularMixture:
+class AngularMixture(ParamsMixin):
     """A mixture of truncated Gaussians on the circle, fit by EM (SPEC.md §3).
 
     scikit-learn-like: the constructor only stores its arguments; :meth:`fit`
@@ -480,28 +481,6 @@ class AngularMixture:
         self.n_init = n_init
         self.min_sigma_deg = min_sigma_deg
         self.random_state = random_state
-
-    def __repr__(self) -> str:
-        return (
-            f"AngularMixture(n_components={self.n_components!r}, tol={self.tol!r}, max_iter={self.max_iter!r}, "
-            f"n_init={self.n_init!r}, min_sigma_deg={self.min_sigma_deg!r}, random_state={self.random_state!r})"
-        )
-
-    _PARAMS = ("n_components", "tol", "max_iter", "n_init", "min_sigma_deg", "random_state")
-
-    def get_params(self, deep: bool = True) -> dict[str, object]:
-        """The constructor arguments, by name (scikit-learn's protocol)."""
-        return {name: getattr(self, name) for name in self._PARAMS}
-
-    def set_params(self, **params: object) -> AngularMixture:
-        """Set constructor arguments by name; returns ``self``. Validated at :meth:`fit`."""
-        for name, value in params.items():
-            if name not in self._PARAMS:
-                raise InvalidParameterError(
-                    f"AngularMixture has no parameter {name!r} (known: {', '.join(self._PARAMS)})"
-                )
-            setattr(self, name, value)
-        return self
 
     def fit(self, X: ArrayLike, y: object = None) -> AngularMixture:
         """Fit by EM on bearings ``X`` (radians, shape (n,) or (n, 1), n >= 1); returns ``self``.
