@@ -406,6 +406,15 @@ class PlaceModel(ParamsMixin):
         total = sum(self._weight(t) * ll for t, ll in terms.items())
         return np.asarray(total, dtype=np.float64)
 
+    def combine(self, term_log_likelihoods: Mapping[str, FArray]) -> FArray:
+        """The weighted sum of per-term log-likelihoods (:meth:`term_log_likelihoods`' answer), shape ``(n, P)``.
+
+        For callers that show the terms and the posterior without computing the terms twice:
+        ``normalise_log(model.combine(terms))`` is :meth:`predict_log_proba`.
+        """
+        self._check_fitted()
+        return self._joint(term_log_likelihoods)
+
     def joint_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
         """Weighted sum of the terms' log-likelihoods, unnormalised, shape ``(n, P)``.
 

@@ -67,9 +67,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _mog_kernels as _k
+from ._estimator import ParamsMixin
 from ._numba_guard import try_parallel
 from .angles import wrap
-from ._estimator import ParamsMixin
 from .errors import InvalidParameterError, NotFittedError
 from .validation import check_random_state
 

@@ -224,11 +224,21 @@ def localize_cmd(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     obs, names = queries_of_run(run, lm)
     classes = [str(c) for c in model.classes_]
-    terms = model.term_log_likelihoods(obs)
-    logp = model.predict_log_proba(obs)
+    from ..metrics import rank_scores
+    from ..model import normalise_log
+
+    terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
+    logp = normalise_log(model.combine(terms))
     post = np.exp(logp)
-    ranks = model.rank(obs)
-    headings = model.headings(obs) if model.cyclic else np.full(len(obs), np.nan)
+    ranks = rank_scores(logp)
+    best_cols = np.argmax(logp, axis=1) if len(obs) else np.zeros(0, dtype=np.int64)
+    headings = np.full(len(obs), np.nan)
+    refs = np.full(len(obs), -1, dtype=np.int64)
+    if model.cyclic and len(obs):
+        # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
+        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
+        headings = np.mod(-h, 360.0)
+    places = list(model.places_.values())
     unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
     col = {c: j for j, c in enumerate(classes)}
     labelled = [o.label is not None and o.label in col for o in obs]
@@ -241,6 +251,7 @@ def localize_cmd(
         best = classes[order[0]]
         r = int(ranks[i, col[o.label]]) if labelled[i] and o.label is not None else None
         h = None if np.isnan(headings[i]) else float(headings[i])
+        ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
         rec: dict[str, Any] = {
             "index": i,
             "name": names[i],
@@ -250,6 +261,7 @@ def localize_cmd(
             "rank_of_true": r,
             "terms": {t: {c: float(ll[i, j]) for j, c in enumerate(classes)} for t, ll in terms.items()},
             "heading_deg": h,
+            "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
         }
         if unknown is not None:
             rec["unknown"] = float(unknown[i])

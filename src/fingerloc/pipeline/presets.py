@@ -65,14 +65,16 @@ PRESETS: dict[str, dict[str, Any]] = {
         "features": {},
     },
     "panorama": {
-        "description": "panoramic camera: the fingerprint string matched over every rotation (heading-free)",
-        "model": {"terms": ["Fp"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp"},
+        "description": "panoramic camera: the fingerprint string matched over every rotation + the appearance "
+        "term A (both heading-free)",
+        "model": {"terms": ["Fp", "A"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp"},
         "features": {},
     },
     "multimodal": {
-        "description": "laser and camera: one string with both sensors' letters + range term, cyclic",
+        "description": "laser and camera: one string with both sensors' letters + range term R + appearance "
+        "term A, cyclic",
         "model": {
-            "terms": ["Fp", "R"],
+            "terms": ["Fp", "R", "A"],
             "laser_letters": True,
             "costs": "feature",
             "cyclic": True,
