@@ -276,3 +276,26 @@ def test_random_heading_rows_leave_tables_2_to_4_unchanged():
     assert len(keep) == len(b.measurements) < len(a.measurements)
     for x, y in zip(keep, b.measurements, strict=True):
         assert x.pose == y.pose and x.observation == y.observation
+
+
+@pytest.mark.slow
+def test_paper_world_counts_near_table_2():
+    """Two templates (20 offices, 40 measurements): the robot's extractors find about Table II's counts."""
+    from fingerloc.experiments.robot import PAPER_TABLE2, WORLD_PROFILES
+    from fingerloc.experiments.sim_stats import calibration_counts
+
+    prof = WORLD_PROFILES["paper"]
+    got = calibration_counts(
+        world="paper",
+        similarity=prof["similarity"],
+        templates=2,
+        blur=prof["blur"],
+        noise=prof["noise"],
+        jpeg_quality=prof["jpeg_quality"],
+        edge_params=prof["extractor"],
+    )
+    for t, paper in PAPER_TABLE2.items():
+        assert abs(got[t] / paper - 1.0) <= 0.35, (t, got[t], paper)  # two templates: a loose band
+    # the alike world's extractor finds several times the paper's vertical edges
+    alike = calibration_counts(world="alike", similarity=0.5, templates=1, blur=0.7, noise=0.015, jpeg_quality=85)
+    assert alike["VE"] > 2.5 * PAPER_TABLE2["VE"]

@@ -467,7 +467,8 @@ def write_demo_report(
             why.posterior,
             out / QUERY_FIGURE,
             truth=why.truth,
-            title=f"test query {why.index + 1} ({why.truth}): answered {why.answer}, {verdict}",
+            title=f"test query {why.index + 1} ({why.truth}), {_PROGRAM_NAMES.get(why.program, '')}, k = {why.k}: "
+            f"answered {why.answer}, {verdict}",
         )
     js = res.to_json()
     if why is not None:
