@@ -72,6 +72,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InvalidParameterError
+from ..metrics import min_per_place, true_place_ranks
+from ..metrics import true_place_ranks as rank_of_truth
 from ..observation import Observation
 
 __all__ = [
@@ -438,21 +440,6 @@ def simulate_trial(
 # ---------------------------------------------------------------------------- evaluation
 
 
-def rank_of_truth(scores: FArray, truth: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Rank (1 = best) of the true column of each row of ``scores`` (higher is better); ties count against.
-
-    Parameters
-    ----------
-    scores : ndarray, shape (n, P)
-    truth : ndarray of int, shape (n,)
-        Column of the true place of each row.
-    """
-    s = np.asarray(scores, dtype=np.float64)
-    own = s[np.arange(s.shape[0]), truth]
-    # NaN never happens here; -inf ties with -inf
-    return np.asarray((s >= own[:, None]).sum(axis=1), dtype=np.int64)
-
-
 def _cell(ranks: NDArray[np.int64]) -> tuple[float, float]:
     return float(np.mean(ranks == 1)), float(np.mean(ranks))
 
@@ -503,15 +490,6 @@ def wilson_interval(successes: int, n: int, level: float = CI_LEVEL) -> tuple[fl
     centre = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
     return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def _min_per_place(d: FArray, owner: NDArray[np.int64], n_places: int) -> FArray:
-    out = np.full((d.shape[0], n_places), np.inf)
-    for j in range(n_places):
-        cols = owner == j
-        if cols.any():
-            out[:, j] = d[:, cols].min(axis=1)
-    return out
 
 
 @dataclass(slots=True)
@@ -580,15 +558,15 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     ranks: dict[tuple[str, ...], NDArray[np.int64]] = {}
 
     def record(key: tuple[str, ...], scores: Any, true_cols: NDArray[np.int64]) -> None:
-        r = rank_of_truth(np.asarray(scores), true_cols)
+        r = true_place_ranks(scores, true_cols)
         ranks[key] = r
         cells[key] = _cell(r)
 
     # Table III: string matching alone, nearest place by least cost
     train_fp = [make_fingerprint(o) for o in train]
     test_fp = [make_fingerprint(o) for o in test]
-    me = _min_per_place(minimum_energy_costs(test_fp, train_fp), owner, len(classes))
-    ga = _min_per_place(alignment_costs(test_fp, train_fp), owner, len(classes))
+    me = min_per_place(minimum_energy_costs(test_fp, train_fp), owner, len(classes))
+    ga = min_per_place(alignment_costs(test_fp, train_fp), owner, len(classes))
     record(("table3", "minimum_energy"), -me, truth)
     record(("table3", "global_alignment"), -ga, truth)
 
@@ -615,7 +593,7 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         rtest = data.observations("test-random-heading")
         rtruth = np.array([col[str(o.label)] for o in rtest], dtype=np.int64)
         rfp = [make_fingerprint(o) for o in rtest]
-        gc = _min_per_place(alignment_costs(rfp, train_fp, cyclic=True), owner, len(classes))
+        gc = min_per_place(alignment_costs(rfp, train_fp, cyclic=True), owner, len(classes))
         record(("random_heading", "global_alignment"), -gc, rtruth)
         poses = [m.pose for m in data.measurements if m.role == "test-random-heading"]
         for k in protocol.ks:

@@ -25,10 +25,10 @@ from ..angles import dist_as
 from ..sim import make_offices, protocol_poses, simulate_scan, true_features
 from ..sim.laser import LASER_HEIGHT
 from ..sim.world import cast_rays
+from .robot import PAPER_TABLE2
 
 __all__ = ["calibration_counts", "feature_counts", "intensity_stats", "main", "office_likeness"]
 
-PAPER_TABLE2 = {"VE": 5.6, "Ex": 5.6, "CP": 2.7, "B": 3.9}
 _TYPES = ("VE", "Ex", "c", "CP", "B")
 
 

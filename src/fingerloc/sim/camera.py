@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
 from ..sensors import Panorama
+from ..validation import check_random_state
 from .world import World, cast_rays_k
 
 __all__ = ["CAMERA_HEIGHT", "ELEVATION_DEG", "OmniImage", "render_omni", "render_panorama"]
@@ -50,12 +51,6 @@ ELEVATION_DEG = (-45.0, 30.0)
 _K_HITS = 8
 #: Softness (metres) of the edges of sun patches and shadows.
 _SUN_SOFT = 0.08
-
-
-def _rng(random_state: int | np.random.Generator | None) -> np.random.Generator:
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    return np.random.default_rng(random_state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,7 +278,7 @@ def render_panorama(
     e_lo, e_hi = _check_common(lighting, noise, vignetting, jpeg_quality, elevation_deg)
     if not (np.isfinite(blur) and 0 <= blur <= 10):
         raise InvalidParameterError(f"blur must be in [0, 10] pixels, got {blur!r}")
-    rng = _rng(random_state)
+    rng = check_random_state(random_state)
     ss = int(supersample)
     sub = (np.arange(width * ss) + 0.5) / ss  # fractional column coordinates
     bearings = np.pi - 2 * np.pi * sub / width  # clockwise, offset pi
@@ -488,7 +483,7 @@ def render_omni(
     e_lo, e_hi = _check_common(lighting, noise, vignetting, jpeg_quality, elevation_deg)
     if not (np.isfinite(blur) and 0 <= blur <= 10):
         raise InvalidParameterError(f"blur must be in [0, 10] pixels, got {blur!r}")
-    rng = _rng(random_state)
+    rng = check_random_state(random_state)
 
     # Render an internal (bearing x elevation) grid at the ring's resolution (mid radius), then resample.
     n_b = int(np.ceil(np.pi * (r_in + r_out)))

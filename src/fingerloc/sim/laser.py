@@ -23,18 +23,13 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..sensors import Scan
+from ..validation import check_random_state
 from .world import World, cast_rays
 
 __all__ = ["LASER_HEIGHT", "simulate_scan"]
 
 #: Height of the laser plane above the floor, metres.
 LASER_HEIGHT = 0.3
-
-
-def _rng(random_state: int | np.random.Generator | None) -> np.random.Generator:
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    return np.random.default_rng(random_state)
 
 
 def scan_bearings(n_beams: int) -> np.ndarray:
@@ -115,7 +110,7 @@ def simulate_scan(
     if not (np.isfinite(max_range) and max_range > 0):
         raise InvalidParameterError(f"max_range must be a positive number of metres, got {max_range!r}")
     x, y, th = (float(v) for v in pose)
-    rng = _rng(random_state)
+    rng = check_random_state(random_state)
     bearings = scan_bearings(int(n_beams))
     angles = bearings + th
     dist, seg, _ = cast_rays(world, (x, y), angles, z=height)

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from .world import PARTS, Material, World
+from ..validation import check_random_state
+from .world import PARTS, Material, World, point_in_polygon
 
 __all__ = ["WORLDS", "make_office", "make_offices"]
 
@@ -50,12 +51,6 @@ _FURN_MATS = [
     ((0.85, 0.85, 0.82), 0.5, 0.1),  # white laminate
     ((0.30, 0.30, 0.32), 0.15, 0.2),  # dark grey
 ]
-
-
-def _rng(random_state: int | np.random.Generator | None) -> np.random.Generator:
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    return np.random.default_rng(random_state)
 
 
 def _low_sat(rng: np.random.Generator, v: tuple[float, float], s_max: float) -> tuple[float, float, float]:
@@ -367,16 +362,6 @@ def _overlaps(a: tuple[float, float], b: tuple[float, float], margin: float = 0.
     return a[0] < b[1] + margin and b[0] < a[1] + margin
 
 
-def _inside(poly: np.ndarray, p: np.ndarray) -> np.ndarray:
-    x, y = p[:, 0, None], p[:, 1, None]
-    x0, y0 = poly[:, 0], poly[:, 1]
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-    cond = (y0 > y) != (y1 > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.asarray((cond & (x < xi)).sum(axis=-1) % 2 == 1)
-
-
 def _crosses_polygon(p0: np.ndarray, p1: np.ndarray, poly: np.ndarray) -> bool:
     """True when segment p0-p1 touches or crosses an edge of the polygon, or lies inside it."""
     r = p1 - p0
@@ -390,7 +375,7 @@ def _crosses_polygon(p0: np.ndarray, p1: np.ndarray, poly: np.ndarray) -> bool:
         u = (w[0] * r[1] - w[1] * r[0]) / den
         if -1e-9 <= t <= 1 + 1e-9 and -1e-9 <= u <= 1 + 1e-9:
             return True
-    return bool(_inside(poly, ((p0 + p1) / 2)[None, :])[0])
+    return bool(point_in_polygon(poly, ((p0 + p1) / 2)[None, :])[0])
 
 
 def _polygon(spec: _Spec) -> np.ndarray:
@@ -441,7 +426,7 @@ def _build(spec: _Spec, name: str) -> World:
     def world_inside(box: tuple[float, float, float, float]) -> bool:
         c = np.array([(box[0], box[1]), (box[2], box[1]), (box[0], box[3]), (box[2], box[3])])
         c = c + np.sign(np.array([(1, 1), (-1, 1), (1, -1), (-1, -1)])) * 0.01
-        return bool(_inside(poly, c).all())
+        return bool(point_in_polygon(poly, c).all())
 
     def free_of_doors(i: int, lo: float, hi: float, margin: float = 0.05) -> bool:
         return not any(_overlaps((lo, hi), (a, c), margin) for a, c, _ in doors[i])
@@ -675,7 +660,7 @@ def make_office(
     *, random_state: int | np.random.Generator | None = None, name: str = "office", world: str = "alike"
 ) -> World:
     """One random office (a template drawn afresh); ``world`` as in :func:`make_offices`."""
-    return _build(_new_spec(_rng(random_state), _check_world(world)), name)
+    return _build(_new_spec(check_random_state(random_state), _check_world(world)), name)
 
 
 def make_offices(
@@ -719,6 +704,6 @@ def make_offices(
     if not (isinstance(similarity, int | float) and 0.0 <= float(similarity) <= 1.0):
         raise InvalidParameterError(f"similarity must be in [0, 1], got {similarity!r}")
     _check_world(world)
-    rng = _rng(random_state)
+    rng = check_random_state(random_state)
     template = _new_spec(rng, world)
     return [_build(_perturb(template, float(similarity), rng, world), f"office-{i}") for i in range(int(n))]

@@ -13,15 +13,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InvalidParameterError
+from ..validation import check_random_state
 from .world import World
 
 __all__ = ["protocol_poses"]
-
-
-def _rng(random_state: int | np.random.Generator | None) -> np.random.Generator:
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    return np.random.default_rng(random_state)
 
 
 def protocol_poses(
@@ -60,7 +55,7 @@ def protocol_poses(
     lo, hi = (float(v) for v in radius)
     if not (0 <= lo <= hi):
         raise InvalidParameterError(f"radius must be (low, high) with 0 <= low <= high, got {radius!r}")
-    rng = _rng(random_state)
+    rng = check_random_state(random_state)
     ax, ay = world.anchor
     r = rng.uniform(lo, hi)
     phase = rng.uniform(0, 2 * np.pi)

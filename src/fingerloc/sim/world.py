@@ -239,16 +239,9 @@ class World:
     def contains(self, points: ArrayLike) -> NDArray[np.bool_]:
         """True for the points (shape (..., 2), metres) inside the room polygon."""
         p = np.asarray(points, dtype=np.float64)
-        poly = self.room
-        if poly.shape[0] < 3:
+        if self.room.shape[0] < 3:
             return np.ones(p.shape[:-1], dtype=bool)
-        x, y = p[..., 0, None], p[..., 1, None]
-        x0, y0 = poly[:, 0], poly[:, 1]
-        x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
-        cond = (y0 > y) != (y1 > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-        return np.asarray((cond & (x < xi)).sum(axis=-1) % 2 == 1)
+        return point_in_polygon(self.room, p)
 
     def clearance(self, points: ArrayLike, *, z: float | None = None) -> FArray:
         """Distance (metres) from each point (shape (..., 2)) to the nearest segment.
@@ -264,6 +257,19 @@ class World:
         t = np.clip((w * e).sum(axis=-1) / ee, 0.0, 1.0)
         d = w - t[..., None] * e
         return np.asarray(np.sqrt((d * d).sum(axis=-1)).min(axis=-1))
+
+
+def point_in_polygon(poly: ArrayLike, points: ArrayLike) -> NDArray[np.bool_]:
+    """True for the points (shape (..., 2)) inside the polygon (vertices (k, 2), metres), by ray crossing (even-odd)."""
+    poly = np.asarray(poly, dtype=np.float64)
+    p = np.asarray(points, dtype=np.float64)
+    x, y = p[..., 0, None], p[..., 1, None]
+    x0, y0 = poly[:, 0], poly[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    cond = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return np.asarray((cond & (x < xi)).sum(axis=-1) % 2 == 1)
 
 
 # ---------------------------------------------------------------- ray casting
