@@ -66,8 +66,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "panorama": {
         "description": "panoramic camera: the fingerprint string matched over every rotation + the appearance "
-        "term A (both heading-free)",
-        "model": {"terms": ["Fp", "A"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp"},
+        "term A (both heading-free), per-term weights fit on held-out training views",
+        "model": {"terms": ["Fp", "A"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp", "weights": "fit"},
         "features": {},
     },
     "multimodal": {
