@@ -180,3 +180,26 @@ def test_filters_refuse_bad_parameters_with_fingerloc_errors():
         PoseFilter(np.zeros((2, 2)), 1.0, random_state="x")
     with pytest.raises(InvalidParameterError, match="n_places must be an integer"):
         TransitionModel.uniform(2.5)
+
+
+def test_database_keeps_range_descriptors_not_scans(tmp_path):
+    import json
+    import sqlite3
+
+    rng = np.random.default_rng(9)
+    bearings = np.linspace(-np.pi / 2, np.pi / 2, 361)
+    obs = [
+        Observation(c=np.array([0.3 * k]), ranges=rng.uniform(lo, lo + 2.0, 361), range_bearings=bearings, label=lab)
+        for k, (lab, lo) in enumerate([("a", 1.0)] * 3 + [("b", 4.0)] * 3)
+    ]
+    m = PlaceModel(terms=("Fp", "R"), fp_likelihood="exp").fit(obs)
+    db = tmp_path / "r.sqlite"
+    save_model(m, db)
+    with sqlite3.connect(db) as con:
+        records = [json.loads(r) for (r,) in con.execute("SELECT record FROM observations")]
+    assert records and not any("scan" in r for r in records)
+    back = load_model(db)
+    np.testing.assert_allclose(back.term_log_likelihoods(obs)["R"], m.term_log_likelihoods(obs)["R"], rtol=1e-12)
+    # the stored model still grows: a new view of "b" adds its descriptor to the stored ones
+    back.add_places([obs[-1]])
+    assert back.terms_["R"].descriptors_[1].shape[0] == 4

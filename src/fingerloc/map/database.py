@@ -19,6 +19,9 @@ Schema version 2 adds the map of a recorded run (:class:`MapInfo`, written by
     place_positions(label TEXT PRIMARY KEY, idx INTEGER, x REAL, y REAL)
                                                    -- place centres (metres), idx = creation order
     content_hashes(hash TEXT PRIMARY KEY)          -- observation_hash of every stored observation
+    range_descriptors(place_id INTEGER PRIMARY KEY, width INTEGER, data BLOB)
+                                                   -- the range term's descriptors, rows of `width`;
+                                                   -- with them, observation records keep no raw scan
     meta: preset (JSON: name, reason, every resolved option), calibration (JSON:
           the filters' parameters), runs (JSON: the mapped runs' keys and mapping parts)
 
@@ -93,6 +96,8 @@ CREATE TABLE mixtures(place_id INTEGER NOT NULL REFERENCES places(id), term TEXT
                       weights BLOB NOT NULL, means BLOB NOT NULL, sigmas BLOB NOT NULL,
                       PRIMARY KEY (place_id, term));
 CREATE TABLE graph_edges(src TEXT NOT NULL, dst TEXT NOT NULL, count INTEGER NOT NULL, PRIMARY KEY (src, dst));
+CREATE TABLE range_descriptors(place_id INTEGER PRIMARY KEY REFERENCES places(id), width INTEGER NOT NULL,
+                               data BLOB NOT NULL);
 """
 
 # Schema version 2: the map of a recorded run (MapInfo), in its own tables.
@@ -360,6 +365,7 @@ def _save_locked(
     labels = state["labels"]
     terms = state["terms"]
     fp = terms.get("Fp")
+    rng = terms.get("R")
     lambdas = {n: t["lambda"] for n, t in terms.items() if "lambda" in t}
     unknown = {n: t["unknown_cost"] for n, t in terms.items() if t.get("unknown_cost") is not None}
     directory = target.parent
@@ -399,9 +405,12 @@ def _save_locked(
                         ),
                     )
                     for idx, obs in enumerate(group):
+                        rec = observation_to_record(obs, ndigits=12)
+                        if rng is not None:  # the range term keeps descriptors: the raw scan is not stored
+                            rec.pop("scan", None)
                         cur = con.execute(
                             "INSERT INTO observations(place_id, idx, record) VALUES (?, ?, ?)",
-                            (pid, idx, json.dumps(observation_to_record(obs, ndigits=12))),
+                            (pid, idx, json.dumps(rec)),
                         )
                         if fp:
                             letters, bearings = fp["fingerprints"][pid][idx]
@@ -411,6 +420,8 @@ def _save_locked(
                         if mx is not None:
                             w, m, sg = mx
                             con.execute("INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, name, _blob(w), _blob(m), _blob(sg)))
+                for pid, desc in enumerate(rng["descriptors"] if rng is not None else []):
+                    con.execute("INSERT INTO range_descriptors VALUES (?, ?, ?)", (pid, int(desc.shape[1]), _blob(desc)))
                 for (src, dst), count in (graph_edges or {}).items():
                     con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
                 _write_map_info(con, info)
@@ -551,6 +562,20 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         if not isinstance(term, str) or len({a.size for a in arrays}) != 1 or np.any(arrays[2] <= 0):
             raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: corrupt mixture of term {term!r}")
         mixtures.setdefault(term, [None] * len(labels))[index[pid]] = arrays
+    descriptors: list[Any] | None = None
+    if con.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name='range_descriptors'").fetchone():
+        rows_d = con.execute("SELECT place_id, width, data FROM range_descriptors").fetchall()
+        if rows_d:
+            descriptors = [None] * len(labels)
+            for pid, width, data in rows_d:
+                if pid not in index or isinstance(width, bool) or not isinstance(width, int) or width < 1:
+                    raise DatabaseError(f"{path}: a range descriptor row names place id {pid!r} or width {width!r}")
+                a = _array(data)
+                if a.size % width:
+                    raise DatabaseError(f"{path}: range descriptors of place id {pid!r} are not rows of {width}")
+                descriptors[index[pid]] = a.reshape(-1, width)
+            if any(d is None for d in descriptors):
+                raise DatabaseError(f"{path}: range descriptors are missing for some places")
     if not labels:
         raise DatabaseError(f"{path}: the place database holds no place")
     for j, group in enumerate(observations):
@@ -568,6 +593,8 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
     for name in ("Fp", "R", "A"):
         terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
+    if descriptors is not None:  # else (older databases) the range term describes the stored scans again
+        terms_state["R"]["descriptors"] = descriptors
     if all(f is not None for g in fingerprints for f in g):
         terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     else:  # no stored fingerprint for some view: the term recomputes them
