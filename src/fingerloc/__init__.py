@@ -1,7 +1,7 @@
 """fingerloc: topological global localization with fingerprints and Bayesian programming.
 
 Implements Tapus, Heinzer and Siegwart, "Bayesian Programming for Topological
-Global Localization with Fingerprints", ICRA 2004 (see SPEC.md).
+Global Localization with Fingerprints", ICRA 2004 (see docs/METHOD.md).
 """
 
 from __future__ import annotations

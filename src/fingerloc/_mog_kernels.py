@@ -3,7 +3,7 @@
 
 Everything here works on bearings already wrapped to ``[-pi, pi)`` and on
 parameters already validated by :mod:`fingerloc.mog`; nothing here checks
-its input. The formulas are those of SPEC.md §3:
+its input. The formulas are those of docs/METHOD.md §3:
 
     log p(x | mu, s) = -distAS(mu, x)^2 / (2 s^2) - log( sqrt(2 pi) s erf(pi / (sqrt(2) s)) )
 
@@ -119,7 +119,7 @@ def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
 
 @njit(cache=True)
 def _m_step(x, k, w, mu, sg, d, r, min_sigma):  # pragma: no cover
-    """SPEC.md §3 (paper eqs. 9-11) in place, from r and d = distAS(mu_old, x)."""
+    """docs/METHOD.md §3 (paper eqs. 9-11) in place, from r and d = distAS(mu_old, x)."""
     n = x.shape[0]
     wsum = 0.0
     for j in range(k):

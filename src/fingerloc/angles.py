@@ -39,7 +39,7 @@ def wrap(x: ArrayLike) -> NDArray[np.float64]:
 
 
 def dist_as(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Signed shortest way from angle ``a`` to angle ``b`` (SPEC.md §3, distAS).
+    """Signed shortest way from angle ``a`` to angle ``b`` (docs/METHOD.md §3, distAS).
 
     Parameters
     ----------

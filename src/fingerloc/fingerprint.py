@@ -1,4 +1,4 @@
-"""Fingerprints: circular strings of features around the robot (SPEC.md §1-2).
+"""Fingerprints: circular strings of features around the robot (docs/METHOD.md §1-2).
 
 A fingerprint lists the features an observation holds by increasing bearing,
 one letter each, with ``n`` letters for empty space:
@@ -263,7 +263,7 @@ def make_fingerprint(
     merge_tol_deg: float = 5.0,
     laser_letters: bool = False,
 ) -> Fingerprint:
-    """Generate the fingerprint of an observation (SPEC.md §2).
+    """Generate the fingerprint of an observation (docs/METHOD.md §2).
 
     1. Vertical edges give ``v``, colour patches their hue letter, corners
        ``c``, beacons ``b``; extremities give nothing.

@@ -1,4 +1,4 @@
-"""The Bayesian program: :class:`PlaceModel` (SPEC.md §4), a combination of terms.
+"""The Bayesian program: :class:`PlaceModel` (docs/METHOD.md §4), a combination of terms.
 
 Decomposition, with the feature sets independent given the place::
 

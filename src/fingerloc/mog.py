@@ -1,4 +1,4 @@
-"""Mixtures of Gaussians in angle space, fit by EM (SPEC.md §3).
+"""Mixtures of Gaussians in angle space, fit by EM (docs/METHOD.md §3).
 
 One component is a Gaussian over the circle, truncated to one turn around its
 mean and normalised::
@@ -219,7 +219,7 @@ def fit_mixtures(
 ) -> MixtureSet:
     """Fit one angular mixture per sample array by EM, all in one compiled loop.
 
-    EM (SPEC.md §3, the paper's eqs. 9-11), with responsibilities
+    EM (docs/METHOD.md §3, the paper's eqs. 9-11), with responsibilities
     ``r_ik = w_k p(x_i | theta_k) / sum_j w_j p(x_i | theta_j)``::
 
         w_k     = (1/N) sum_i r_ik
@@ -362,7 +362,7 @@ def _as_params(weights: ArrayLike, means: ArrayLike, sigmas: ArrayLike) -> tuple
 
 
 def mixture_log_density(x: ArrayLike, weights: ArrayLike, means: ArrayLike, sigmas: ArrayLike) -> Float64Array:
-    """``log p_MOG(x_j | theta_m)`` for every bearing and every mixture (SPEC.md §3).
+    """``log p_MOG(x_j | theta_m)`` for every bearing and every mixture (docs/METHOD.md §3).
 
     Parameters
     ----------
@@ -397,7 +397,7 @@ def mixture_log_density(x: ArrayLike, weights: ArrayLike, means: ArrayLike, sigm
 
 
 def component_log_density(x: ArrayLike, mean: float, sigma: float) -> Float64Array:
-    """``log p(x | mu, sigma)`` of one truncated angular Gaussian (SPEC.md §3), shape of ``x``.
+    """``log p(x | mu, sigma)`` of one truncated angular Gaussian (docs/METHOD.md §3), shape of ``x``.
 
     Plain numpy; the reference the compiled kernels are tested against.
     """
@@ -411,7 +411,7 @@ def component_log_density(x: ArrayLike, mean: float, sigma: float) -> Float64Arr
 
 
 class AngularMixture(ParamsMixin):
-    """A mixture of truncated Gaussians on the circle, fit by EM (SPEC.md §3).
+    """A mixture of truncated Gaussians on the circle, fit by EM (docs/METHOD.md §3).
 
     scikit-learn-like: the constructor only stores its arguments; :meth:`fit`
     learns the attributes ending in ``_``. Bearings are radians; ``X`` may be

@@ -5,7 +5,7 @@ An observation holds, per feature type, the bearings (radians, wrapped to
 and the field of view the sensors covered. It is immutable: its arrays are
 read-only and every field is validated on construction.
 
-Feature types (SPEC.md §1):
+Feature types (docs/METHOD.md §1):
 
 ========  =====================================  ===========
 key       feature                                letter

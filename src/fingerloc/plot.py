@@ -393,7 +393,7 @@ def plot_mixture(
     samples: ArrayLike | None = None,
     title: str | None = None,
 ) -> Path:
-    """A mixture of Gaussians on the circle (SPEC.md §3) with the bearings it was fit on.
+    """A mixture of Gaussians on the circle (docs/METHOD.md §3) with the bearings it was fit on.
 
     Parameters
     ----------

@@ -1,12 +1,12 @@
 """Fingerprint matching: global alignment, cyclic alignment with heading, batch kernels.
 
 The paper scores a fingerprint against a place by the minimal Needleman-Wunsch
-global alignment cost (SPEC.md §4, ``P(Fp | loc) = 1 / (cost + 1)``). This
+global alignment cost (docs/METHOD.md §4, ``P(Fp | loc) = 1 / (cost + 1)``). This
 module computes that cost for one pair (:func:`global_alignment`, with the
 alignment itself on request), for many pairs at once
 (:func:`alignment_costs`), and its cyclic version, the minimum over every
 rotation of one string, which removes the unknown heading of the robot
-(:func:`cyclic_alignment`, SPEC.md §6). :func:`minimum_energy` is the earlier
+(:func:`cyclic_alignment`, docs/METHOD.md §6). :func:`minimum_energy` is the earlier
 matcher of Lamon et al. (2001), the baseline of the paper's Table III.
 
 Strings are validated against :data:`fingerloc.fingerprint.ALPHABET`; a
@@ -91,7 +91,7 @@ def global_alignment(
     costs: CostModel | None = None,
     return_alignment: bool = False,
 ) -> float | tuple[float, list[tuple[int | None, int | None]]]:
-    """Minimal Needleman-Wunsch global alignment cost of two fingerprints (SPEC.md §4).
+    """Minimal Needleman-Wunsch global alignment cost of two fingerprints (docs/METHOD.md §4).
 
     ``D[i, j] = min(D[i-1, j-1] + s(a_i, b_j), D[i-1, j] + g(a_i), D[i, j-1] + g(b_j))``
     with ``D[0, 0] = 0``; the cost is ``D[len(a), len(b)]``. With the default

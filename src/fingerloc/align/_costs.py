@@ -43,7 +43,7 @@ class CostModel:
 
     ``CostModel()`` is the unit model: match 0, substitution 1, insertion and
     deletion 1, so that the global alignment cost is the Levenshtein distance
-    (the paper's "global alignment", SPEC.md §4). :meth:`feature_aware` is a
+    (the paper's "global alignment", docs/METHOD.md §4). :meth:`feature_aware` is a
     preset that knows which letters are alike.
 
     Parameters

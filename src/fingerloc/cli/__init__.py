@@ -1,4 +1,4 @@
-"""The ``fingerloc`` command line (DESIGN.md, "The command line").
+"""The ``fingerloc`` command line (README.md, "The command line"; file formats: docs/FORMATS.md).
 
 Each area registers its commands in its own module; this package only builds
 the application and turns a :class:`~fingerloc.errors.FingerlocError` into one

@@ -1,4 +1,4 @@
-"""``fingerloc reproduce table1``: the paper's Table I (SPEC.md §5)."""
+"""``fingerloc reproduce table1``: the paper's Table I (docs/METHOD.md §5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``fingerloc reproduce robot``: the paper's Tables II-IV in simulation (SPEC.md §5)."""
+"""``fingerloc reproduce robot``: the paper's Tables II-IV in simulation (docs/METHOD.md §5)."""
 
 from __future__ import annotations
 

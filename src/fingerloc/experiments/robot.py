@@ -1,6 +1,6 @@
-"""The paper's robot experiment (Tables II-IV) in simulation (SPEC.md §5).
+"""The paper's robot experiment (Tables II-IV) in simulation (docs/METHOD.md §5).
 
-Protocol (Tapus et al. 2004, section V-B, as restated in SPEC.md §5), with the
+Protocol (Tapus et al. 2004, section V-B, as restated in docs/METHOD.md §5), with the
 robot replaced by :mod:`fingerloc.sim`:
 
 * ten offices alike (:func:`fingerloc.sim.make_offices`), each with a
@@ -40,7 +40,7 @@ What is measured, per trial (new offices, poses and noise each trial):
   k; a term set's posterior is the sum of its terms' log-likelihoods (each
   term's mixtures do not depend on the other terms, so this equals fitting
   one model per term set).
-* **Random heading** (beyond the paper, SPEC.md §6): the two test
+* **Random heading** (beyond the paper, docs/METHOD.md §6): the two test
   measurements of each office are taken again at the same positions with a
   uniformly random heading. String matching uses the cyclic alignment (every
   rotation); the full program first estimates, for each place, the heading

@@ -12,7 +12,7 @@ import numpy as np
 from ..observation import Observation
 from .speed import best_time, section
 
-# Mean features per measurement of the paper's robot (SPEC.md §5, Table II), plus corners.
+# Mean features per measurement of the paper's robot (docs/METHOD.md §5, Table II), plus corners.
 _MEAN_COUNTS = {"VE": 5.6, "Ex": 5.6, "CP": 2.7, "B": 3.9, "c": 4.0}
 
 

@@ -1,6 +1,6 @@
-"""The paper's Table I: classifying simulated places by MOG likelihood (SPEC.md §5).
+"""The paper's Table I: classifying simulated places by MOG likelihood (docs/METHOD.md §5).
 
-Protocol (Tapus et al. 2004, section V-A, as restated in SPEC.md §5): ten
+Protocol (Tapus et al. 2004, section V-A, as restated in docs/METHOD.md §5): ten
 synthetic places; for each, four observations of N vertical-edge bearings,
 similar but not identical, every bearing disturbed by Gaussian noise of
 standard deviation 5 deg; one mixture of k components fit by EM on the union
@@ -281,7 +281,7 @@ def run_table1(
         features, each place moves each one, and every observation is its
         place's N bearings plus noise (the first generator we tried).
     evaluation : {"resubstitution", "held-out"}
-        ``"resubstitution"`` (default, the paper's protocol as SPEC.md reads
+        ``"resubstitution"`` (default, the paper's protocol as docs/METHOD.md reads
         it): an observation is scored against its place's mixture fit on all
         four observations, itself included. ``"held-out"``: against a mixture
         of its place fit on the other three (the other places keep all four).

@@ -1,4 +1,4 @@
-"""Feature extraction from raw sensor data (SPEC.md §1): laser scans and panoramic images.
+"""Feature extraction from raw sensor data (docs/METHOD.md §1): laser scans and panoramic images.
 
 - :mod:`fingerloc.features.laser`: corners ``c``, extremities ``Ex`` and
   beacons ``B`` of a :class:`~fingerloc.sensors.Scan`.

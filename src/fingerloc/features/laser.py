@@ -1,4 +1,4 @@
-"""Laser features from one raw 2D scan: corners, extremities and beacons (SPEC.md §1).
+"""Laser features from one raw 2D scan: corners, extremities and beacons (docs/METHOD.md §1).
 
 The pipeline, after Arras and Siegwart (the paper's reference [1]):
 

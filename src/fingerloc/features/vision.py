@@ -1,4 +1,4 @@
-"""Vision features from a raw panoramic image: vertical edges and colour patches (SPEC.md §1).
+"""Vision features from a raw panoramic image: vertical edges and colour patches (docs/METHOD.md §1).
 
 - :func:`unwarp_omni` turns the donut image of an omnidirectional camera with
   an equiangular mirror (image radius linear in elevation) into a

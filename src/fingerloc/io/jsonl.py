@@ -1,4 +1,4 @@
-"""Observations as JSON Lines (DESIGN.md, "Files a user touches").
+"""Observations as JSON Lines (docs/FORMATS.md §1).
 
 One observation a line, bearings and angles in degrees::
 

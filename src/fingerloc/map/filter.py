@@ -1,4 +1,4 @@
-"""A discrete Bayes (Markov) filter over the places of the topological map (SPEC.md §6).
+"""A discrete Bayes (Markov) filter over the places of the topological map (docs/METHOD.md §6).
 
 The paper answers ``P(Loc | observation)`` for one observation at a time and
 notes that when the right place is not first it is usually second or third.

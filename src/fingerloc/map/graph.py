@@ -1,4 +1,4 @@
-"""The place graph: places as nodes, transitions counted while mapping as edges (SPEC.md §6).
+"""The place graph: places as nodes, transitions counted while mapping as edges (docs/METHOD.md §6).
 
 A :class:`PlaceGraph` is a directed graph over the learned places (a
 ``networkx.DiGraph``): edge ``(a, b)`` carries ``count``, how many times the

@@ -1,4 +1,4 @@
-"""The library layer: what the command line and the experiments both call (DESIGN.md).
+"""The library layer: what the command line and the experiments both call (docs/FORMATS.md).
 
 * :mod:`.presets`: named place-model configurations per sensor (``paper``,
   ``laser2d``, ``panorama``, ``multimodal``, ``auto``);

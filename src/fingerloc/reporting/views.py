@@ -55,7 +55,7 @@ class FeatureView:
     hues_deg : array_like, shape (n_CP,)
         Hue of each colour patch in degrees (same order as ``bearings["CP"]``).
     fingerprint : str
-        The fingerprint string (SPEC.md §2).
+        The fingerprint string (docs/METHOD.md §2).
     fov : sequence of (start, width)
         Seen bearing ranges in radians (default: the full circle).
     """

@@ -1,4 +1,4 @@
-"""Measurement poses of the paper's robot protocol (SPEC.md §5, Tables II-IV).
+"""Measurement poses of the paper's robot protocol (docs/METHOD.md §5, Tables II-IV).
 
 Per office: ``n_train`` training poses on a circle of radius drawn in
 ``radius`` (metres) around the office's anchor, evenly spread over the circle

@@ -1,4 +1,4 @@
-"""The terms of the Bayesian program (SPEC §4): one factor ``P(term | Loc)`` each.
+"""The terms of the Bayesian program (docs/METHOD.md §4): one factor ``P(term | Loc)`` each.
 
 =====  ==========================================================  ============
 name   term                                                        class

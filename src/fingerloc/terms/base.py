@@ -1,4 +1,4 @@
-"""The contract of one term of the Bayesian program (SPEC §4).
+"""The contract of one term of the Bayesian program (docs/METHOD.md §4).
 
 A *term* is one factor ``P(term | Loc)`` of the decomposition
 ``P(Loc VE CP Ex B Fp ...) = P(Loc) prod_term P(term | Loc)``. It learns from

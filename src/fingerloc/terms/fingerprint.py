@@ -1,4 +1,4 @@
-"""The fingerprint term ``P(Fp | Loc)`` (SPEC §4): string alignment against a place's stored fingerprints.
+"""The fingerprint term ``P(Fp | Loc)`` (docs/METHOD.md §4): string alignment against a place's stored fingerprints.
 
 ``likelihood="paper"``: ``P(Fp | loc) = 1 / (cost + 1)``; ``"exp"``:
 ``exp(-lambda cost)``, ``lambda`` fit leave-one-out (:mod:`.distance`). The

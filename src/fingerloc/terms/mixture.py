@@ -1,4 +1,4 @@
-"""The angle-space mixture terms ``P(f | Loc)``, f in VE, CP, Ex, B (SPEC §3-4).
+"""The angle-space mixture terms ``P(f | Loc)``, f in VE, CP, Ex, B (docs/METHOD.md §3-4).
 
 ``P(f | loc) = prod_{x in f} p_MOG(x | theta_{f,loc})``, ``theta_{f,loc}`` fit
 by EM on every training bearing of ``f`` at ``loc`` (:func:`fingerloc.mog.fit_mixtures`).
