@@ -14,7 +14,7 @@ from .app import app
 
 @app.command("fingerprint")
 def fingerprint_cmd(
-    data: Path = typer.Argument(..., help="Observations, JSON Lines (DESIGN.md format)."),
+    data: Path = typer.Argument(..., help="Observations, JSON Lines (docs/FORMATS.md)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object a line: string, bearings (deg), place."),
     empty_step_deg: float = typer.Option(20.0, min=0.1, max=360.0, help="Degrees of seen empty bearing per 'n' letter."),
     merge_tol_deg: float = typer.Option(5.0, min=0.0, max=180.0, help="Corner/edge merge tolerance into 'f', degrees."),

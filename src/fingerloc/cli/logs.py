@@ -100,7 +100,7 @@ def carmen_cmd(
             console.print(f"{name}{'' if name in DEFAULT_METHODS else '  (run only when named)'}")
         raise typer.Exit()
     if not logs:
-        raise InvalidParameterError("bench carmen needs at least one LOG (e.g. ../shared/data/carmen/*.log.gz)")
+        raise InvalidParameterError("bench carmen needs at least one LOG (e.g. logs/*.log.gz)")
     with err_console.status("benchmarking...") as status:
         run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
     js = run.to_json()
