@@ -162,7 +162,6 @@ def test_reproduce_robot_bad_input(capsys):
     assert code == 2 and "similarity" in err
 
 
-@pytest.mark.slow
 def test_parallel_simulation_matches_serial():
     from fingerloc.experiments.robot import simulation_pool
 

@@ -189,6 +189,7 @@ def bench_features_cmd(
     from ..experiments.extractors import run_extractor_bench
     from .bench import write_json
 
+    check_output(json_out, "--json")
     if not 0 <= jpeg <= 100:
         raise InvalidParameterError(f"--jpeg must be in 0..100, got {jpeg}")
     with Progress(console=err_console, transient=True) as progress:
@@ -249,6 +250,7 @@ def bench_panorama_cmd(
     from ..experiments.panorama import PANORAMA_METHODS, run_panorama_bench
     from .bench import write_json
 
+    check_output(json_out, "--json")
     if not (spacing > 0 and np.isfinite(spacing)):
         raise InvalidParameterError(f"--spacing must be a positive number of map units, got {spacing}")
     if components < 1:
@@ -310,6 +312,7 @@ def bench_panorama_edges_cmd(
     from ..experiments.panorama import run_edge_bench
     from .bench import write_json
 
+    check_output(json_out, "--json")
     if tol_deg is not None and not (tol_deg > 0 and np.isfinite(tol_deg)):
         raise InvalidParameterError(f"--tol-deg must be a positive number of degrees, got {tol_deg}")
     if max_edges < 0:

@@ -16,6 +16,7 @@ import typer
 from ..errors import InvalidParameterError
 from ..pipeline.files import LASER_KINDS
 from ..pipeline.readers import detect_kind
+from ._io import check_output
 from .app import bench_app, console, err_console
 from .bench import write_json
 
@@ -85,6 +86,9 @@ def carmen_cmd(
     ),
     skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines and report how many."),
     list_methods: bool = typer.Option(False, "--list-methods", help="List the registered methods and exit."),
+    report: Path | None = typer.Option(
+        None, "--report", help="Write a report folder here: per log a map and a localize report of --plot-method."
+    ),
 ) -> None:
     """Place recognition on CARMEN logs with the fixed protocol of issue 7.
 
@@ -101,6 +105,11 @@ def carmen_cmd(
         raise typer.Exit()
     if not logs:
         raise InvalidParameterError("bench carmen needs at least one LOG (e.g. logs/*.log.gz)")
+    from .reports import carmen_report, check_report
+
+    check_output(json_out, "--json")
+    check_output(plot, "--plot")
+    check_report(report)
     with err_console.status("benchmarking...") as status:
         run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
     js = run.to_json()
@@ -115,3 +124,5 @@ def carmen_cmd(
             chosen = next((m for m in run.method_names if m.startswith("fingerprint")), None)
         plot_benchmark(run, plot, method=chosen)
         err_console.print(f"wrote {plot}", soft_wrap=True, markup=False)
+    if report is not None:
+        carmen_report(report, run, plot_method or next((m for m in run.method_names if m.startswith("fingerprint")), None))

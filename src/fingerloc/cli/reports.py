@@ -14,6 +14,7 @@ import numpy as np
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import check_output
 from .app import bench_app, console, err_console
 from .bench import write_json
 
@@ -258,6 +259,7 @@ def report_bench_cmd(
     from ..reporting import check_report_dir
 
     check_report_dir(out, flag="--out")
+    check_output(json_out, "--json")
     with err_console.status("writing reports...") as status:
         res = run_report_bench(out, n_places=places, n_queries=queries, seed=seed,
                                on_stage=lambda s: status.update(f"writing the {s} report..."))  # fmt: skip
