@@ -184,3 +184,14 @@ def make_donut(pano_img, *, size=480, r_in=40.0, r_out=220.0, bearing_offset=0.0
     ri = np.clip(np.floor(row).astype(int), 0, h - 1)
     out[ok] = pano_img[ri[ok], ci[ok]]
     return out, (cx, cy)
+
+
+# the same room with a doorway in its right wall (y in [-0.4, 0.5]) and a corridor wall behind it
+DOOR = [
+    ((-1.5, -1.2), (2.5, -1.2)),
+    ((2.5, -1.2), (2.5, -0.4)),
+    ((2.5, 0.5), (2.5, 1.8)),
+    ((2.5, 1.8), (-1.5, 1.8)),
+    ((-1.5, 1.8), (-1.5, -1.2)),
+    ((4.0, -5.0), (4.0, 5.0)),
+]

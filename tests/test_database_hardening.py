@@ -203,8 +203,8 @@ def test_crafted_databases_are_refused(tmp_path, capsys, learned, case):
 
 
 def test_track_carmen_log_against_a_json_lines_database(tmp_path, capsys, learned):
-    from tests.test_bench_carmen import _write_log
-    from tests.test_markov import _path
+    from ._logs import rooms_path as _path
+    from ._logs import write_log as _write_log
 
     _, db = learned
     log = _write_log(tmp_path / "rooms.log", _path())

@@ -17,7 +17,7 @@ from fingerloc.features.laser import (
 )
 from fingerloc.sensors import Scan
 
-from .features_world import CARMEN_DIR, box, make_scan, read_flaser
+from .features_world import CARMEN_DIR, DOOR, box, make_scan, read_flaser
 
 TOL = np.deg2rad(2.0)
 
@@ -38,15 +38,6 @@ def bearing_deg(x, y):
 ROOM = box(0.5, 0.3, 2.0, 1.5)
 ROOM_CORNERS = [bearing_deg(x, y) for x, y in [(2.5, 1.8), (-1.5, 1.8), (-1.5, -1.2), (2.5, -1.2)]]
 
-# the same room with a doorway in its right wall (y in [-0.4, 0.5]) and a corridor wall behind it
-DOOR = [
-    ((-1.5, -1.2), (2.5, -1.2)),
-    ((2.5, -1.2), (2.5, -0.4)),
-    ((2.5, 0.5), (2.5, 1.8)),
-    ((2.5, 1.8), (-1.5, 1.8)),
-    ((-1.5, 1.8), (-1.5, -1.2)),
-    ((4.0, -5.0), (4.0, 5.0)),
-]
 DOOR_EX = [bearing_deg(2.5, -0.4), bearing_deg(2.5, 0.5)]
 
 

@@ -108,3 +108,18 @@ def test_the_graph_sees_lazy_imports():
     g = import_graph()
     assert g.has_edge("fingerloc.cli.track", "fingerloc.map.filter")  # imported inside track_cmd
     assert not g.has_edge("fingerloc.pipeline.presets", "fingerloc.observation")  # TYPE_CHECKING only
+
+
+def test_test_modules_do_not_import_each_other():
+    """Shared test helpers live in conftest.py or helper modules (``_*.py``), never in another test module."""
+    import ast
+    from pathlib import Path
+
+    bad = []
+    for path in sorted(Path(__file__).parent.glob("test_*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                last = node.module.split(".")[-1]
+                if last.startswith("test_"):
+                    bad.append(f"{path.name}: from {node.module}")
+    assert not bad, bad

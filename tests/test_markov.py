@@ -16,22 +16,8 @@ from fingerloc.experiments.markov import (
 from fingerloc.map.filter import TransitionModel
 from fingerloc.map.graph import PlaceGraph
 from fingerloc.pipeline.places import visit_folds
-from tests.test_bench_carmen import ROOMS, _run_cli, _write_log
 
-
-def _path():
-    """Two loops through the three rooms; in rooms 1 and 2 a step 1.4 m off centre (outside R: prediction only)."""
-    out = []
-    for _ in range(2):
-        for j, (w, h) in enumerate(ROOMS):
-            for dx in (-0.3, 0.0, 0.3) + ((1.4,) if j else ()):
-                out.append((w, h, w / 2 + dx, h / 2, 0.3 * dx))
-    return out
-
-
-@pytest.fixture(scope="module")
-def rooms_log(tmp_path_factory):
-    return _write_log(tmp_path_factory.mktemp("markov") / "rooms-corrected.log", _path())
+from ._cli import run_cli as _run_cli
 
 
 def test_step_distances():

@@ -24,7 +24,6 @@ from fingerloc.map.pose_filter import (
     run_pose_filter,
     simulate_odometry,
 )
-from tests.test_markov import rooms_log  # noqa: F401  (fixture)
 
 ANGLE = st.floats(-math.pi, math.pi - 1e-9)
 COORD = st.floats(-50, 50)
@@ -272,7 +271,7 @@ def test_kidnap_experiment_runs_the_pose_filter():
     assert all(t["recover_observed_steps"] is not None for t in res.trials)
 
 
-def test_pose_filtered_benchmark_end_to_end(rooms_log):  # noqa: F811
+def test_pose_filtered_benchmark_end_to_end(rooms_log):
     run = run_benchmark([rooms_log], ["baseline-histogram", "baseline-histogram-odometry"])
     js = json.loads(json.dumps(run.to_json()))
     figs = js["logs"]["rooms"]["methods"]["baseline-histogram-odometry"]
@@ -281,7 +280,7 @@ def test_pose_filtered_benchmark_end_to_end(rooms_log):  # noqa: F811
         PoseFilteredMethod("fingerprint", odometry="wheels")
 
 
-def test_cli_track_pose_filter(rooms_log, tmp_path, capsys):  # noqa: F811
+def test_cli_track_pose_filter(rooms_log, tmp_path, capsys):
     from tests._cli import run_cli
 
     db = tmp_path / "rooms.sqlite"

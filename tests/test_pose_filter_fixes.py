@@ -12,7 +12,6 @@ from fingerloc.experiments.carmen import DEFAULT_METHODS, METHODS
 from fingerloc.experiments.markov import PoseFilteredMethod
 from fingerloc.map.filter import fit_outlier_weight
 from fingerloc.map.pose_filter import PoseFilter, odometry_increments, path_start_poses, run_pose_filter
-from tests.test_markov import rooms_log  # noqa: F401  (fixture)
 
 
 def _polyline(points, step):
@@ -209,7 +208,7 @@ def test_the_bench_runs_what_each_part_adds_by_default():
         PoseFilteredMethod("fingerprint", outlier="sometimes")
 
 
-def test_odometry_only_ignores_the_sensor(rooms_log):  # noqa: F811
+def test_odometry_only_ignores_the_sensor(rooms_log):
     from fingerloc.experiments.carmen import load_log_scans, make_split
 
     scans, _ = load_log_scans(rooms_log)
@@ -226,7 +225,7 @@ def test_odometry_only_ignores_the_sensor(rooms_log):  # noqa: F811
     assert np.array_equal(outs[0], outs[1])
 
 
-def test_tuning_on_the_mapping_pass_never_sees_the_queries(rooms_log):  # noqa: F811
+def test_tuning_on_the_mapping_pass_never_sees_the_queries(rooms_log):
     """rho and the tempering distance are chosen along the mapping pass: scrambling the query pass's scans
     changes nothing of the choice."""
     from dataclasses import replace
