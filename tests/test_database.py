@@ -154,3 +154,22 @@ def test_cli_learn_weights(tmp_path, cli):
     for bad in ("VE", "VE=-1", "VE=x", "fitted"):
         r = cli("learn", str(train), "--db", str(tmp_path / "x.sqlite"), "--weights", bad)
         assert r.returncode == 2 and r.stderr.startswith("error:"), (bad, r.stderr)
+
+
+def test_localize_streams_in_chunks_with_the_same_answers(tmp_path, cli, monkeypatch):
+    import fingerloc.cli.places as places_cli
+
+    obs, labels = dataset()
+    train = tmp_path / "train.jsonl"
+    write_observations(train, [o.with_label(lab) for o, lab in zip(obs, labels, strict=True)])
+    db = tmp_path / "p.sqlite"
+    assert cli("learn", str(train), "--db", str(db), "-k", "2", "--preset", "paper").returncode == 0
+    test, tl = dataset(seed=12, n=3)
+    q = tmp_path / "q.jsonl"
+    write_observations(q, [o.with_label(lab) for o, lab in zip(test, tl, strict=True)])
+    whole, parts = tmp_path / "whole.json", tmp_path / "parts.json"
+    assert cli("localize", str(q), "--db", str(db), "--json", str(whole), "-q").returncode == 0
+    monkeypatch.setattr(places_cli, "LOCALIZE_CHUNK", 2)  # 9 observations in 5 chunks
+    assert cli("localize", str(q), "--db", str(db), "--json", str(parts), "-q").returncode == 0
+    a, b = json.loads(whole.read_text()), json.loads(parts.read_text())
+    assert a == b and [r["index"] for r in b["observations"]] == list(range(9))

@@ -19,8 +19,10 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from rich.text import Text
 
@@ -117,8 +119,9 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` through a temporary file renamed over it.
+@contextmanager
+def atomic_text_file(path: Path) -> Iterator[TextIO]:
+    """A text file (UTF-8) written in place of ``path`` only when the block ends without an error.
 
     The temporary file sits next to ``path`` and is removed on any failure;
     the new file gets mode ``0o666 & ~umask`` (or the old file's mode), and a
@@ -130,12 +133,52 @@ def atomic_write_text(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+            yield fh
         os.chmod(tmp, mode)
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (:func:`atomic_text_file`)."""
+    with atomic_text_file(path) as fh:
+        fh.write(text)
+
+
+class JsonRecordStream:
+    """A JSON object ``{"KEY": [record, ...], ...tail}`` written record by record (bounded memory).
+
+    Records are strict JSON (non-finite numbers become ``null``, listed in a
+    ``"nulls"`` member with their paths, as :func:`write_json` does); one
+    record a line. :meth:`finish` writes the other members.
+    """
+
+    def __init__(self, fh: TextIO, key: str) -> None:
+        self._fh = fh
+        self._key = key
+        self._n = 0
+        self._nulls: dict[str, str] = {}
+        fh.write("{" + json.dumps(key) + ": [\n")
+
+    def add(self, record: object) -> None:
+        """Append one record."""
+        clean, nulls = strict_json(record)
+        self._nulls.update({f"/{self._key}/{self._n}{k}": v for k, v in nulls.items()})
+        self._fh.write(("" if self._n == 0 else ",\n") + json.dumps(clean, allow_nan=False))
+        self._n += 1
+
+    def finish(self, tail: dict[str, object]) -> None:
+        """Close the array and write the other members (and ``"nulls"`` when there were any)."""
+        clean, nulls = strict_json(tail)
+        self._nulls.update(nulls)
+        if self._nulls:
+            clean["nulls"] = self._nulls
+        self._fh.write("\n]")
+        for k, v in clean.items():
+            self._fh.write(",\n" + json.dumps(str(k)) + ": " + json.dumps(v, indent=2, allow_nan=False))
+        self._fh.write("\n}\n")
 
 
 def write_json(path: Path | None, data: object, *, flag: str = "--json") -> None:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,8 +17,8 @@ from rich.table import Table
 
 from ..errors import InvalidParameterError
 from ..io.jsonl import read_observations
+from ._io import JsonRecordStream, atomic_text_file, lit
 from .app import app, console, err_console
-from .bench import write_json
 from .options import (
     BASE_FRAME_HELP,
     POSE_SOURCE_HELP,
@@ -224,70 +227,132 @@ def localize_cmd(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     obs, names = queries_of_run(run, lm)
     classes = [str(c) for c in model.classes_]
+    preset = None if lm.preset is None else lm.preset.name
+    rank_list: list[int] = []
+    pairs: list[tuple[str, str]] = []  # (true, best) of every labelled observation, for the confusion matrix
+    kept: list[tuple[Any, Any]] = []  # (log posterior, ranks) per chunk, for the report only
+    with contextlib.ExitStack() as stack:
+        stream = None
+        if json_out is not None:
+            stream = JsonRecordStream(stack.enter_context(atomic_text_file(json_out)), "observations")
+        for start in range(0, len(obs), LOCALIZE_CHUNK):
+            chunk = obs[start : start + LOCALIZE_CHUNK]
+            answers = _localize_chunk(model, chunk, names[start:], start, top, table=not quiet)
+            if stream is not None:
+                for rec in answers.records():
+                    stream.add(rec)
+            for i, o in enumerate(chunk):
+                r = answers.rank_of_true[i]
+                if r > 0:
+                    rank_list.append(int(r))
+                    pairs.append((str(o.label), classes[answers.best_cols[i]]))
+            if answers.table is not None:
+                console.print(answers.table)
+            logp, ranks = answers.logp, answers.ranks
+            if report is not None:
+                kept.append((logp, ranks))
+        summary: dict[str, Any] = {"n": len(obs), "top1": None, "mean_rank": None}
+        if rank_list:
+            summary["top1"] = float(np.mean(np.array(rank_list) == 1))
+            summary["mean_rank"] = float(np.mean(rank_list))
+        if stream is not None:
+            stream.finish({"summary": summary, "preset": preset})
+    if json_out is not None:
+        err_console.print(lit(f"wrote {json_out}"))
+    if rank_list:
+        console.print(
+            f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "
+            f"mean rank of the true place: {summary['mean_rank']:.2f}"
+        )
+        if not quiet:
+            _print_confusion(pairs, classes)
+    if report is not None:
+        logp_all = np.vstack([k[0] for k in kept]) if kept else np.zeros((0, len(classes)))
+        ranks_all = np.vstack([k[1] for k in kept]) if kept else np.zeros((0, len(classes)), dtype=np.int64)
+        localize_report(report, model=model, observations=obs, log_proba=logp_all, ranks=ranks_all, data=data, db=db)
+
+
+#: Observations answered at once by ``localize``: its memory does not grow with the file's length.
+LOCALIZE_CHUNK = 256
+
+
+@dataclass(slots=True)
+class _Answers:
+    """``localize``'s answers for one chunk of observations; the JSON records are built on demand."""
+
+    model: Any
+    obs: list[Any]
+    names: list[str]
+    start: int
+    terms: dict[str, Any]
+    logp: Any
+    ranks: Any
+    best_cols: Any
+    rank_of_true: Any  # 0 where the observation has no learned label
+    headings: Any
+    refs: Any
+    unknown: Any
+    table: Table | None
+
+    def records(self) -> Iterator[dict[str, Any]]:
+        """One JSON record per observation (the posterior and every term over every place)."""
+        classes = [str(c) for c in self.model.classes_]
+        places = list(self.model.places_.values())
+        post = np.exp(self.logp)
+        for i, o in enumerate(self.obs):
+            best = classes[int(self.best_cols[i])]
+            ref = places[int(self.best_cols[i])].observations[int(self.refs[i])] if self.refs[i] >= 0 else None
+            rec: dict[str, Any] = {
+                "index": self.start + i,
+                "name": self.names[i],
+                "place": o.label,
+                "best": best,
+                "posterior": dict(zip(classes, post[i].tolist(), strict=True)),
+                "rank_of_true": int(self.rank_of_true[i]) if self.rank_of_true[i] > 0 else None,
+                "terms": {t: dict(zip(classes, ll[i].tolist(), strict=True)) for t, ll in self.terms.items()},
+                "heading_deg": None if np.isnan(self.headings[i]) else float(self.headings[i]),
+                "heading_ref": None if ref is None else (ref.source or f"{best}#{int(self.refs[i])}"),
+            }
+            if self.unknown is not None:
+                rec["unknown"] = float(self.unknown[i])
+            yield rec
+
+
+def _localize_chunk(model: Any, obs: list[Any], names: list[str], start: int, top: int, *, table: bool) -> _Answers:
+    """Posterior, ranks and headings of one chunk of observations (the terms computed once), and its table."""
     from ..metrics import rank_scores
     from ..model import normalise_log
 
+    classes = [str(c) for c in model.classes_]
     terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
     logp = normalise_log(model.combine(terms))
-    post = np.exp(logp)
     ranks = rank_scores(logp)
     best_cols = np.argmax(logp, axis=1) if len(obs) else np.zeros(0, dtype=np.int64)
+    col = {c: j for j, c in enumerate(classes)}
+    truth = np.array([col.get(str(o.label), -1) if o.label is not None else -1 for o in obs], dtype=np.int64)
+    rank_of_true = np.where(truth >= 0, ranks[np.arange(len(obs)), np.maximum(truth, 0)], 0)
     headings = np.full(len(obs), np.nan)
     refs = np.full(len(obs), -1, dtype=np.int64)
     if model.cyclic and len(obs):
         # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
         h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
         headings = np.mod(-h, 360.0)
-    places = list(model.places_.values())
     unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
-    col = {c: j for j, c in enumerate(classes)}
-    labelled = [o.label is not None and o.label in col for o in obs]
-    records = []
-    table = Table(show_header=True)
-    for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if model.cyclic else ()):
-        table.add_column(c, overflow="fold")  # long place names wrap, never cut
-    for i, o in enumerate(obs):
-        order = np.argsort(-logp[i], kind="stable")
-        best = classes[order[0]]
-        r = int(ranks[i, col[o.label]]) if labelled[i] and o.label is not None else None
-        h = None if np.isnan(headings[i]) else float(headings[i])
-        ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
-        rec: dict[str, Any] = {
-            "index": i,
-            "name": names[i],
-            "place": o.label,
-            "best": best,
-            "posterior": {c: float(post[i, j]) for j, c in enumerate(classes)},
-            "rank_of_true": r,
-            "terms": {t: {c: float(ll[i, j]) for j, c in enumerate(classes)} for t, ll in terms.items()},
-            "heading_deg": h,
-            "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
-        }
-        if unknown is not None:
-            rec["unknown"] = float(unknown[i])
-        records.append(rec)
-        topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order[:top])
-        row = [str(i), o.label or "-", best, topk, "-" if r is None else str(r)]
-        if model.cyclic:
-            row.append("-" if h is None else f"{h:.1f}")
-        table.add_row(*row)
-    if not quiet:
-        console.print(table)
-    rank_list = [rec["rank_of_true"] for rec in records if rec["rank_of_true"] is not None]
-    summary: dict[str, Any] = {"n": len(obs), "top1": None, "mean_rank": None}
-    if rank_list:
-        summary["top1"] = float(np.mean(np.array(rank_list) == 1))
-        summary["mean_rank"] = float(np.mean(rank_list))
-        console.print(
-            f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "
-            f"mean rank of the true place: {summary['mean_rank']:.2f}"
-        )
-        if not quiet:
-            _print_confusion(records, classes)
-    preset = None if lm.preset is None else lm.preset.name
-    write_json(json_out, {"observations": records, "summary": summary, "preset": preset})
-    if report is not None:
-        localize_report(report, model=model, observations=obs, log_proba=logp, ranks=ranks, data=data, db=db)
+    tab = None
+    if table:
+        tab = Table(show_header=True)
+        for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if model.cyclic else ()):
+            tab.add_column(c, overflow="fold")  # long place names wrap, never cut
+        post = np.exp(logp)
+        for i, o in enumerate(obs):
+            order = np.argsort(-logp[i], kind="stable")[:top]
+            topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
+            r = rank_of_true[i]
+            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
+            if model.cyclic:
+                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
+            tab.add_row(*row)
+    return _Answers(model, obs, names, start, terms, logp, ranks, best_cols, rank_of_true, headings, refs, unknown, tab)
 
 
 def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
@@ -326,9 +391,10 @@ def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
     return obs, [run.names[i] for i in idx.tolist()]
 
 
-def _print_confusion(records: list[dict[str, Any]], classes: list[str]) -> None:
-    truths = sorted({r["place"] for r in records if r["rank_of_true"] is not None}, key=classes.index)
-    cols = sorted({r["best"] for r in records if r["rank_of_true"] is not None} | set(truths), key=classes.index)
+def _print_confusion(pairs: list[tuple[str, str]], classes: list[str]) -> None:
+    """The confusion matrix of (true place, best place) pairs of the labelled observations."""
+    truths = sorted({t for t, _ in pairs}, key=classes.index)
+    cols = sorted({b for _, b in pairs} | set(truths), key=classes.index)
     if len(cols) > 30:
         console.print(
             f"(confusion matrix omitted: {len(cols)} places, more than 30; --report DIR draws the most confused ones)",
@@ -341,7 +407,7 @@ def _print_confusion(records: list[dict[str, Any]], classes: list[str]) -> None:
     for c in cols:
         t.add_column(c, justify="right", overflow="fold")
     for tr in truths:
-        counts = [sum(1 for r in records if r["place"] == tr and r["best"] == c) for c in cols]
+        counts = [sum(1 for t, b in pairs if t == tr and b == c) for c in cols]
         t.add_row(tr, *[str(x) if x else "." for x in counts])
     console.print(t)
 
