@@ -426,3 +426,17 @@ def test_localize_report_without_labels_shows_the_least_confident(tmp_path):
     assert "top1" not in js and js["labelled"] == 0
     assert "Least confident answers" in html
     assert [w["query"] for w in js["worst"]] == ["query 2", "query 3", "query 1"]
+
+
+def test_map_report_from_the_command(rooms_log, tmp_path, capsys):
+    """``fingerloc map LOG --db DB --report DIR`` writes the map report (issue 19) and checks DIR first."""
+    out, db = tmp_path / "r1", tmp_path / "m.sqlite"
+    code, _, err = run_cli(capsys, "map", rooms_log, "--db", db, "--no-calibration", "--report", out)
+    assert code == 0, err
+    html = (out / "index.html").read_text()
+    assert "map.png" in html and (out / "map.png").stat().st_size > 1000
+    from fingerloc.map.database import load_model
+
+    assert html.count(" views</div>") == len(load_model(db).classes_)  # a card per place
+    code, _, err = run_cli(capsys, "map", rooms_log, "--db", tmp_path / "n.sqlite", "--report", db)
+    assert code == 2 and "--report" in err and not (tmp_path / "n.sqlite").exists()

@@ -22,6 +22,7 @@ from .options import (
     model_overrides,
     read_run_files,
 )
+from .reports import check_report, map_report
 
 __all__ = ["map_cmd"]
 
@@ -51,6 +52,9 @@ def map_cmd(
     cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Overrides the preset."),
     costs: str | None = typer.Option(None, help="'unit' or 'feature' (overrides the preset)."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Do not fit the likelihood scale beta (beta = 1; faster)."),
+    report: Path | None = typer.Option(
+        None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
+    ),
 ) -> None:
     """Make a place map from a recorded run's poses.
 
@@ -81,6 +85,7 @@ def map_cmd(
     check_db_target(db, overwrite)
     check_output(json_out, "--json")
     check_output(queries_out, "--queries")
+    check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
     with err_console.status("mapping...") as status:
@@ -119,3 +124,6 @@ def map_cmd(
         q = run.observations(sp.query_idx, features=features)
         n = write_observations(queries_out, [o.with_label(pm.labels[j]) for o, j in zip(q, sp.query_labels.tolist(), strict=True)])
         err_console.print(f"wrote {n} labelled queries to {queries_out}", markup=False)
+    if report is not None:
+        map_report(report, model=pm.model, centres=pm.positions, radius=radius, edges=pm.graph.edges(),
+                   trajectory=run.poses, scans=run.scans, data=runs[0], db=db)  # fmt: skip
