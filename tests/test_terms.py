@@ -1,6 +1,7 @@
 """PlaceModel as a combination of terms: scikit-learn conformance, labels, state, headings, parameter errors."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -203,3 +204,19 @@ def test_database_keeps_range_descriptors_not_scans(tmp_path):
     # the stored model still grows: a new view of "b" adds its descriptor to the stored ones
     back.add_places([obs[-1]])
     assert back.terms_["R"].descriptors_[1].shape[0] == 4
+
+
+@pytest.mark.parametrize(
+    ("features", "needle"),
+    [
+        ({"CP": [{"bearing": 1}]}, "lacks 'hue'"),
+        ({"CP": [[1]]}, "list of 2 numbers"),
+        ({"W": [[1, 2]]}, "list of 3 numbers"),
+        ({"W": [{"bearing": 1, "length": 2}]}, "lacks 'range'"),
+        ({"VE": ["a"]}, "features['VE'] must be a list of numbers"),
+    ],
+)
+def test_from_degrees_refuses_malformed_entries(features, needle):
+    with pytest.raises(InvalidParameterError, match=re.escape(needle)) as info:
+        Observation.from_degrees(features)
+    assert "\n" not in str(info.value)

@@ -270,44 +270,23 @@ class Observation:
             raise InvalidParameterError(
                 f"unknown feature type {unknown[0]!r} (expected one of {', '.join(FEATURE_TYPES)})"
             )
-        walls = list(features.get("W", []))
-        w_b: list[float] = []
-        w_l: list[float] = []
-        w_r: list[float] = []
-        for p in walls:
-            if isinstance(p, Mapping):
-                w_b.append(p["bearing"])
-                w_l.append(p["length"])
-                w_r.append(p["range"])
-            else:
-                w_b.append(p[0])
-                w_l.append(p[1])
-                w_r.append(p[2])
-        cps = list(features.get("CP", []))
-        cp_b: list[float] = []
-        cp_h: list[float] = []
-        for p in cps:
-            if isinstance(p, Mapping):
-                cp_b.append(p["bearing"])
-                cp_h.append(p["hue"])
-            else:
-                cp_b.append(p[0])
-                cp_h.append(p[1])
+        w_b, w_l, w_r = _records(features.get("W", []), "W", ("bearing", "length", "range"))
+        cp_b, cp_h = _records(features.get("CP", []), "CP", ("bearing", "hue"))
         p3 = None
         if pose is not None:
             if len(pose) != 3:
                 raise InvalidParameterError(f"pose: must be [x, y, theta_deg], got {list(pose)!r}")
             p3 = (float(pose[0]), float(pose[1]), float(deg_to_rad(pose[2])))
         return cls(
-            ve=deg_to_rad(np.asarray(features.get("VE", []), dtype=float)),
-            cp=deg_to_rad(np.asarray(cp_b, dtype=float)),
-            cp_hue=np.asarray(cp_h, dtype=float),
-            ex=deg_to_rad(np.asarray(features.get("Ex", []), dtype=float)),
-            c=deg_to_rad(np.asarray(features.get("c", []), dtype=float)),
-            b=deg_to_rad(np.asarray(features.get("B", []), dtype=float)),
-            w=deg_to_rad(np.asarray(w_b, dtype=float)),
-            w_length=np.asarray(w_l, dtype=float),
-            w_range=np.asarray(w_r, dtype=float),
+            ve=deg_to_rad(_numbers(features.get("VE", []), "VE")),
+            cp=deg_to_rad(cp_b),
+            cp_hue=cp_h,
+            ex=deg_to_rad(_numbers(features.get("Ex", []), "Ex")),
+            c=deg_to_rad(_numbers(features.get("c", []), "c")),
+            b=deg_to_rad(_numbers(features.get("B", []), "B")),
+            w=deg_to_rad(w_b),
+            w_length=w_l,
+            w_range=w_r,
             fov=fov_from_degrees(fov),
             label=label,
             pose=p3,
@@ -394,3 +373,36 @@ def _same_optional(a: FArray | None, b: FArray | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return bool(np.array_equal(a, b))
+
+
+def _numbers(values: Any, kind: str) -> FArray:
+    """A feature type's values (degrees or metres) as a 1-D float array; one-line error naming the type otherwise."""
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InvalidParameterError(f"features[{kind!r}] must be a list of numbers, got {values!r}") from None
+    if a.ndim != 1:
+        raise InvalidParameterError(f"features[{kind!r}] must be a flat list of numbers, got {values!r}")
+    return a
+
+
+def _records(items: Any, kind: str, keys: tuple[str, ...]) -> tuple[FArray, ...]:
+    """``CP`` / ``W`` entries, each a mapping with ``keys`` or a sequence in that order, as one array per key."""
+    cols: list[list[Any]] = [[] for _ in keys]
+    if isinstance(items, str | bytes | Mapping):
+        raise InvalidParameterError(f"features[{kind!r}] must be a list of {{{', '.join(keys)}}} entries, got {items!r}")
+    for item in items:
+        if isinstance(item, Mapping):
+            missing = [k for k in keys if k not in item]
+            if missing:
+                raise InvalidParameterError(f"features[{kind!r}]: an entry lacks {missing[0]!r}: {item!r}")
+            vals = [item[k] for k in keys]
+        elif isinstance(item, Sequence) and not isinstance(item, str | bytes) and len(item) == len(keys):
+            vals = list(item)
+        else:
+            raise InvalidParameterError(
+                f"features[{kind!r}]: each entry must be {{{', '.join(keys)}}} or a list of {len(keys)} numbers, got {item!r}"
+            )
+        for col, v in zip(cols, vals, strict=True):
+            col.append(v)
+    return tuple(_numbers(col, kind) for col in cols)
