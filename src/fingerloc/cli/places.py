@@ -164,15 +164,15 @@ def learn_cmd(
             )
         else:
             resolved = resolve_preset("auto" if preset is None else preset, obs, given)
-            err_console.print(resolved.reason, markup=False)
-            empty = empty_terms(resolved.options, obs)
-            if empty:
-                err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
-                                  "places apart (see --preset / --terms)", markup=False)  # fmt: skip
             try:
                 model = resolved.model().fit(obs)
             except InvalidParameterError as err:
                 raise InvalidParameterError(_with_flags(str(err))) from err
+            err_console.print(resolved.reason, markup=False)  # after the checks: a failure stays one line
+            empty = empty_terms(resolved.options, obs)
+            if empty:
+                err_console.print(f"warning: no observation has {', '.join(empty)} bearings: those terms cannot tell "
+                                  "places apart (see --preset / --terms)", markup=False)  # fmt: skip
             verb = f"learned {len(model.places_)} place(s) with preset {resolved.name}"
             cal = None
             if calibrate and len(model.places_) > 1:
