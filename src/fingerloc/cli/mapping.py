@@ -12,10 +12,11 @@ import typer
 from ..errors import InvalidParameterError
 from .app import app, err_console
 from .options import (
-    BASE_FRAME_HELP,
-    POSE_SOURCE_HELP,
-    RUN_KIND_HELP,
-    TOPIC_HELP,
+    BASE_FRAME_OPTION,
+    KIND_OPTION,
+    POSE_SOURCE_OPTION,
+    SKIP_BAD_OPTION,
+    TOPIC_OPTION,
     bag_options,
     check_db_target,
     check_output,
@@ -40,11 +41,11 @@ def map_cmd(
     queries_out: Path | None = typer.Option(
         None, "--queries", help="Also write the queries (later scans within --radius of a place, labelled with the nearest) as JSON Lines here."
     ),
-    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
-    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
-    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
-    base_frame: str | None = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP),
-    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
+    kind: str = KIND_OPTION,
+    topic: list[str] | None = TOPIC_OPTION,
+    pose_source: str = POSE_SOURCE_OPTION,
+    base_frame: str | None = BASE_FRAME_OPTION,
+    skip_bad: bool = SKIP_BAD_OPTION,
     components: int | None = typer.Option(None, "-k", "--components", help="Mixture components (overrides the preset)."),
     terms: str | None = typer.Option(None, help="Terms, comma-separated (overrides the preset)."),
     laser_letters: bool | None = typer.Option(None, "--laser-letters/--no-laser-letters", help="Overrides the preset."),

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import typer
 
 from ..errors import InvalidParameterError
 from ._io import check_output
@@ -21,9 +22,14 @@ from .app import err_console
 
 __all__ = [
     "BASE_FRAME_HELP",
+    "BASE_FRAME_OPTION",
+    "KIND_OPTION",
     "POSE_SOURCE_HELP",
+    "POSE_SOURCE_OPTION",
     "RUN_KIND_HELP",
+    "SKIP_BAD_OPTION",
     "TOPIC_HELP",
+    "TOPIC_OPTION",
     "bag_options",
     "check_db_target",
     "check_output",
@@ -36,6 +42,13 @@ RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; J
 TOPIC_HELP = "ROS bag: the LaserScan topic (when there are several); repeat it to merge lidars into one observation per step."
 POSE_SOURCE_HELP = "ROS bag: where poses come from: auto | none | tf[:FRAME] | odom[:TOPIC]."
 BASE_FRAME_HELP = "ROS bag: the robot's frame (default: the root of the static transforms above the lidars)."
+
+# The raw-run options of map, localize and track (one definition each).
+KIND_OPTION = typer.Option("auto", "--kind", help=RUN_KIND_HELP)
+TOPIC_OPTION = typer.Option(None, "--topic", help=TOPIC_HELP)
+POSE_SOURCE_OPTION = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP)
+BASE_FRAME_OPTION = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP)
+SKIP_BAD_OPTION = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many.")
 
 
 def bag_options(topic: str | list[str] | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:

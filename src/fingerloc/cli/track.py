@@ -14,10 +14,11 @@ from ._io import check_output
 from .app import app, bench_app, console, err_console
 from .bench import write_json
 from .options import (
-    BASE_FRAME_HELP,
-    POSE_SOURCE_HELP,
-    RUN_KIND_HELP,
-    TOPIC_HELP,
+    BASE_FRAME_OPTION,
+    KIND_OPTION,
+    POSE_SOURCE_OPTION,
+    SKIP_BAD_OPTION,
+    TOPIC_OPTION,
     bag_options,
     check_db_target,
     read_run_files,
@@ -88,11 +89,11 @@ def track_cmd(
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
     ),
-    kind: str = typer.Option("auto", "--kind", help=RUN_KIND_HELP),
-    topic: list[str] | None = typer.Option(None, "--topic", help=TOPIC_HELP),
-    pose_source: str = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP),
-    base_frame: str | None = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP),
-    skip_bad: bool = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many."),
+    kind: str = KIND_OPTION,
+    topic: list[str] | None = TOPIC_OPTION,
+    pose_source: str = POSE_SOURCE_OPTION,
+    base_frame: str | None = BASE_FRAME_OPTION,
+    skip_bad: bool = SKIP_BAD_OPTION,
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
