@@ -440,3 +440,12 @@ def test_map_report_from_the_command(rooms_log, tmp_path, capsys):
     assert html.count(" views</div>") == len(load_model(db).classes_)  # a card per place
     code, _, err = run_cli(capsys, "map", rooms_log, "--db", tmp_path / "n.sqlite", "--report", db)
     assert code == 2 and "--report" in err and not (tmp_path / "n.sqlite").exists()
+
+
+def test_track_report_on_a_map_database(rooms_log, tmp_path, capsys):
+    """``fingerloc track LOG --db MAP --report DIR`` (issue 19's done-when): trajectory with the map's places."""
+    db, out = tmp_path / "m.sqlite", tmp_path / "r2"
+    assert run_cli(capsys, "map", rooms_log, "--db", db, "--no-calibration")[0] == 0
+    code, _, err = run_cli(capsys, "track", rooms_log, "--db", db, "--filter", "pose", "-q", "--report", out)
+    assert code == 0, err
+    assert (out / "trajectory.png").stat().st_size > 1000 and "trajectory.png" in (out / "index.html").read_text()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -106,10 +107,70 @@ def track_cmd(
     both use its calibration (likelihood scale, metres per place change,
     tempering, kidnapping probability).
     """
-    from ..map.filter import TransitionModel, run_filter
     from .reports import check_report, track_report
 
     check_report(report)
+    _check_options(observe, filter_kind, odometry_error, radius, scale, metres_per_move, alpha, uniform_mix)
+    check_output(json_out, "--json")
+    bag = bag_options(topic, pose_source, base_frame)
+    raw_kind = _check_db_flags(data, db, kind, map_log, graph_from, overwrite)
+    # writes to --db wait until every check and the filter have passed: a failed command changes nothing
+    pending: list[Any] = []
+    if raw_kind != "jsonl" or (graph_from is None and _has_map(db)):
+        tr = _track_with_map(
+            data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe, scale=scale,
+            metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, odometry_error=odometry_error,
+            filter_kind=filter_kind, seed=seed, pending=pending,
+        )  # fmt: skip
+    else:
+        tr = _track_jsonl(
+            data, db, scale=scale, graph_from=graph_from, pending=pending, metres_per_move=metres_per_move,
+            alpha=alpha, uniform_mix=uniform_mix, odometry_error=odometry_error, filter_kind=filter_kind,
+            radius=radius, seed=seed,
+        )  # fmt: skip
+    for write in pending:
+        write()
+    steps = _steps(tr, quiet)
+    summary = _track_summary(tr, filter_kind)
+    _print_summary(summary, tr, filter_kind)
+    write_json(json_out, {"steps": steps, "summary": summary})
+    if report is not None:
+        track_report(report, result=tr.result, log_likelihood=tr.beta * tr.ll, truth=tr.truth, classes=tr.classes,
+                     names=tr.names, geo=tr.geo, data=data, db=db)  # fmt: skip
+
+
+@dataclass(slots=True)
+class _Tracked:
+    """A run tracked by either filter: what ``track`` prints, writes and draws.
+
+    ``ll`` (n_steps, P) single-shot log-likelihoods (NaN rows: prediction
+    only), ``truth`` (n_steps,) true place column or -1, ``geo`` the poses and
+    place centres known (for the report).
+    """
+
+    ll: Any
+    truth: Any
+    classes: list[str]
+    names: list[str]
+    beta: float
+    metres: float | None
+    transition: Any
+    result: Any
+    odometry_error: float
+    geo: dict[str, Any]
+
+
+def _check_options(
+    observe: str,
+    filter_kind: str,
+    odometry_error: float | None,
+    radius: float | None,
+    scale: float | None,
+    metres_per_move: float | None,
+    alpha: float,
+    uniform_mix: float | None,
+) -> None:
+    """One-line errors for the filter's options, before anything is read."""
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
     if filter_kind not in ("places", "pose"):
@@ -126,8 +187,10 @@ def track_cmd(
         raise InvalidParameterError(f"--alpha must be a finite number >= 0, got {alpha!r}")
     if uniform_mix is not None and not (0 <= uniform_mix < 1):
         raise InvalidParameterError(f"--uniform-mix must be in [0, 1), got {uniform_mix!r}")
-    check_output(json_out, "--json")
-    bag = bag_options(topic, pose_source, base_frame)
+
+
+def _check_db_flags(data: Path, db: Path, kind: str, map_log: bool, graph_from: Path | None, overwrite: bool) -> str:
+    """The run's kind (``carmen``, ``bag`` or ``jsonl``), after the checks of --map, --graph-from and --overwrite."""
     from ..pipeline.readers import detect_kind
 
     raw_kind = (detect_kind(data) if kind == "auto" else kind) or "jsonl"
@@ -141,77 +204,98 @@ def track_cmd(
         raise InvalidParameterError("--overwrite goes with --map")
     if db.is_dir():
         raise InvalidParameterError(f"--db: {db} is a directory, not a place database")
-    names: list[str]
-    # writes to --db wait until every check and the filter have passed: a failed command changes nothing
-    pending: list[Any] = []
-    if raw_kind != "jsonl" or (graph_from is None and _has_map(db)):
-        ll, truth, poses, classes, tracker, names, factor = _run_steps(
-            data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe,
-            scale=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix,
-            odometry_error=odometry_error, filter_kind=filter_kind, pending=pending,
-        )  # fmt: skip
-        res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed)
-        beta = tracker.calibration.beta
-        metres = tracker.calibration.metres_per_move
-        transition = tracker.transition_
-        odometry_error = factor
+    return raw_kind
+
+
+def _track_with_map(data: Path, db: Path, *, filter_kind: str, seed: int, **options: Any) -> _Tracked:
+    """A raw run (or JSON Lines) against a database made by 'fingerloc map': the library's tracker."""
+    ll, truth, poses, classes, tracker, names, factor = _run_steps(data, db, filter_kind=filter_kind, **options)
+    res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed)
+    cal = tracker.calibration
+    geo = {"poses": poses, "centres": tracker.centres}
+    return _Tracked(ll, truth, classes, names, cal.beta, cal.metres_per_move, tracker.transition_, res, factor, geo)
+
+
+def _track_jsonl(
+    data: Path,
+    db: Path,
+    *,
+    scale: float | None,
+    graph_from: Path | None,
+    pending: list[Any],
+    metres_per_move: float | None,
+    alpha: float,
+    uniform_mix: float | None,
+    odometry_error: float | None,
+    filter_kind: str,
+    radius: float | None,
+    seed: int,
+) -> _Tracked:
+    """JSON Lines against a database made by 'fingerloc learn' (the graph stored, or from --graph-from)."""
+    from ..map.filter import TransitionModel, run_filter
+
+    ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
+        data, db, scale=scale, graph_from=graph_from, pending=pending
+    )
+    if metres_per_move is not None:
+        metres = metres_per_move
+    if graph.graph.number_of_edges() == 0:
+        err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
+        transition = TransitionModel.uniform(len(classes))
     else:
-        ll, truth, dist, graph, classes, beta, metres, names, geo = _jsonl_steps(
-            data, db, scale=scale, graph_from=graph_from, pending=pending
-        )
-        if metres_per_move is not None:
-            metres = metres_per_move
-        if graph.graph.number_of_edges() == 0:
-            err_console.print(f"{db}: no place graph stored; every place may follow every place (single-shot)")
-            transition = TransitionModel.uniform(len(classes))
-        else:
-            transition = TransitionModel.from_graph(
-                graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres
-            )
-        odometry_error = 0.0 if odometry_error is None else odometry_error
-        if filter_kind == "pose":
-            res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=odometry_error, seed=seed)
-        else:
-            res = run_filter(beta * ll, transition, distances=dist)
-    for write in pending:
-        write()
-    single = np.where(np.isnan(ll), 0.0, ll)
+        transition = TransitionModel.from_graph(graph, classes, alpha=alpha, uniform_mix=uniform_mix, metres_per_move=metres)
+    factor = 0.0 if odometry_error is None else odometry_error
+    if filter_kind == "pose":
+        res = _pose_filter_run(beta * ll, transition, geo, radius=radius, odometry_error=factor, seed=seed)
+    else:
+        res = run_filter(beta * ll, transition, distances=dist)
+    return _Tracked(ll, truth, classes, names, beta, metres, transition, res, factor, geo)
+
+
+def _steps(tr: _Tracked, quiet: bool) -> list[dict[str, Any]]:
+    """One JSON record per step (printed as a line unless ``quiet``)."""
     steps: list[dict[str, Any]] = []
-    for t in range(ll.shape[0]):
-        b = int(res.best[t])
+    for t in range(tr.ll.shape[0]):
         rec: dict[str, Any] = {
             "step": t,
-            "name": names[t],
-            "observed": bool(not np.all(np.isnan(ll[t]))),
-            "best": classes[b],
-            "probability": float(res.best_probability[t]),
-            "entropy_bits": float(res.entropy_bits[t]),
-            "true": None if truth[t] < 0 else classes[int(truth[t])],
+            "name": tr.names[t],
+            "observed": bool(not np.all(np.isnan(tr.ll[t]))),
+            "best": tr.classes[int(tr.result.best[t])],
+            "probability": float(tr.result.best_probability[t]),
+            "entropy_bits": float(tr.result.entropy_bits[t]),
+            "true": None if tr.truth[t] < 0 else tr.classes[int(tr.truth[t])],
         }
         steps.append(rec)
         if not quiet:
-            mark = (
-                "" if rec["true"] is None else ("  right" if rec["true"] == rec["best"] else f"  (true {rec['true']})")
-            )
-            obs = "obs " if rec["observed"] else "pred"
+            mark = "" if rec["true"] is None else ("  right" if rec["true"] == rec["best"] else f"  (true {rec['true']})")
             console.print(
-                f"{t:5d} {obs} {names[t]:<28} best {rec['best']:<10} p {rec['probability']:.3f}  "
-                f"H {rec['entropy_bits']:.2f} bits{mark}",
+                f"{t:5d} {'obs ' if rec['observed'] else 'pred'} {tr.names[t]:<28} best {rec['best']:<10} "
+                f"p {rec['probability']:.3f}  H {rec['entropy_bits']:.2f} bits{mark}",
                 soft_wrap=True,
                 markup=False,
             )
-    observed = ~np.all(np.isnan(ll), axis=1)
-    summary = {
-        "steps": int(ll.shape[0]),
+    return steps
+
+
+def _track_summary(tr: _Tracked, filter_kind: str) -> dict[str, Any]:
+    """``summary`` of ``track --json``: steps, the calibration used, filtered and single-shot figures."""
+    single = np.where(np.isnan(tr.ll), 0.0, tr.ll)
+    observed = ~np.all(np.isnan(tr.ll), axis=1)
+    truth = np.where(observed, tr.truth, -1)
+    return {
+        "steps": int(tr.ll.shape[0]),
         "observed_steps": int(observed.sum()),
-        "places": len(classes),
-        "likelihood_scale": beta,
-        "metres_per_move": metres,
-        "uniform_mix": transition.uniform_mix,
+        "places": len(tr.classes),
+        "likelihood_scale": tr.beta,
+        "metres_per_move": tr.metres,
+        "uniform_mix": tr.transition.uniform_mix,
         "filter": filter_kind,
-        "filtered": _summary(res.best, res.log_posterior, np.where(observed, truth, -1)),
-        "single_shot": _summary(np.argmax(single, axis=1), single, np.where(observed, truth, -1)),
+        "filtered": _summary(tr.result.best, tr.result.log_posterior, truth),
+        "single_shot": _summary(np.argmax(single, axis=1), single, truth),
     }
+
+
+def _print_summary(summary: dict[str, Any], tr: _Tracked, filter_kind: str) -> None:
     f, s = summary["filtered"], summary["single_shot"]
     if f.get("labelled"):
         console.print(
@@ -219,23 +303,12 @@ def track_cmd(
             f"single-shot top-1 {s['top1']:.3f}, mean rank {s['mean_rank']:.2f}",
             soft_wrap=True,
         )
+    head = f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(tr.classes)} places, beta {tr.beta:.3g}, "
     if filter_kind == "pose":
-        console.print(
-            f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
-            f"beta {beta:.3g}, pose filter (odometry increments, error factor {odometry_error:g})",
-            soft_wrap=True,
-        )
+        console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g})", soft_wrap=True)
     else:
-        console.print(
-            f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(classes)} places, "
-            f"beta {beta:.3g}, uniform mixing {transition.uniform_mix:.3g}, "
-            f"odometry {'off' if metres is None else f'{metres:.2f} m per place change'}",
-            soft_wrap=True,
-        )
-    write_json(json_out, {"steps": steps, "summary": summary})
-    if report is not None:
-        track_report(report, result=res, log_likelihood=beta * ll, truth=truth, classes=classes, names=names,
-                     geo=geo, data=data, db=db)  # fmt: skip
+        odometry = "off" if tr.metres is None else f"{tr.metres:.2f} m per place change"
+        console.print(head + f"uniform mixing {tr.transition.uniform_mix:.3g}, odometry {odometry}", soft_wrap=True)
 
 
 def _pose_filter_run(
