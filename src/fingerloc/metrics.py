@@ -11,8 +11,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from ._types import FArray, IArray
 from .errors import InvalidParameterError
 
 __all__ = [
@@ -26,8 +26,6 @@ __all__ = [
     "true_place_ranks",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 
 def _scores(scores: Any) -> FArray:

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from ._estimator import ParamsMixin
+from ._types import FArray
 from .errors import InvalidParameterError, NotFittedError
 from .metrics import rank_scores
 from .observation import Observation
@@ -49,7 +50,6 @@ PAPER_TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
 #: Every term a model may use: the paper's, the range term ``R`` and the appearance term ``A`` (our extensions).
 TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A")
 
-FArray = NDArray[np.float64]
 
 FpLikelihood = Literal["paper", "exp"]
 FpReference = Literal["all", "medoid", "consensus"]

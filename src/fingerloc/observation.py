@@ -31,8 +31,9 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from ._types import FArray
 from .angles import TWO_PI, deg_to_rad, wrap
 from .errors import InvalidParameterError
 
@@ -44,7 +45,6 @@ FEATURE_TYPES: tuple[str, ...] = ("VE", "CP", "Ex", "c", "B", "W")
 #: The full circle as a field of view: one range, start -pi, width 2 pi.
 FULL_FOV: tuple[tuple[float, float], ...] = ((-np.pi, TWO_PI),)
 
-FArray = NDArray[np.float64]
 
 
 def _readonly(a: ArrayLike, name: str) -> FArray:

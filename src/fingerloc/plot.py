@@ -29,7 +29,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import FancyArrow, Polygon
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from ._types import FArray
 
 __all__ = [
     "LETTER_COLOURS",
@@ -43,7 +45,6 @@ __all__ = [
     "plot_scan_features",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Colours of the fingerprint letters (colour patches get their own hue).
 LETTER_COLOURS: dict[str, str] = {"v": "tab:blue", "c": "tab:red", "b": "tab:orange", "f": "tab:purple", "n": "0.6"}

@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from ._types import FArray
 from .angles import TWO_PI, wrap
 from .errors import InvalidParameterError
 
 __all__ = ["Panorama", "Scan"]
 
-FArray = NDArray[np.float64]
 
 
 def _ro(a: object) -> FArray:

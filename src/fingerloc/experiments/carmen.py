@@ -37,8 +37,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray, IArray
 from ..errors import EmptyInputError, InvalidParameterError
 from ..metrics import max_per_place
 from ..pipeline.presets import model_options
@@ -85,8 +85,6 @@ __all__ = [
     "true_place_ranks",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 
 def _check_fit_input(scans: Sequence[Scan], labels: Any) -> IArray:

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+from .._types import FArray
 from ..angles import dist_as
 from ..errors import InvalidParameterError
 from ..fingerprint import hue_letter
@@ -36,7 +37,6 @@ from .speed import best_time, section
 
 __all__ = ["ExtractorCounts", "match_bearings", "run_extractor_bench"]
 
-FArray = NDArray[np.float64]
 
 #: Feature types evaluated, in report order ("VE/omni", "CP/omni": from the unwarped donut).
 TYPES = ("c", "Ex", "B", "VE", "CP", "VE/omni", "CP/omni")

@@ -51,8 +51,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
@@ -87,8 +87,6 @@ __all__ = [
     "with_synthetic_likelihood",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 #: Total-variation distance below which two posteriors count as merged (kidnapping forgotten).
 MERGED_TV = 0.1

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._types import FArray
 from ..errors import DataFormatError, InvalidParameterError
 from ..features.vision import PHOTO_EDGE_PARAMS
 from ..metrics import min_per_place, true_place_ranks
@@ -70,7 +71,6 @@ __all__ = [
     "signature_rotation_deg",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Default band of elevations (parts of the image height, top = 0) and width.
 DEFAULT_BAND = (0.25, 0.75)

@@ -17,9 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-import numpy as np
-from numpy.typing import NDArray
-
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..metrics import rank_metrics, true_place_ranks
 from ..pipeline.places import PLACE_RADIUS_M as _PLACE_RADIUS_M
@@ -46,8 +44,6 @@ __all__ = [
     "true_place_ranks",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 #: Modules whose import registers benchmark methods (loaded by :func:`load_methods`).
 METHOD_MODULES: tuple[str, ...] = ("fingerloc.experiments.carmen", "fingerloc.experiments.markov")

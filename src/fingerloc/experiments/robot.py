@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 from ..metrics import min_per_place, true_place_ranks
 from ..metrics import true_place_ranks as rank_of_truth
@@ -103,7 +104,6 @@ __all__ = [
     "wilson_interval",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Mixture components of the paper's Table IV columns.
 PAPER_K: tuple[int, ...] = (3, 4, 5)

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
+from .._types import FArray
 from ..angles import TWO_PI, wrap
 from ..errors import InvalidParameterError
 from ..observation import FULL_FOV, Observation
@@ -58,7 +59,6 @@ __all__ = [
     "vertical_edges",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Vertical-edge parameters for real photographs (full equirectangular panoramas): one edge per
 #: 3 deg, the 12 strongest. Chosen on hand-labelled campus photos (docs/RESULTS.md, "Real panoramas").

@@ -42,6 +42,7 @@ from scipy.linalg import expm
 from scipy.optimize import minimize_scalar
 from scipy.special import logsumexp
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 from ..validation import check_int
 from .graph import PlaceGraph
@@ -57,7 +58,6 @@ __all__ = [
     "run_filter",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Largest condition number of the move matrix's eigenvectors for the fast odometry path.
 EIG_MAX_COND = 1e6

@@ -23,11 +23,11 @@ import networkx as nx
 import numpy as np
 from numpy.typing import NDArray
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 
 __all__ = ["PlaceGraph", "load_graph", "nearest_place_sequence"]
 
-FArray = NDArray[np.float64]
 
 
 class PlaceGraph:

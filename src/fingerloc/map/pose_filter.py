@@ -51,10 +51,10 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 from scipy.special import logsumexp
 
+from .._types import FArray, IArray
 from ..angles import wrap
 from ..errors import InvalidParameterError
 from ..validation import check_random_state
@@ -73,8 +73,6 @@ __all__ = [
     "wheel_odometry",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 
 def _finite(name: str, value: Any, *, low: float = 0.0) -> float:

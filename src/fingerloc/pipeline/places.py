@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 
 __all__ = [
@@ -45,8 +45,6 @@ PLACE_SPACING_M = 2.0
 #: Scans within this distance (inclusive) of a centre train / query it, metres.
 PLACE_RADIUS_M = 1.0
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 
 def place_label(j: int) -> str:

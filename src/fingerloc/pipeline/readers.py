@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray
 from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
 from ..observation import Observation
 from ..sensors import Scan
@@ -34,7 +34,6 @@ __all__ = [
     "read_runs",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Kinds of run files: CARMEN logs, ROS bags, JSON Lines observations.
 RUN_KINDS: tuple[str, ...] = ("carmen", "bag", "jsonl")

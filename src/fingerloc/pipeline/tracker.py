@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import (
     FilterResult,
@@ -72,8 +72,6 @@ __all__ = [
     "tune_pose_filter",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10

@@ -20,9 +20,9 @@ import numpy as np
 from matplotlib.collections import EllipseCollection, LineCollection
 from numpy.typing import NDArray
 
+from .._types import FArray
 from .views import FEATURE_STYLE, FeatureView
 
-FArray = NDArray[np.float64]
 _DPI = 100
 
 

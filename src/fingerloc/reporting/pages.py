@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from .html import Page, ellipsize_middle, esc, table_html
 from .views import FeatureView, draw_view_thumbnail, legend_text
@@ -35,8 +36,6 @@ __all__ = [
     "write_track_report",
 ]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 
 def _f2(a: ArrayLike | None, name: str, cols: tuple[int, ...] = (2,)) -> FArray | None:

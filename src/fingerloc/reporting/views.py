@@ -17,8 +17,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
@@ -26,7 +27,6 @@ if TYPE_CHECKING:
 
 __all__ = ["FEATURE_STYLE", "FeatureView", "draw_view_thumbnail"]
 
-FArray = NDArray[np.float64]
 
 #: Feature type -> (ring radius as a fraction of the thumbnail's, RGB colour, description).
 FEATURE_STYLE: dict[str, tuple[float, tuple[int, int, int], str]] = {

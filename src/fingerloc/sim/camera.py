@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 from ..sensors import Panorama
 from ..validation import check_random_state
@@ -41,7 +42,6 @@ from .world import World, cast_rays_k
 
 __all__ = ["CAMERA_HEIGHT", "ELEVATION_DEG", "OmniImage", "render_omni", "render_panorama"]
 
-FArray = NDArray[np.float64]
 
 #: Height of the camera's centre of projection above the floor, metres.
 CAMERA_HEIGHT = 1.2

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from .._types import FArray
 from ..angles import wrap
 from ..errors import InvalidParameterError
 from ..observation import Observation
@@ -41,7 +42,6 @@ from .world import World, cast_rays
 
 __all__ = ["true_features", "true_observation"]
 
-FArray = NDArray[np.float64]
 
 
 def _line_ids(world: World) -> NDArray[np.int64]:

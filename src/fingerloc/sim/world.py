@@ -21,12 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 
 __all__ = ["PARTS", "Material", "World", "cast_rays", "cast_rays_k"]
 
-FArray = NDArray[np.float64]
-IArray = NDArray[np.int64]
 
 #: Names of the structural parts a segment can belong to (``World.part`` indexes this).
 PARTS: tuple[str, ...] = ("wall", "door_frame", "lintel", "furniture", "pillar", "corridor", "door_leaf", "chair")

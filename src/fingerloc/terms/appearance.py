@@ -29,8 +29,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import IArray
 from ..errors import InvalidParameterError, NotFittedError
 from ..observation import Observation
 from .base import FArray
@@ -41,7 +41,6 @@ __all__ = ["METRICS", "AppearanceTerm", "fit_lambda"]
 #: Distances between appearance descriptors.
 METRICS: tuple[str, ...] = ("l1", "hellinger")
 
-IArray = NDArray[np.int64]
 
 
 class AppearanceTerm(DistanceTerm):

@@ -23,13 +23,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from .._types import FArray
 from ..observation import Observation
 
 __all__ = ["FArray", "Term"]
 
-FArray = NDArray[np.float64]
 
 
 class Term:
