@@ -386,238 +386,406 @@ def _polygon(spec: _Spec) -> np.ndarray:
     return np.array([(0, 0), (w, 0), (w, d - nd), (w - nw, d - nd), (w - nw, d), (0, d)], dtype=float)
 
 
-def _build(spec: _Spec, name: str) -> World:
-    b = _Builder()
+#: A box on the floor plan: ``x0, y0, x1, y1``, metres.
+_Box = tuple[float, float, float, float]
+#: A stretch of a wall: ``(wall index, lo, hi)``, metres along the wall from its first vertex.
+_Span = tuple[int, float, float]
+
+
+@dataclass
+class _Office:
+    """An office being built from its :class:`_Spec`: the room, its materials and what stands where.
+
+    Positions along a wall (``lo``, ``hi``, ``a``, ``c``) are metres from the wall's first
+    vertex; offsets from a wall are metres along its inward normal; heights are metres.
+    """
+
+    spec: _Spec
+    poly: np.ndarray  # room polygon, shape (n, 2), counter-clockwise, metres
+    length: list[float]  # length of each wall, metres
+    b: _Builder = field(default_factory=_Builder)
+    # Material indices into ``b.materials``.
+    wall_m: int = -1
+    frame_m: int = -1
+    corr_m: int = -1
+    beacon_m: int = -1
+    window_m: int = -1
+    leaf_m: list[int] = field(default_factory=list)
+    furn_m: list[int] = field(default_factory=list)
+    # Per wall: door openings (lo, hi, corridor distance), where furniture/pillars stand (lo, hi),
+    # decals (lo, hi, z0, z1, material).
+    doors: dict[int, list[tuple[float, float, float]]] = field(default_factory=dict)
+    blocked: dict[int, list[tuple[float, float]]] = field(default_factory=dict)
+    decals: dict[int, list[tuple[float, float, float, float, int]]] = field(default_factory=dict)
+    # Open door leaves: (wall, lo, hi, angle in degrees, hinge side 0/1, leaf material choice).
+    leaves: list[tuple[int, float, float, float, int, int]] = field(default_factory=list)
+    # Floor-plan keep-out boxes: doorways and the footprints of what is already placed.
+    taken: list[_Box] = field(default_factory=list)
+    # Placed furniture: (wall, lo, hi, depth, height, material); pillars: (wall, lo, hi, inset);
+    # chairs: (wall, lo, hi, offset from the wall, top of the back, material).
+    furniture: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
+    pillars: list[tuple[int, float, float, float]] = field(default_factory=list)
+    chairs: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        """Number of walls (polygon vertices)."""
+        return int(self.poly.shape[0])
+
+    @property
+    def height(self) -> float:
+        """Ceiling height, metres."""
+        return self.spec.height
+
+
+def _new_office(spec: _Spec) -> _Office:
+    """Start building ``spec``: its polygon, wall lengths (metres) and empty per-wall lists."""
     poly = _polygon(spec)
     n = poly.shape[0]
-    H = spec.height
-    wall_m = b.material(Material(spec.wall_rgb, spec.wall_refl))
-    frame_m = b.material(Material(spec.frame_rgb, 0.3, gloss=0.2))
-    corr_m = b.material(Material(spec.corridor_rgb, 0.45))
-    beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
-    window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=1.3))  # daylight: overexposed
-    leaf_m = [b.material(Material(rgb, refl)) for rgb, refl in _LEAF_MATS]
-    furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
-
-    # Per wall: occupied intervals (metres along the wall), cuts and decals.
     length = [float(np.hypot(*(poly[(i + 1) % n] - poly[i]))) for i in range(n)]
-    doors: dict[int, list[tuple[float, float, float]]] = {i: [] for i in range(n)}
-    leaves: list[tuple[int, float, float, float, int, int]] = []
-    blocked: dict[int, list[tuple[float, float]]] = {i: [] for i in range(n)}  # where furniture/pillars stand
-    decals: dict[int, list[tuple[float, float, float, float, int]]] = {i: [] for i in range(n)}
+    return _Office(
+        spec=spec,
+        poly=poly,
+        length=length,
+        doors={i: [] for i in range(n)},
+        blocked={i: [] for i in range(n)},
+        decals={i: [] for i in range(n)},
+    )
 
-    def place(wall: int, u: float, width: float, margin: float) -> tuple[int, float, float] | None:
-        i = wall % n
-        lo = u * length[i] - width / 2
-        lo = float(np.clip(lo, margin, length[i] - margin - width))
-        hi = lo + width
-        if lo < margin - 1e-9 or hi > length[i] - margin + 1e-9:
-            return None
-        return i, lo, hi
 
-    for dd in spec.doors:
-        p = place(dd["wall"], dd["u"], dd["width"], 0.25)
-        if p is None or any(_overlaps((p[1], p[2]), (a, c), 0.3) for a, c, _ in doors[p[0]]):
+def _add_materials(o: _Office) -> None:
+    """Register the office's fixed materials (walls, frames, corridor, beacons, windows, leaves, furniture).
+
+    Sets the ``*_m`` material indices of ``o``; poster materials are added later, one per poster.
+    """
+    s, b = o.spec, o.b
+    o.wall_m = b.material(Material(s.wall_rgb, s.wall_refl))
+    o.frame_m = b.material(Material(s.frame_rgb, 0.3, gloss=0.2))
+    o.corr_m = b.material(Material(s.corridor_rgb, 0.45))
+    o.beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
+    o.window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=1.3))  # daylight: overexposed
+    o.leaf_m = [b.material(Material(rgb, refl)) for rgb, refl in _LEAF_MATS]
+    o.furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
+
+
+def _place(o: _Office, wall: int, u: float, width: float, margin: float) -> _Span | None:
+    """Put an element ``width`` metres wide centred at fraction ``u`` of wall ``wall`` (taken modulo
+    the number of walls), shifted to keep ``margin`` metres from both ends.
+
+    Returns ``(wall index, lo, hi)`` in metres along the wall, or None when it does not fit.
+    """
+    i = wall % o.n
+    lo = u * o.length[i] - width / 2
+    lo = float(np.clip(lo, margin, o.length[i] - margin - width))
+    hi = lo + width
+    if lo < margin - 1e-9 or hi > o.length[i] - margin + 1e-9:
+        return None
+    return i, lo, hi
+
+
+def _inside(o: _Office, box: _Box) -> bool:
+    """True when the floor-plan box (metres) lies inside the room (corners tested 1 cm inward)."""
+    c = np.array([(box[0], box[1]), (box[2], box[1]), (box[0], box[3]), (box[2], box[3])])
+    c = c + np.sign(np.array([(1, 1), (-1, 1), (1, -1), (-1, -1)])) * 0.01
+    return bool(point_in_polygon(o.poly, c).all())
+
+
+def _free_of_doors(o: _Office, i: int, lo: float, hi: float, margin: float = 0.05) -> bool:
+    """True when ``lo..hi`` (metres along wall ``i``) keeps ``margin`` metres from every door on it."""
+    return not any(_overlaps((lo, hi), (a, c), margin) for a, c, _ in o.doors[i])
+
+
+def _footprint(o: _Office, i: int, lo: float, hi: float, off0: float, off1: float) -> _Box:
+    """The floor-plan bounding box (metres) of ``lo..hi`` along wall ``i`` between offsets
+    ``off0`` and ``off1`` metres inward from it."""
+    p0 = o.poly[i]
+    t = (o.poly[(i + 1) % o.n] - p0) / o.length[i]
+    nin = np.array([-t[1], t[0]])
+    q = np.array([p0 + s * t + off * nin for s in (lo, hi) for off in (off0, off1)])
+    return float(q[:, 0].min()), float(q[:, 1].min()), float(q[:, 0].max()), float(q[:, 1].max())
+
+
+def _clash(box: _Box, others: list[_Box]) -> bool:
+    """True when the floor-plan box overlaps any of ``others`` (all metres)."""
+    return any(box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3] for o in others)
+
+
+def _place_doors(o: _Office) -> None:
+    """Cut the spec's doors into the walls (skipping those that do not fit or come within 0.3 m
+    of another), note their open leaves, and keep a box reaching about one metre into the room in
+    front of each doorway free (``o.taken``)."""
+    for dd in o.spec.doors:
+        p = _place(o, dd["wall"], dd["u"], dd["width"], 0.25)
+        if p is None or any(_overlaps((p[1], p[2]), (a, c), 0.3) for a, c, _ in o.doors[p[0]]):
             continue
-        doors[p[0]].append((p[1], p[2], dd["corridor"]))
+        o.doors[p[0]].append((p[1], p[2], dd["corridor"]))
         if dd.get("leaf", False):
-            leaves.append((p[0], p[1], p[2], float(dd["leaf_angle"]), int(dd["hinge"]), int(dd["leaf_mat"])))
+            o.leaves.append((p[0], p[1], p[2], float(dd["leaf_angle"]), int(dd["hinge"]), int(dd["leaf_mat"])))
+    o.taken = [_footprint(o, i, a - 0.25, c + 0.25, 0.0, 1.05) for i in range(o.n) for a, c, _ in o.doors[i]]
 
-    def world_inside(box: tuple[float, float, float, float]) -> bool:
-        c = np.array([(box[0], box[1]), (box[2], box[1]), (box[0], box[3]), (box[2], box[3])])
-        c = c + np.sign(np.array([(1, 1), (-1, 1), (1, -1), (-1, -1)])) * 0.01
-        return bool(point_in_polygon(poly, c).all())
 
-    def free_of_doors(i: int, lo: float, hi: float, margin: float = 0.05) -> bool:
-        return not any(_overlaps((lo, hi), (a, c), margin) for a, c, _ in doors[i])
+def _place_furniture(o: _Office) -> None:
+    """Stand each piece of furniture against its wall, at the wanted spot or shifted by up to
+    0.35 of the wall, clear of doors, other furniture and pillars; drop those that fit nowhere.
 
-    def footprint(i: int, lo: float, hi: float, off0: float, off1: float) -> tuple[float, float, float, float]:
-        p0 = poly[i]
-        t = (poly[(i + 1) % n] - p0) / length[i]
-        nin = np.array([-t[1], t[0]])
-        q = np.array([p0 + s * t + o * nin for s in (lo, hi) for o in (off0, off1)])
-        return float(q[:, 0].min()), float(q[:, 1].min()), float(q[:, 0].max()), float(q[:, 1].max())
-
-    def clash(box: tuple[float, float, float, float], others: list[tuple[float, float, float, float]]) -> bool:
-        return any(box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3] for o in others)
-
-    # Keep-out boxes: one metre inside each door, and the footprints of what is already placed.
-    taken = [footprint(i, a - 0.25, c + 0.25, 0.0, 1.05) for i in range(n) for a, c, _ in doors[i]]
-    furniture_boxes: list[tuple[int, float, float, float, float, int]] = []
-    for f in spec.furniture:
+    Fills ``o.furniture`` with ``(wall, lo, hi, depth, height, material)`` (metres).
+    """
+    for f in o.spec.furniture:
         found = None
         for du in (0.0, 0.1, -0.1, 0.2, -0.2, 0.35, -0.35):
-            p = place(f["wall"], float(np.clip(f["u"] + du, 0.0, 1.0)), f["width"], 0.05)
+            p = _place(o, f["wall"], float(np.clip(f["u"] + du, 0.0, 1.0)), f["width"], 0.05)
             if (
                 p is None
-                or not free_of_doors(p[0], p[1], p[2], 0.15)
-                or any(_overlaps((p[1], p[2]), x) for x in blocked[p[0]])
+                or not _free_of_doors(o, p[0], p[1], p[2], 0.15)
+                or any(_overlaps((p[1], p[2]), x) for x in o.blocked[p[0]])
             ):
                 continue
-            box = footprint(p[0], p[1], p[2], 0.0, _FURN_GAP + f["depth"])
-            if not clash(box, taken) and world_inside(box):
+            box = _footprint(o, p[0], p[1], p[2], 0.0, _FURN_GAP + f["depth"])
+            if not _clash(box, o.taken) and _inside(o, box):
                 found = p, box
                 break
         if found is None:
             continue
         p, box = found
-        taken.append(box)
-        blocked[p[0]].append((p[1] - 0.03, p[2] + 0.03))
-        furniture_boxes.append((p[0], p[1], p[2], f["depth"], f["height"], furn_m[f["mat"] % len(furn_m)]))
-    pillar_boxes: list[tuple[int, float, float, float]] = []
-    for pl in spec.pillars:
-        p = place(pl["wall"], pl["u"], pl["size"], 0.3)
+        o.taken.append(box)
+        o.blocked[p[0]].append((p[1] - 0.03, p[2] + 0.03))
+        o.furniture.append((p[0], p[1], p[2], f["depth"], f["height"], o.furn_m[f["mat"] % len(o.furn_m)]))
+
+
+def _place_pillars(o: _Office) -> None:
+    """Put each pillar against its wall (or 0.9 m in front of it when ``free``), skipping those
+    that would touch a door or anything already placed.
+
+    Fills ``o.pillars`` with ``(wall, lo, hi, inset)`` (metres).
+    """
+    for pl in o.spec.pillars:
+        p = _place(o, pl["wall"], pl["u"], pl["size"], 0.3)
         if (
             p is None
-            or not free_of_doors(p[0], p[1], p[2], 0.2)
-            or any(_overlaps((p[1], p[2]), x, 0.1) for x in blocked[p[0]])
+            or not _free_of_doors(o, p[0], p[1], p[2], 0.2)
+            or any(_overlaps((p[1], p[2]), x, 0.1) for x in o.blocked[p[0]])
         ):
             continue
         inset = 0.9 if pl["free"] else 0.0
-        box = footprint(p[0], p[1], p[2], inset - 0.05, inset + pl["size"] + 0.05)
-        if clash(box, taken) or not world_inside(box):
+        box = _footprint(o, p[0], p[1], p[2], inset - 0.05, inset + pl["size"] + 0.05)
+        if _clash(box, o.taken) or not _inside(o, box):
             continue
-        taken.append(box)
-        blocked[p[0]].append((p[1] - 0.05, p[2] + 0.05))
-        pillar_boxes.append((p[0], p[1], p[2], inset))
+        o.taken.append(box)
+        o.blocked[p[0]].append((p[1] - 0.05, p[2] + 0.05))
+        o.pillars.append((p[0], p[1], p[2], inset))
 
-    # Office chairs: a seat and back (a block from 0.45 m up) on a thin column, standing free in the room.
-    chair_boxes: list[tuple[int, float, float, float, float, int]] = []
-    for ch in spec.chairs:
+
+def _place_chairs(o: _Office) -> None:
+    """Stand each office chair free in the room, near its wall spot, shifted along the wall and
+    further in until its footprint is clear; drop those that fit nowhere.
+
+    Fills ``o.chairs`` with ``(wall, lo, hi, offset from the wall, top of the back, material)`` (metres).
+    """
+    for ch in o.spec.chairs:
         size = float(ch["size"])
-        found_c = None
+        found = None
         for du, doff in itertools.product((0.0, 0.12, -0.12, 0.25, -0.25), (0.0, 0.4, 0.8)):
-            p = place(ch["wall"], float(np.clip(ch["u"] + du, 0.0, 1.0)), size, 0.1)
+            p = _place(o, ch["wall"], float(np.clip(ch["u"] + du, 0.0, 1.0)), size, 0.1)
             if p is None:
                 continue
             off = float(ch["off"]) + doff
-            box = footprint(p[0], p[1], p[2], off, off + size)
-            if not clash(box, taken) and world_inside(box):
-                found_c = p, off, box
+            box = _footprint(o, p[0], p[1], p[2], off, off + size)
+            if not _clash(box, o.taken) and _inside(o, box):
+                found = p, off, box
                 break
-        if found_c is None:
+        if found is None:
             continue
-        p, off, box = found_c
-        taken.append(box)
-        chair_boxes.append((p[0], p[1], p[2], off, float(ch["back"]), furn_m[ch["mat"] % len(furn_m)]))
+        p, off, box = found
+        o.taken.append(box)
+        o.chairs.append((p[0], p[1], p[2], off, float(ch["back"]), o.furn_m[ch["mat"] % len(o.furn_m)]))
 
-    def first_fit(
-        wall: int, u: float, width: float, ok: Callable[[int, float, float], bool]
-    ) -> tuple[int, float, float] | None:
-        # The wanted spot, else the nearest of a few shifted ones along the same wall, else the next walls.
-        for dw in range(n):
-            for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
-                p = place(wall + dw, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
-                if p is not None and ok(*p):
-                    return p
-        return None
 
-    def patch_ok(i: int, lo: float, hi: float) -> bool:
-        return free_of_doors(i, lo, hi) and not any(_overlaps((lo, hi), (a, c), 0.1) for a, c, *_ in decals[i])
+def _first_fit(
+    o: _Office, wall: int, u: float, width: float, ok: Callable[[_Office, int, float, float], bool]
+) -> _Span | None:
+    """The wanted spot, else the nearest of a few shifted ones along the same wall, else the next walls.
 
-    def beacon_ok(i: int, lo: float, hi: float) -> bool:
-        return (
-            free_of_doors(i, lo, hi, 0.1)
-            and not any(_overlaps((lo, hi), x, 0.1) for x in blocked[i])
-            and not any(_overlaps((lo, hi), (a, c), 0.15) for a, c, *_ in decals[i])
-        )
+    Returns the first ``(wall index, lo, hi)`` (metres along the wall) that ``ok`` accepts, or None.
+    """
+    for dw in range(o.n):
+        for du in (0.0, 0.12, -0.12, 0.25, -0.25, 0.4, -0.4):
+            p = _place(o, wall + dw, float(np.clip(u + du, 0.0, 1.0)), width, 0.1)
+            if p is not None and ok(o, *p):
+                return p
+    return None
 
-    for pt in spec.patches:
-        p = first_fit(pt["wall"], pt["u"], pt["width"], patch_ok)
+
+def _patch_ok(o: _Office, i: int, lo: float, hi: float) -> bool:
+    """Whether a poster or window may hang at ``lo..hi`` (metres along wall ``i``): off doors and other decals."""
+    return _free_of_doors(o, i, lo, hi) and not any(_overlaps((lo, hi), (a, c), 0.1) for a, c, *_ in o.decals[i])
+
+
+def _beacon_ok(o: _Office, i: int, lo: float, hi: float) -> bool:
+    """Whether a beacon may go at ``lo..hi`` (metres along wall ``i``): off doors, furniture, pillars and decals."""
+    return (
+        _free_of_doors(o, i, lo, hi, 0.1)
+        and not any(_overlaps((lo, hi), x, 0.1) for x in o.blocked[i])
+        and not any(_overlaps((lo, hi), (a, c), 0.15) for a, c, *_ in o.decals[i])
+    )
+
+
+def _place_decals(o: _Office) -> None:
+    """Hang posters (one new saturated material each), beacons (0.1-0.9 m up) and windows on the walls.
+
+    Fills ``o.decals`` with ``(lo, hi, z0, z1, material)`` per wall (metres).
+    """
+    H = o.height
+    for pt in o.spec.patches:
+        p = _first_fit(o, pt["wall"], pt["u"], pt["width"], _patch_ok)
         if p is None:
             continue
         r, g, bb = colorsys.hsv_to_rgb(pt["hue"] / 360.0, pt["sat"], pt["val"])
-        m = b.material(Material((float(r), float(g), float(bb)), 0.4, patch=True))
-        decals[p[0]].append((p[1], p[2], pt["z0"], min(pt["z1"], H - 0.1), m))
-    for bc in spec.beacons:
-        p = first_fit(bc["wall"], bc["u"], bc["width"], beacon_ok)
+        m = o.b.material(Material((float(r), float(g), float(bb)), 0.4, patch=True))
+        o.decals[p[0]].append((p[1], p[2], pt["z0"], min(pt["z1"], H - 0.1), m))
+    for bc in o.spec.beacons:
+        p = _first_fit(o, bc["wall"], bc["u"], bc["width"], _beacon_ok)
         if p is None:
             continue
-        decals[p[0]].append((p[1], p[2], 0.1, 0.9, beacon_m))
-    for wd in spec.windows:
-        p = first_fit(wd["wall"], wd["u"], wd["width"], patch_ok)
+        o.decals[p[0]].append((p[1], p[2], 0.1, 0.9, o.beacon_m))
+    for wd in o.spec.windows:
+        p = _first_fit(o, wd["wall"], wd["u"], wd["width"], _patch_ok)
         if p is None:
             continue
-        decals[p[0]].append((p[1], p[2], wd["z0"], min(wd["z1"], H - 0.15), window_m))
+        o.decals[p[0]].append((p[1], p[2], wd["z0"], min(wd["z1"], H - 0.15), o.window_m))
 
-    for i in range(n):
-        p0, p1 = poly[i], poly[(i + 1) % n]
-        L = length[i]
-        t = (p1 - p0) / L
-        nin = np.array([-t[1], t[0]])  # inward normal (polygon is counter-clockwise)
 
-        def at(s: float, off: float = 0.0, p0: np.ndarray = p0, t: np.ndarray = t, nin: np.ndarray = nin) -> np.ndarray:
-            return p0 + s * t + off * nin
+@dataclass(frozen=True)
+class _WallFrame:
+    """Wall ``i``'s frame: first vertex ``p0`` (metres), unit direction ``t``, inward normal ``nin``."""
 
-        cuts = {0.0, L}
-        for a, c, _ in doors[i]:
-            cuts |= {a, c}
-        for a, c, *_ in decals[i]:
-            cuts |= {a, c}
-        cs = sorted(cuts)
-        for a, c in itertools.pairwise(cs):
-            mid = (a + c) / 2
-            if any(da <= mid <= dc for da, dc, _ in doors[i]):
-                b.add(at(a), at(c), (_DOOR_TOP, H), wall_m, "lintel")
-                continue
-            dec = next(((z0, z1, m) for da, dc, z0, z1, m in decals[i] if da <= mid <= dc), None)
-            b.add(at(a), at(c), (0.0, H), wall_m, "wall", dec)
-        for a, c, cd in doors[i]:
-            for s in (a, c):
-                b.add(at(s), at(s, -_WALL_THICKNESS), (0.0, _DOOR_TOP), frame_m, "door_frame")
-            # Frame head and the corridor wall seen through the door.
-            # The corridor must stay outside the room (an L-shaped room wraps around its notch).
-            for dist, ext in ((cd, 1.5), (cd, 0.5), (min(cd, 0.9), 0.3)):
-                q0, q1 = at(a - ext, -dist), at(c + ext, -dist)
-                if not _crosses_polygon(q0, q1, poly):
-                    b.add(q0, q1, (0.0, H), corr_m, "corridor")
-                    break
-        for wi, a, c, angle, hinge, lm in leaves:
-            if wi != i:
-                continue
-            # An open door leaf swung into the room by ``angle`` degrees about its hinge.
-            phi = np.deg2rad(angle)
-            along = np.cos(phi) * (t if hinge == 0 else -t) + np.sin(phi) * nin
-            root = at(a if hinge == 0 else c)
-            b.add(root, root + (c - a - 0.02) * along, (0.0, _DOOR_TOP - 0.02), leaf_m[lm], "door_leaf")
-        for wi, lo, hi, depth, height, m in furniture_boxes:
-            if wi != i:
-                continue
-            q = [at(lo, _FURN_GAP), at(lo, _FURN_GAP + depth), at(hi, _FURN_GAP + depth), at(hi, _FURN_GAP)]
-            for k in range(3):
-                b.add(q[k], q[k + 1], (0.0, height), m, "furniture")
-        for wi, lo, hi, inset in pillar_boxes:
-            if wi != i:
-                continue
-            size = hi - lo
-            q = [at(lo, inset), at(lo, inset + size), at(hi, inset + size), at(hi, inset)]
-            for k in range(3 if inset == 0.0 else 4):
-                b.add(q[k], q[(k + 1) % 4], (0.0, H), wall_m, "pillar")
+    i: int
+    p0: np.ndarray
+    t: np.ndarray
+    nin: np.ndarray
+    length: float  # metres
 
-        for wi, lo, hi, off, back, m in chair_boxes:
-            if wi != i:
-                continue
-            size = hi - lo
-            q = [at(lo, off), at(lo, off + size), at(hi, off + size), at(hi, off)]
-            for k in range(4):
-                b.add(q[k], q[(k + 1) % 4], (_SEAT_Z, back), m, "chair")
-            centre = at((lo + hi) / 2, off + size / 2)
-            r = _CHAIR_POST / 2
-            post = [centre + np.array(v) for v in ((-r, -r), (r, -r), (r, r), (-r, r))]
-            for k in range(4):
-                b.add(post[k], post[(k + 1) % 4], (0.0, _SEAT_Z), m, "chair")
+    def at(self, s: float, off: float = 0.0) -> np.ndarray:
+        """The floor-plan point ``s`` metres along the wall and ``off`` metres inward from it."""
+        return self.p0 + s * self.t + off * self.nin
 
+
+def _wall_frame(o: _Office, i: int) -> _WallFrame:
+    """The frame of wall ``i`` (the polygon is counter-clockwise, so the left normal points inward)."""
+    p0, p1 = o.poly[i], o.poly[(i + 1) % o.n]
+    L = o.length[i]
+    t = (p1 - p0) / L
+    return _WallFrame(i=i, p0=p0, t=t, nin=np.array([-t[1], t[0]]), length=L)
+
+
+def _add_wall_segments(o: _Office, w: _WallFrame) -> None:
+    """The wall itself, cut at doors and decals: full-height pieces (carrying their decal) and lintels over doors."""
+    doors, decals = o.doors[w.i], o.decals[w.i]
+    cuts = {0.0, w.length}
+    for a, c, _ in doors:
+        cuts |= {a, c}
+    for a, c, *_ in decals:
+        cuts |= {a, c}
+    for a, c in itertools.pairwise(sorted(cuts)):
+        mid = (a + c) / 2
+        if any(da <= mid <= dc for da, dc, _ in doors):
+            o.b.add(w.at(a), w.at(c), (_DOOR_TOP, o.height), o.wall_m, "lintel")
+            continue
+        dec = next(((z0, z1, m) for da, dc, z0, z1, m in decals if da <= mid <= dc), None)
+        o.b.add(w.at(a), w.at(c), (0.0, o.height), o.wall_m, "wall", dec)
+
+
+def _add_door_segments(o: _Office, w: _WallFrame) -> None:
+    """Each door's frame sides (``_WALL_THICKNESS`` deep) and the corridor wall seen through it."""
+    for a, c, cd in o.doors[w.i]:
+        for s in (a, c):
+            o.b.add(w.at(s), w.at(s, -_WALL_THICKNESS), (0.0, _DOOR_TOP), o.frame_m, "door_frame")
+        # Frame head and the corridor wall seen through the door.
+        # The corridor must stay outside the room (an L-shaped room wraps around its notch).
+        for dist, ext in ((cd, 1.5), (cd, 0.5), (min(cd, 0.9), 0.3)):
+            q0, q1 = w.at(a - ext, -dist), w.at(c + ext, -dist)
+            if not _crosses_polygon(q0, q1, o.poly):
+                o.b.add(q0, q1, (0.0, o.height), o.corr_m, "corridor")
+                break
+
+
+def _add_leaf_segments(o: _Office, w: _WallFrame) -> None:
+    """Open door leaves on this wall, each swung into the room by its angle (degrees) about its hinge."""
+    for wi, a, c, angle, hinge, lm in o.leaves:
+        if wi != w.i:
+            continue
+        phi = np.deg2rad(angle)
+        along = np.cos(phi) * (w.t if hinge == 0 else -w.t) + np.sin(phi) * w.nin
+        root = w.at(a if hinge == 0 else c)
+        o.b.add(root, root + (c - a - 0.02) * along, (0.0, _DOOR_TOP - 0.02), o.leaf_m[lm], "door_leaf")
+
+
+def _add_furniture_segments(o: _Office, w: _WallFrame) -> None:
+    """The three exposed sides of each piece of furniture standing against this wall."""
+    for wi, lo, hi, depth, height, m in o.furniture:
+        if wi != w.i:
+            continue
+        q = [w.at(lo, _FURN_GAP), w.at(lo, _FURN_GAP + depth), w.at(hi, _FURN_GAP + depth), w.at(hi, _FURN_GAP)]
+        for k in range(3):
+            o.b.add(q[k], q[k + 1], (0.0, height), m, "furniture")
+
+
+def _add_pillar_segments(o: _Office, w: _WallFrame) -> None:
+    """Full-height pillars of this wall: three sides against the wall, four when standing free."""
+    for wi, lo, hi, inset in o.pillars:
+        if wi != w.i:
+            continue
+        size = hi - lo
+        q = [w.at(lo, inset), w.at(lo, inset + size), w.at(hi, inset + size), w.at(hi, inset)]
+        for k in range(3 if inset == 0.0 else 4):
+            o.b.add(q[k], q[(k + 1) % 4], (0.0, o.height), o.wall_m, "pillar")
+
+
+def _add_chair_segments(o: _Office, w: _WallFrame) -> None:
+    """Office chairs placed from this wall: a seat-and-back block from ``_SEAT_Z`` up on a thin column."""
+    for wi, lo, hi, off, back, m in o.chairs:
+        if wi != w.i:
+            continue
+        size = hi - lo
+        q = [w.at(lo, off), w.at(lo, off + size), w.at(hi, off + size), w.at(hi, off)]
+        for k in range(4):
+            o.b.add(q[k], q[(k + 1) % 4], (_SEAT_Z, back), m, "chair")
+        centre = w.at((lo + hi) / 2, off + size / 2)
+        r = _CHAIR_POST / 2
+        post = [centre + np.array(v) for v in ((-r, -r), (r, -r), (r, r), (-r, r))]
+        for k in range(4):
+            o.b.add(post[k], post[(k + 1) % 4], (0.0, _SEAT_Z), m, "chair")
+
+
+def _add_segments(o: _Office) -> None:
+    """Turn everything placed into vertical segments, wall by wall (the order fixes segment indices)."""
+    for i in range(o.n):
+        w = _wall_frame(o, i)
+        _add_wall_segments(o, w)
+        _add_door_segments(o, w)
+        _add_leaf_segments(o, w)
+        _add_furniture_segments(o, w)
+        _add_pillar_segments(o, w)
+        _add_chair_segments(o, w)
+
+
+def _light_boxes(o: _Office) -> np.ndarray:
+    """Sun patches and ceiling lamps as light boxes ``cx, cy, cz, hx, hy, hz, gain`` (metres), shape (k, 7)."""
     sun = []
-    lo_xy, hi_xy = poly.min(axis=0), poly.max(axis=0)
-    for sn in spec.suns:
+    lo_xy, hi_xy = o.poly.min(axis=0), o.poly.max(axis=0)
+    for sn in o.spec.suns:
         cx = lo_xy[0] + sn["u"] * (hi_xy[0] - lo_xy[0])
         cy = lo_xy[1] + sn["v"] * (hi_xy[1] - lo_xy[1])
         sun.append((cx, cy, sn["z"], sn["hx"], sn["hy"], sn["hz"], float(np.clip(sn["gain"], -0.6, 0.8))))
-    for lp in spec.lamps:  # ceiling lamps: bright panels on the ceiling
+    for lp in o.spec.lamps:  # ceiling lamps: bright panels on the ceiling
         cx = lo_xy[0] + lp["u"] * (hi_xy[0] - lo_xy[0])
         cy = lo_xy[1] + lp["v"] * (hi_xy[1] - lo_xy[1])
-        sun.append((cx, cy, H, lp["hx"], lp["hy"], 0.05, float(np.clip(lp["gain"], 0.0, 1.0))))
+        sun.append((cx, cy, o.height, lp["hx"], lp["hy"], 0.05, float(np.clip(lp["gain"], 0.0, 1.0))))
+    return np.array(sun).reshape(-1, 7)
 
+
+def _to_world(o: _Office, name: str) -> World:
+    """The finished :class:`World` named ``name``, with its anchor point set."""
+    b = o.b
     world = World(
         segments=np.array(b.seg),
         z_range=np.array(b.z),
@@ -626,15 +794,28 @@ def _build(spec: _Spec, name: str) -> World:
         decal_z=np.array(b.dz),
         decal_material=np.array(b.dm),
         part=np.array(b.part),
-        height=H,
-        floor_rgb=spec.floor_rgb,
+        height=o.height,
+        floor_rgb=o.spec.floor_rgb,
         ceiling_rgb=(0.9, 0.9, 0.88),
-        light_angle=spec.light_angle,
-        sun=np.array(sun).reshape(-1, 7),
-        room=poly,
+        light_angle=o.spec.light_angle,
+        sun=_light_boxes(o),
+        room=o.poly,
         name=name,
     )
     return replace(world, anchor=_anchor(world))
+
+
+def _build(spec: _Spec, name: str) -> World:
+    """Turn ``spec`` into a :class:`World` named ``name`` (deterministic: draws no random numbers)."""
+    o = _new_office(spec)
+    _add_materials(o)
+    _place_doors(o)
+    _place_furniture(o)
+    _place_pillars(o)
+    _place_chairs(o)
+    _place_decals(o)
+    _add_segments(o)
+    return _to_world(o, name)
 
 
 def _anchor(world: World) -> tuple[float, float]:
