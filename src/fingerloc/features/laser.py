@@ -344,6 +344,25 @@ class _Prepared:
 
 
 def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
+    """Step 1: robot-frame points of a scan and its segments (adaptive breakpoints, bridged drop-outs).
+
+    A closed 360 deg scan is rolled so that index 0 starts right after a
+    discontinuity; every index of the result refers to the rolled arrays.
+
+    Parameters
+    ----------
+    scan : Scan
+        Ranges in metres (``inf`` = no return) at increasing bearings in radians.
+    p : LaserParams
+
+    Returns
+    -------
+    _Prepared
+        Rolled ranges (m) and bearings (rad, sensor frame), shape (n,);
+        points (m, robot frame), shape (n, 2); the median beam step (rad);
+        the roll; the segments with their boundary kinds; and the unrolled
+        points, shape (n, 2).
+    """
     r = np.asarray(scan.ranges, dtype=np.float64)
     b = np.asarray(scan.bearings, dtype=np.float64)
     n = r.size
@@ -682,6 +701,24 @@ def _local_background(values: FArray, prep: _Prepared, p: LaserParams) -> FArray
 
 
 def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
+    """Step 5: beacon bearings from the intensity channel (narrow runs of bright beams).
+
+    Parameters
+    ----------
+    scan : Scan
+        The raw scan; no ``intensities``, no beacons.
+    prep : _Prepared
+        The segmented scan (rolled ranges and points).
+    p : LaserParams
+        ``beacon_threshold`` (sensor's unit) or the adaptive ratios, and the
+        beacon widths (metres) and gap (degrees).
+
+    Returns
+    -------
+    ndarray of float, shape (m,)
+        Bearing of each beacon's intensity-weighted centre, radians, robot
+        frame, in scan order.
+    """
     if scan.intensities is None:
         return np.empty(0)
     inten = np.roll(np.asarray(scan.intensities, dtype=np.float64), -prep.shift)
@@ -742,55 +779,130 @@ def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
     return np.asarray(out, dtype=np.float64)
 
 
-def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
-    """Corners, extremities and beacons of one raw scan (see the module docstring).
+# ---------------------------------------------------------------------------
+# the extractor's steps
+
+
+def _fit_segment_lines(prep: _Prepared, p: LaserParams) -> list[list[_Line]]:
+    """Step 2: split-and-merge lines of every segment (clutter segments get none).
 
     Parameters
     ----------
-    scan : Scan
-        Ranges in metres (``inf`` = no return), increasing bearings; any
-        field of view up to 360 deg; intensities optional.
-    **params
-        Fields of :class:`LaserParams` (e.g. ``range_sigma=0.01``,
-        ``beacon_threshold=5000``).
+    prep : _Prepared
+        The segmented scan (:func:`_prepare`).
+    p : LaserParams
 
     Returns
     -------
-    LaserFeatures
-        Bearings in radians, robot frame, wrapped; fitted lines in metres.
+    list of list of _Line
+        One list per segment of ``prep.segments`` (same order), the segment's
+        fitted lines in scan order; empty for a segment of fewer than
+        ``max(min_segment_points, 2)`` beams. Line end points in metres,
+        robot frame; beam indices into the rolled arrays.
     """
-    p = LaserParams.from_kwargs(params)
-    prep = _prepare(scan, p)
-    pts, rng = prep.pts, prep.r
-    n = rng.size
-    half = 0.5 * prep.step
-
     seg_lines: list[list[_Line]] = []
     for seg in prep.segments:
         if seg.stop - seg.start < max(p.min_segment_points, 2):
             seg_lines.append([])
             continue
-        seg_lines.append(_fit_segment(pts, rng, seg, p))
+        seg_lines.append(_fit_segment(prep.pts, prep.r, seg, p))
+    return seg_lines
 
+
+def _inner_corners(seg_lines: list[list[_Line]], p: LaserParams) -> list[FArray]:
+    """Step 3a: corners where two consecutive fitted lines of one segment meet at a real angle.
+
+    Parameters
+    ----------
+    seg_lines : list of list of _Line
+        Lines per segment (:func:`_fit_segment_lines`).
+    p : LaserParams
+
+    Returns
+    -------
+    list of ndarray, shape (2,)
+        Corner apexes ``(x, y)``, metres, robot frame, in scan order.
+    """
     corners: list[FArray] = []
     for lines in seg_lines:
         for a, b in itertools.pairwise(lines):
             x = _corner(a, b, p)
             if x is not None:
                 corners.append(x)
-    # corners across a boundary between neighbouring segments (apex between beams)
-    nseg = len(prep.segments)
-    pairs = [(i, i + 1) for i in range(nseg - 1)]
-    if prep.circular and nseg >= 1 and prep.segments[0].before in (_SEAM, _JUMP):
-        pairs.append((nseg - 1, 0))
-    bridged: set[tuple[int, int]] = set()  # (segment, end) pairs that are not extremities (end 0 first, 1 last)
+    return corners
+
+
+def _bridge_corners(
+    prep: _Prepared, seg_lines: list[list[_Line]], p: LaserParams
+) -> tuple[list[FArray], set[tuple[int, int]]]:
+    """Step 3b: pairs of corners where a short surface seen edge-on joins two segments (:func:`_bridge`).
+
+    Parameters
+    ----------
+    prep : _Prepared
+        The segmented scan.
+    seg_lines : list of list of _Line
+        Lines per segment (:func:`_fit_segment_lines`).
+    p : LaserParams
+
+    Returns
+    -------
+    corners : list of ndarray, shape (2,)
+        Corner apexes ``(x, y)``, metres, robot frame (two per bridge).
+    bridged : set of (int, int)
+        ``(segment index, end)`` of the segment ends joined by a bridge
+        (end 0 the first beam, 1 the last): neither a boundary corner nor an
+        extremity.
+    """
+    corners: list[FArray] = []
+    bridged: set[tuple[int, int]] = set()
     for i, j in _bridge_pairs(prep, seg_lines, p):
-        si, sj = prep.segments[i], prep.segments[j]
         bridge = _bridge(seg_lines[i][-1], seg_lines[j][0], prep, p)
         if bridge is not None:
             corners.extend(bridge)
             bridged.update({(i, 1), (j, 0)})
-    for i, j in pairs:
+    return corners, bridged
+
+
+def _boundary_pairs(prep: _Prepared) -> list[tuple[int, int]]:
+    """Indices ``(i, j)`` of neighbouring segments: ``j`` follows ``i``, across the roll point of a closed scan."""
+    nseg = len(prep.segments)
+    pairs = [(i, i + 1) for i in range(nseg - 1)]
+    if prep.circular and nseg >= 1 and prep.segments[0].before in (_SEAM, _JUMP):
+        pairs.append((nseg - 1, 0))
+    return pairs
+
+
+def _boundary_corners(
+    scan: Scan, prep: _Prepared, seg_lines: list[list[_Line]], bridged: set[tuple[int, int]], p: LaserParams
+) -> list[FArray]:
+    """Step 3c: corners across the boundary between neighbouring segments (apex between two beams).
+
+    The last line of a segment and the first line of the next one, both
+    reaching their segment's boundary, make a corner when they meet near both
+    their ends and the apex's bearing lies between the two boundary beams
+    (within half a beam step); across a seam of a closed scan any meeting counts.
+
+    Parameters
+    ----------
+    scan : Scan
+        The raw scan (its ``sensor_offset``: metres, metres, radians).
+    prep : _Prepared
+        The segmented scan.
+    seg_lines : list of list of _Line
+        Lines per segment (:func:`_fit_segment_lines`).
+    bridged : set of (int, int)
+        Segment ends already joined by a bridge (:func:`_bridge_corners`).
+    p : LaserParams
+
+    Returns
+    -------
+    list of ndarray, shape (2,)
+        Corner apexes ``(x, y)``, metres, robot frame, in scan order.
+    """
+    half = 0.5 * prep.step
+    corners: list[FArray] = []
+    for i, j in _boundary_pairs(prep):
         si, sj = prep.segments[i], prep.segments[j]
         if si.after not in (_JUMP, _SEAM) or not seg_lines[i] or not seg_lines[j]:
             continue
@@ -811,9 +923,102 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
         lo, hi = prep.phi[si.stop - 1], prep.phi[sj.start]
         if si.after == _SEAM or (float(wrap(apex - lo)) >= -half and float(wrap(hi - apex)) >= -half):
             corners.append(x)
+    return corners
 
-    extremities: list[float] = []
+
+def _end_is_hidden(scan: Scan, prep: _Prepared, line: _Line, end: int, kind: int, sign: int, p: LaserParams) -> bool:
+    """Whether the nearest return across a segment end keeps that end from being an extremity.
+
+    Looks at the next beam beyond ``end`` (up to ``max_bridge_beams + 1``
+    beams across a no-return run). The end is no extremity when that return
+    is not farther (``end`` does not occlude it, within three range sigmas)
+    or lies on the extension of ``line`` (a grazing wall whose returns thin
+    out). No return within reach: not hidden.
+
+    Parameters
+    ----------
+    scan : Scan
+        The raw scan (``sensor_offset`` in metres and radians).
+    prep : _Prepared
+        The segmented scan.
+    line : _Line
+        The fitted line at this end of the segment.
+    end : int
+        Beam index (rolled arrays) of the segment's first or last beam.
+    kind : int
+        Boundary kind on that side (``_JUMP`` or ``_GAP``).
+    sign : {-1, +1}
+        Direction across the boundary: -1 before the first beam, +1 after the last.
+    p : LaserParams
+
+    Returns
+    -------
+    bool
+    """
+    pts, rng = prep.pts, prep.r
+    n = rng.size
     look = p.max_bridge_beams + 1  # how far across a no-return run a neighbour may occlude
+    for d in range(1, look + 1 if kind == _GAP else 2):
+        nb = end + sign * d
+        if not prep.circular and not 0 <= nb < n:
+            break
+        nb %= n
+        if np.isfinite(rng[nb]):
+            normal = np.array([-line.direction[1], line.direction[0]])
+            off = abs(float(np.dot(pts[nb] - line.centroid, normal)))
+            # expected spacing of returns along this line at its end: r dphi / sin(incidence)
+            beam = pts[end] - np.asarray(scan.sensor_offset[:2])
+            u = beam / np.linalg.norm(beam)
+            sin_inc = abs(float(u[0] * line.direction[1] - u[1] * line.direction[0]))
+            spacing = rng[end] * d * prep.step / max(sin_inc, np.sin(2 * prep.step))
+            along = abs(float(np.dot(pts[nb] - pts[end], line.direction)))
+            on_extension = off <= 2.0 * float(_tol(rng[nb], p)) and along <= 4.0 * spacing
+            return bool(rng[nb] <= rng[end] + 3.0 * p.range_sigma) or on_extension
+    return False
+
+
+def _extremity_bearing(scan: Scan, prep: _Prepared, end: int, sign: int) -> float:
+    """Bearing (radians, robot frame, in ``[-pi, pi]``) of a surface's end half a beam step beyond beam ``end``.
+
+    The surface ends between two beams: the point at beam ``end``'s range,
+    half a step towards the boundary (``sign`` -1 before, +1 after).
+    """
+    half = 0.5 * prep.step
+    phi = prep.phi[end] + sign * half + scan.sensor_offset[2]
+    q = np.array([scan.sensor_offset[0], scan.sensor_offset[1]]) + prep.r[end] * np.array([np.cos(phi), np.sin(phi)])
+    return float(np.arctan2(q[1], q[0]))
+
+
+def _extremities(
+    scan: Scan, prep: _Prepared, seg_lines: list[list[_Line]], bridged: set[tuple[int, int]], p: LaserParams
+) -> list[float]:
+    """Step 4: line extremities at segment ends that occlude what lies beyond them.
+
+    Only segments of at least ``min_segment_points`` beams with a fitted line
+    and an extent of at least ``min_extremity_extent`` metres count; an end
+    gives no extremity at the scan's border or a seam, when a bridge joins it
+    (``bridged``), when no fitted line reaches within ``extremity_max_tail``
+    of it, or when the return beyond it hides it (:func:`_end_is_hidden`).
+
+    Parameters
+    ----------
+    scan : Scan
+        The raw scan.
+    prep : _Prepared
+        The segmented scan.
+    seg_lines : list of list of _Line
+        Lines per segment (:func:`_fit_segment_lines`).
+    bridged : set of (int, int)
+        Segment ends joined by a bridge (:func:`_bridge_corners`).
+    p : LaserParams
+
+    Returns
+    -------
+    list of float
+        Bearings, radians, robot frame, in scan order (first end before last).
+    """
+    pts = prep.pts
+    extremities: list[float] = []
     for k, seg in enumerate(prep.segments):
         lines = seg_lines[k]
         if seg.stop - seg.start < p.min_segment_points or not lines:
@@ -821,55 +1026,79 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
         first, last = seg.start, seg.stop - 1
         if float(np.linalg.norm(pts[last] - pts[first])) < p.min_extremity_extent:
             continue
-        ends = (
-            (first, seg.before, -1, float(np.linalg.norm(lines[0].p0 - pts[first])) <= p.extremity_max_tail),
-            (last, seg.after, +1, float(np.linalg.norm(lines[-1].p1 - pts[last])) <= p.extremity_max_tail),
-        )
-        for end, kind, sign, on_line, line in (
-            (*ends[0], lines[0]),
-            (*ends[1], lines[-1]),
+        for end, kind, sign, line, tip in (
+            (first, seg.before, -1, lines[0], lines[0].p0),
+            (last, seg.after, +1, lines[-1], lines[-1].p1),
         ):
             if (k, 0 if sign < 0 else 1) in bridged:
                 continue  # a surface seen edge-on joins this end to the next segment
+            on_line = float(np.linalg.norm(tip - pts[end])) <= p.extremity_max_tail
             if kind in (_EDGE, _SEAM) or not on_line:
                 continue  # the scan's border, or a ragged (non-line) end
-            # the nearest return across the boundary must be farther (this end occludes it)
-            # and off this line (a grazing wall whose returns thin out does not end there)
-            hidden = False
-            for d in range(1, look + 1 if kind == _GAP else 2):
-                nb = end + sign * d
-                if not prep.circular and not 0 <= nb < n:
-                    break
-                nb %= n
-                if np.isfinite(rng[nb]):
-                    normal = np.array([-line.direction[1], line.direction[0]])
-                    off = abs(float(np.dot(pts[nb] - line.centroid, normal)))
-                    # expected spacing of returns along this line at its end: r dphi / sin(incidence)
-                    beam = pts[end] - np.asarray(scan.sensor_offset[:2])
-                    u = beam / np.linalg.norm(beam)
-                    sin_inc = abs(float(u[0] * line.direction[1] - u[1] * line.direction[0]))
-                    spacing = rng[end] * d * prep.step / max(sin_inc, np.sin(2 * prep.step))
-                    along = abs(float(np.dot(pts[nb] - pts[end], line.direction)))
-                    on_extension = off <= 2.0 * float(_tol(rng[nb], p)) and along <= 4.0 * spacing
-                    hidden = bool(rng[nb] <= rng[end] + 3.0 * p.range_sigma) or on_extension
-                    break
-            if hidden:
+            if _end_is_hidden(scan, prep, line, end, kind, sign, p):
                 continue
-            # half a beam step towards the jump: the surface ends between two beams
-            phi = prep.phi[end] + sign * half + scan.sensor_offset[2]
-            q = np.array([scan.sensor_offset[0], scan.sensor_offset[1]]) + rng[end] * np.array(
-                [np.cos(phi), np.sin(phi)]
-            )
-            extremities.append(float(np.arctan2(q[1], q[0])))
+            extremities.append(_extremity_bearing(scan, prep, end, sign))
+    return extremities
 
+
+def _wall_segments(seg_lines: list[list[_Line]]) -> FArray:
+    """End points of all fitted lines, ndarray of shape (k, 2, 2), metres, robot frame, in scan order."""
     segments = np.array([[ln.p0, ln.p1] for lines in seg_lines for ln in lines], dtype=np.float64)
+    return segments.reshape(-1, 2, 2)
+
+
+def _assemble(corners: list[FArray], extremities: list[float], beacons: FArray, segments: FArray) -> LaserFeatures:
+    """Step 6: the :class:`LaserFeatures` of one scan.
+
+    Parameters
+    ----------
+    corners : list of ndarray, shape (2,)
+        Corner apexes ``(x, y)``, metres, robot frame; turned into bearings.
+    extremities : list of float
+        Extremity bearings, radians, robot frame.
+    beacons : ndarray, shape (m,)
+        Beacon bearings, radians, robot frame.
+    segments : ndarray, shape (k, 2, 2)
+        Fitted lines, metres, robot frame.
+
+    Returns
+    -------
+    LaserFeatures
+        Bearings wrapped to ``[-pi, pi)`` and sorted.
+    """
     cb = np.array([np.arctan2(x[1], x[0]) for x in corners], dtype=np.float64)
     return LaserFeatures(
         corners=cb,
         extremities=np.asarray(extremities, dtype=np.float64),
-        beacons=_beacons(scan, prep, p),
-        segments=segments.reshape(-1, 2, 2),
+        beacons=beacons,
+        segments=segments,
     )
+
+
+def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
+    """Corners, extremities and beacons of one raw scan (see the module docstring).
+
+    Parameters
+    ----------
+    scan : Scan
+        Ranges in metres (``inf`` = no return), increasing bearings; any
+        field of view up to 360 deg; intensities optional.
+    **params
+        Fields of :class:`LaserParams` (e.g. ``range_sigma=0.01``,
+        ``beacon_threshold=5000``).
+
+    Returns
+    -------
+    LaserFeatures
+        Bearings in radians, robot frame, wrapped; fitted lines in metres.
+    """
+    p = LaserParams.from_kwargs(params)
+    prep = _prepare(scan, p)
+    seg_lines = _fit_segment_lines(prep, p)
+    bridge_corners, bridged = _bridge_corners(prep, seg_lines, p)
+    corners = _inner_corners(seg_lines, p) + bridge_corners + _boundary_corners(scan, prep, seg_lines, bridged, p)
+    extremities = _extremities(scan, prep, seg_lines, bridged, p)
+    return _assemble(corners, extremities, _beacons(scan, prep, p), _wall_segments(seg_lines))
 
 
 def observation_from_scan(
