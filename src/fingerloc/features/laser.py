@@ -51,6 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from .._types import FArray
 from ..angles import TWO_PI, wrap
 from ..errors import InvalidParameterError
 from ..observation import Observation
@@ -65,7 +66,6 @@ __all__ = [
     "segment_scan",
 ]
 
-FArray = NDArray[np.float64]
 
 #: Consecutive beams further apart than this many median steps border a blind sector.
 _MAX_STEP_RATIO = 3.0
