@@ -215,11 +215,10 @@ class HistogramBaseline:
 
     def descriptor(self, scan: Scan) -> FArray:
         """Cumulative range histogram, shape (n_bins + 1,), last value 1."""
-        r = scan.ranges
-        far = ~np.isfinite(r) | (r >= self.max_range)
-        h, _ = np.histogram(r[~far], bins=self.n_bins, range=(0.0, self.max_range))
-        full = np.append(h, np.count_nonzero(far)).astype(np.float64) / r.size
-        return np.cumsum(full)
+        from ..terms.range import cumulative_range_histogram
+
+        edges = np.linspace(0.0, self.max_range, self.n_bins + 1)[1:]  # np.histogram's uniform edges
+        return cumulative_range_histogram(scan.ranges, edges)
 
     def fit(self, scans: Sequence[Scan], labels: Any) -> HistogramBaseline:
         """Store the training histograms."""

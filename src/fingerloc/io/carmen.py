@@ -67,6 +67,7 @@ __all__ = [
     "OdomRecord",
     "ReadStats",
     "default_messages",
+    "front_laser_messages",
     "detect_max_range",
     "flaser_bearings",
     "inspect_log",
@@ -683,6 +684,19 @@ def require_laser(path: str | Path, info: LogInfo) -> None:
         gz = " (and not gzip)" if p.name.lower().endswith(".gz") and head[:2] != b"\x1f\x8b" else ""
         raise DataFormatError(f"not a CARMEN log: binary data, not text{gz}", path=p)
     raise DataFormatError(f"no laser scan: not one {', '.join(LASER_MESSAGES)} line in this log", path=p)
+
+
+def front_laser_messages(info: LogInfo) -> tuple[str, ...]:
+    """The front laser only: ``FLASER`` when the log has it, else ``ROBOTLASER1`` (empty: neither).
+
+    What the real-log benchmark and ``fingerloc map`` / ``localize`` / ``track``
+    read (one scan per time step, one sensor); :func:`default_messages` adds
+    the rear laser for ``fingerloc features``.
+    """
+    for m in ("FLASER", "ROBOTLASER1"):
+        if info.counts.get(m, 0):
+            return (m,)
+    return ()
 
 
 def default_messages(info: LogInfo) -> tuple[str, ...]:

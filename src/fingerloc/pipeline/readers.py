@@ -60,15 +60,15 @@ def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Sc
     ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
     must carry a pose.
     """
-    from ..io.carmen import ReadStats, inspect_log, iter_scans, require_laser
+    from ..io.carmen import ReadStats, front_laser_messages, inspect_log, iter_scans, require_laser
 
     info = inspect_log(path)
     require_laser(path, info)
-    msg = "FLASER" if info.counts.get("FLASER", 0) else "ROBOTLASER1"
-    if not info.counts.get(msg, 0):
+    messages = front_laser_messages(info)
+    if not messages:
         raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
     st = ReadStats()
-    scans = list(iter_scans(path, skip_bad=skip_bad, messages=(msg,), stats=st))
+    scans = list(iter_scans(path, skip_bad=skip_bad, messages=messages, stats=st))
     if not scans:
         raise EmptyInputError("no front-laser scan could be read", path=path)
     if any(s.pose is None for s in scans):

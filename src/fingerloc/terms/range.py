@@ -22,7 +22,7 @@ from ..observation import Observation
 from .base import FArray
 from .distance import DistanceTerm
 
-__all__ = ["RangeTerm", "range_descriptor"]
+__all__ = ["RangeTerm", "cumulative_range_histogram", "range_descriptor"]
 
 
 class RangeTerm(DistanceTerm):
@@ -170,7 +170,19 @@ def range_descriptor(obs: Observation, bins: FArray) -> FArray:
     """
     if obs.ranges is None:
         raise InvalidParameterError("the range term needs observations with ranges (Observation.ranges)")
-    r = obs.ranges
+    return cumulative_range_histogram(obs.ranges, bins)
+
+
+def cumulative_range_histogram(ranges: FArray, bins: FArray) -> FArray:
+    """Cumulative histogram of beam ranges (metres), shape ``(len(bins) + 1,)``; see :func:`range_descriptor`.
+
+    ``bins`` are the upper edges of all but the last bin (a range equal to an
+    edge falls in the bin above it); ranges at or beyond the last edge and
+    beams without return (``inf``, ``nan``) fall in the last bin. The counts
+    are divided by the number of beams, so the last entry is 1 (all ones for
+    an empty scan).
+    """
+    r = np.asarray(ranges, dtype=np.float64)
     idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
     h = np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1).astype(np.float64)
     total = h.sum()
