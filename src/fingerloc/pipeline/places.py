@@ -132,14 +132,15 @@ def nearest_within(positions: Any, centres: Any, radius: float) -> tuple[IArray,
     nearest : ndarray of int, shape (m,)
         Nearest centre of each (the lowest index among equal distances).
     """
+    from ..map.graph import nearest_place_sequence
+
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
     if c.shape[0] == 0 or pos.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    d = np.hypot(pos[:, None, 0] - c[None, :, 0], pos[:, None, 1] - c[None, :, 1])
-    near = np.argmin(d, axis=1)
-    ok = d[np.arange(pos.shape[0]), near] <= radius
-    return np.flatnonzero(ok).astype(np.int64), near[ok].astype(np.int64)
+    near = nearest_place_sequence(pos, c, radius=radius)
+    idx = np.flatnonzero(near >= 0).astype(np.int64)
+    return idx, near[idx]
 
 
 def places_from_trajectory(
