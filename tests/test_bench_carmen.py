@@ -269,3 +269,31 @@ def test_speed_section_quick():
     figs = _speed_section(True)
     assert figs["carmen_read_scans_per_s"] > 0
     assert {"baseline-scancontext_ms_per_query_20_train", "baseline-histogram_ms_per_query_20_train"} <= set(figs)
+
+
+def test_benchmark_on_two_dask_workers_matches_the_serial_run(tmp_path):
+    """One task per log on a 2-worker thread cluster gives the serial run's figures (issue 17)."""
+    pytest.importorskip("distributed")
+    from fingerloc.experiments.carmen import run_benchmark
+
+    from ._logs import rooms_path
+
+    logs = [_write_log(tmp_path / f"r{k}-corrected.log", rooms_path()) for k in range(2)]
+    serial = run_benchmark(logs, ["baseline-histogram", "fingerprint"]).to_json()
+    import fingerloc.parallel as par
+
+    real = par.run_tasks
+    try:  # thread workers: they start in a second, and the figures must not depend on where a task ran
+        par.run_tasks = lambda fn, tasks, **kw: real(fn, tasks, **{**kw, "processes": False})  # type: ignore[assignment]
+        dask = run_benchmark(logs, ["baseline-histogram", "fingerprint"], workers=2).to_json()
+    finally:
+        par.run_tasks = real
+    for js in (serial, dask):  # timings differ from run to run
+        for lg in js["logs"].values():
+            for m in lg["methods"].values():
+                m.pop("ms_per_query", None)
+                m.pop("learn_s", None)
+        for m in js["pooled"]["methods"].values():
+            m.pop("ms_per_query", None)
+            m.pop("learn_s", None)
+    assert dask == serial

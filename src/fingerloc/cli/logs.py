@@ -89,6 +89,12 @@ def carmen_cmd(
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: per log a map and a localize report of --plot-method."
     ),
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, max=256, help="Run one task per log on a local Dask cluster of this many processes."
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="Run one task per log on an existing Dask cluster (tcp://HOST:PORT)."
+    ),
 ) -> None:
     """Place recognition on CARMEN logs with the fixed protocol of issue 7.
 
@@ -110,8 +116,12 @@ def carmen_cmd(
     check_output(json_out, "--json")
     check_output(plot, "--plot")
     check_report(report)
+    from ..parallel import check_cluster_options
+
+    check_cluster_options(workers, scheduler)
     with err_console.status("benchmarking...") as status:
-        run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s))
+        run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s),
+                            workers=workers, scheduler=scheduler)  # fmt: skip
     js = run.to_json()
     for lg in run.logs:
         if lg.skipped:

@@ -492,6 +492,8 @@ def run_benchmark(
     *,
     skip_bad: bool = False,
     on_progress: Callable[[str], None] | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
 ) -> BenchmarkRun:
     """Run the benchmark's protocol on CARMEN logs.
 
@@ -504,7 +506,13 @@ def run_benchmark(
     skip_bad : bool, default False
         Skip malformed log lines (counted per log in ``skipped_lines``).
     on_progress : callable, optional
-        Called with a short text before each log and method.
+        Called with a short text before each log and method (serial runs), or
+        after each log (on Dask).
+    workers, scheduler : optional
+        Run one task per log on Dask (:func:`fingerloc.parallel.run_tasks`):
+        a local cluster of ``workers`` processes, or an existing cluster at
+        ``scheduler``. Every method is seeded by its own parameters, so the
+        figures are those of the serial run.
 
     Returns
     -------
@@ -517,30 +525,40 @@ def run_benchmark(
     for n in names:
         if n not in METHODS:
             raise InvalidParameterError(f"unknown method {n!r} (known: {', '.join(METHODS)})")
-    logs: list[LogRun] = []
+    tasks: list[tuple[str, str, list[str], bool]] = []
     seen: dict[str, int] = {}
     for path in paths:
         name = log_name(path)
         seen[name] = seen.get(name, 0) + 1
-        if seen[name] > 1:
-            name = f"{name}#{seen[name]}"
-        if on_progress is not None:
-            on_progress(f"{name}: reading")
-        scans, skipped = load_log_scans(path, skip_bad=skip_bad)
-        pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
-        split = make_split(pos)
-        lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
-        if split.n_queries == 0:
-            logs.append(lg)
-            continue
+        tasks.append((str(path), name if seen[name] == 1 else f"{name}#{seen[name]}", names, skip_bad))
+    if workers is None and scheduler is None:
+        logs = [_bench_log(t, on_progress) for t in tasks]
+    else:
+        from ..parallel import run_tasks
+
+        done = None if on_progress is None else (lambda k: on_progress(f"{k} of {len(tasks)} logs done"))
+        logs = run_tasks(_bench_log, tasks, workers=workers, scheduler=scheduler, on_done=done)
+    return BenchmarkRun(logs=logs, method_names=names)
+
+
+def _bench_log(task: tuple[str, str, list[str], bool], on_progress: Callable[[str], None] | None = None) -> LogRun:
+    """One log of :func:`run_benchmark`: ``(path, name, method names, skip_bad)`` -> its :class:`LogRun`."""
+    path, name, names, skip_bad = task
+    load_methods()  # in a fresh worker process too
+    if on_progress is not None:
+        on_progress(f"{name}: reading")
+    scans, skipped = load_log_scans(path, skip_bad=skip_bad)
+    pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
+    split = make_split(pos)
+    lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
+    if split.n_queries:
         lg.methods = run_log(
             scans,
             split,
             [make_method(n) for n in names],
-            on_method=None if on_progress is None else (lambda m, nm=name: on_progress(f"{nm}: {m}")),  # type: ignore[misc]
+            on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
         )
-        logs.append(lg)
-    return BenchmarkRun(logs=logs, method_names=names)
+    return lg
 
 
 # ---------------------------------------------------------------------------------------------------
