@@ -585,6 +585,8 @@ def plot_benchmark(run: BenchmarkRun, path: str | Path, *, method: str | None = 
     import matplotlib.pyplot as plt
 
     meth = method if method is not None else (run.method_names[0] if run.method_names else None)
+    from ..reporting import scan_end_points
+
     if meth is not None and meth not in run.method_names:
         raise InvalidParameterError(f"method {meth!r} was not run (ran: {', '.join(run.method_names)})")
     n = len(run.logs)
@@ -594,17 +596,7 @@ def plot_benchmark(run: BenchmarkRun, path: str | Path, *, method: str | None = 
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     for ax, lg in zip(axes.flat, run.logs, strict=False):
-        world = []
-        for s in lg.scans:
-            if s.pose is None:
-                continue
-            x, y, th = s.pose
-            p = s.points()
-            c, si = math.cos(th), math.sin(th)
-            world.append(np.column_stack([x + c * p[:, 0] - si * p[:, 1], y + si * p[:, 0] + c * p[:, 1]]))
-        pts = np.concatenate(world) if world else np.zeros((0, 2))
-        if pts.shape[0] > max_points:
-            pts = pts[:: math.ceil(pts.shape[0] / max_points)]
+        pts = scan_end_points(lg.scans, max_points=max_points)
         ax.scatter(pts[:, 0], pts[:, 1], s=0.2, c="0.65", linewidths=0, rasterized=True, label="scan points")
         traj = np.array([s.pose[:2] for s in lg.scans if s.pose is not None])
         ax.plot(traj[:, 0], traj[:, 1], lw=0.4, c="0.4", alpha=0.6)
