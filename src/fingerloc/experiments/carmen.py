@@ -59,6 +59,7 @@ from .protocol import (
     register_method,
     true_place_ranks,
 )
+from .shared import shared_method, shared_results
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -174,19 +175,24 @@ class ScanContextBaseline:
         sn = self.n_sectors
         shifts = (np.arange(sn)[:, None] + np.arange(sn)[None, :]) % sn  # row k: grid rolled by -k
         n_occ_c = self.occupied_.sum(axis=1)  # (T,)
-        sims = np.empty((len(scans), self.grids_.shape[0]))
-        for i, s in enumerate(scans):
-            q = self.descriptor(s)  # (S, R)
-            qs = q[shifts]  # (S_shift, S, R)
-            occ = (np.linalg.norm(q, axis=1) > 0).astype(np.float64)[shifts]  # (S_shift, S)
-            num = qs.reshape(sn, -1) @ self.grids_.T  # sum of column cosines, (S_shift, T)
-            both = occ @ self.occupied_.T
+        n_t = self.grids_.shape[0]
+        sims = np.empty((len(scans), n_t))
+        # queries in blocks, one matrix product per block (many small products spin BLAS threads; each
+        # entry is the same dot product as with one product per query)
+        block = max(1, 2048 // sn)
+        for i0 in range(0, len(scans), block):
+            q = np.stack([self.descriptor(s) for s in scans[i0 : i0 + block]])  # (B, S, R)
+            b = q.shape[0]
+            qs = q[:, shifts]  # (B, S_shift, S, R)
+            occ = (np.linalg.norm(q, axis=2) > 0).astype(np.float64)[:, shifts]  # (B, S_shift, S)
+            num = (qs.reshape(b * sn, -1) @ self.grids_.T).reshape(b, sn, n_t)  # sums of column cosines
+            both = (occ.reshape(b * sn, sn) @ self.occupied_.T).reshape(b, sn, n_t)
             if self.normalise == "union":
-                den = occ.sum(axis=1)[:, None] + n_occ_c[None, :] - both
+                den = occ.sum(axis=2)[:, :, None] + n_occ_c[None, None, :] - both
             else:
                 den = both
             sim = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
-            sims[i] = sim.max(axis=0)
+            sims[i0 : i0 + b] = sim.max(axis=1)
         return max_per_place(sims, self.labels_, self.n_places_)
 
 
@@ -271,8 +277,11 @@ class FingerprintMethod:
 
     def _observations(self, scans: Sequence[Scan]) -> list[Any]:
         from ..features.laser import observation_from_scan
+        from .shared import observations
 
-        obs = [observation_from_scan(s, **self.feature_params) for s in scans]
+        params = self.feature_params
+        key = "observation_from_scan" + repr(sorted(params.items()))
+        obs = observations(scans, key, lambda s: observation_from_scan(s, **params))
         if self.world_frame:
             obs = [o.rotated(s.pose[2]) if s.pose is not None else o for o, s in zip(obs, scans, strict=True)]
         return obs
@@ -552,13 +561,22 @@ def _bench_log(task: tuple[str, str, list[str], bool], on_progress: Callable[[st
     split = make_split(pos)
     lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
     if split.n_queries:
-        lg.methods = run_log(
-            scans,
-            split,
-            [make_method(n) for n in names],
-            on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
-        )
+        with shared_results():  # one fit, one scoring, one feature extraction per scan, for every method
+            lg.methods = run_log(
+                scans,
+                split,
+                [_shareable(make_method(n)) for n in names],
+                on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
+            )
     return lg
+
+
+def _shareable(m: Method) -> Method:
+    """``m`` as a :class:`~.shared.SharedMethod` when it is a registered single-shot method (no trajectory)."""
+    if getattr(m, "set_context", None) is not None or m.name not in METHODS:
+        return m
+    shared: Method = shared_method(m.name)
+    return shared
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -174,10 +174,15 @@ class FilteredMethod:
         self._context: tuple[list[Scan], Split] | None = None
 
     def _factory(self) -> Callable[[], Method]:
+        from functools import partial
+
+        from .shared import shared_method
+
         load_methods()
         if self.base not in METHODS:
             raise InvalidParameterError(f"unknown base method {self.base!r} (known: {', '.join(METHODS)})")
-        return METHODS[self.base]
+        # the base's fits and scores are shared with the run's other methods (inside shared_results only)
+        return partial(shared_method, self.base, METHODS[self.base])
 
     def set_context(self, scans: Sequence[Scan], split: Split) -> None:
         """The whole log (file order) and its split; called by the runner before :meth:`fit`."""

@@ -52,8 +52,8 @@ from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.special import logsumexp
 
+from .._lse import logsumexp  # scipy.special.logsumexp, bit for bit, without its per-call overhead
 from .._types import FArray, IArray
 from ..angles import wrap
 from ..errors import InvalidParameterError
@@ -362,8 +362,10 @@ class PoseFilter:
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
-        d, j = self._tree.query(xy)
-        return np.asarray(d, dtype=np.float64), np.asarray(j, dtype=np.int64)
+        # the tree's query, compiled brute force (same distances; issue 17)
+        from ._nearest import nearest_centres
+
+        return nearest_centres(xy, self.centres)
 
     def _particle_places(self) -> FArray:
         _, near = self._nearest(self.particles_[:, :2])
