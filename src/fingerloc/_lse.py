@@ -12,6 +12,7 @@ compares the two on random, tied, infinite and NaN inputs.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -19,25 +20,30 @@ from scipy.special import logsumexp as _scipy_logsumexp
 
 __all__ = ["logsumexp"]
 
-_NEG_INF = np.float64(-np.inf)
-
-
 def logsumexp(a: Any, axis: Any = None, **kwargs: Any) -> Any:
     """:func:`scipy.special.logsumexp`, fast for a 1-D float64 array (same result, bit for bit)."""
     if kwargs or axis not in (None, 0, -1) or type(a) is not np.ndarray or a.dtype != np.float64 or a.ndim != 1:
         return _scipy_logsumexp(a, axis=axis, **kwargs)
     if a.size == 0:
         return _scipy_logsumexp(a, axis=axis)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        a_max = a.max(keepdims=True)
-        mask = a == a_max
-        m = np.sum(mask, keepdims=True, dtype=np.float64)
-        shifted = np.where(mask, _NEG_INF, a)
-        s = np.sum(np.exp(shifted - a_max), keepdims=True)
-        s = np.where(s == 0, s, s / m)
-        out = np.log1p(s) + np.log(m) + a_max
-        if np.sign(s + 1)[0] * np.sign(m)[0] < 0:  # never for real input (s >= 0, m >= 1); as SciPy
-            out[0] = np.nan
-        if not np.isfinite(out[0]):
-            out = np.log(np.sum(np.exp(a), keepdims=True))
+    i = int(a.argmax())
+    a_max = a[i]
+    if not math.isfinite(a_max):  # NaN, +inf, or every term -inf: SciPy's own path
+        return _scipy_logsumexp(a)
+    # SciPy: the largest terms (m of them, tied) leave the sum, s = sum(exp(a - max)) / m over the others,
+    # out = log1p(s) + log(m) + max; the same operations on the same values here
+    e = np.exp(a - a_max)
+    tied = a == a_max
+    m = int(np.count_nonzero(tied))
+    if m == 1:
+        e[i] = 0.0
+        out = np.log1p(e.sum(keepdims=True)) + a_max  # log(1) == 0: adding it changes nothing
+    else:
+        e[tied] = 0.0
+        s = e.sum(keepdims=True)
+        fm = np.full(1, float(m))
+        s = np.where(s == 0, s, s / fm)
+        out = np.log1p(s) + np.log(fm) + a_max
+    if not math.isfinite(out[0]):
+        return _scipy_logsumexp(a)
     return out[0]

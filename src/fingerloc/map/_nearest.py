@@ -22,33 +22,34 @@ __all__ = ["nearest_centres"]
 
 
 @njit(cache=True, nogil=True)
-def _nearest_kernel(xy: FArray, c: FArray, d: FArray, j: IArray) -> None:  # pragma: no cover - compiled
-    n = xy.shape[0]
-    p = c.shape[0]
+def _nearest_kernel(x: FArray, y: FArray, c: FArray, d: FArray, j: IArray) -> None:  # pragma: no cover - compiled
+    # centres outside, points inside: the inner loop runs over contiguous arrays (SIMD lanes)
+    n = x.shape[0]
     for i in range(n):
-        x = xy[i, 0]
-        y = xy[i, 1]
-        best = np.inf
-        bj = 0
-        for k in range(p):
-            dx = x - c[k, 0]
-            dy = y - c[k, 1]
+        d[i] = np.inf
+        j[i] = 0
+    for k in range(c.shape[0]):
+        cx = c[k, 0]
+        cy = c[k, 1]
+        for i in range(n):
+            dx = x[i] - cx
+            dy = y[i] - cy
             s = dx * dx + dy * dy
-            if s < best:
-                best = s
-                bj = k
-        d[i] = math.sqrt(best)
-        j[i] = bj
+            better = s < d[i]  # strictly: ties keep the lower index
+            d[i] = s if better else d[i]
+            j[i] = k if better else j[i]
+    for i in range(n):
+        d[i] = math.sqrt(d[i])
 
 
 def nearest_centres(points: FArray, centres: FArray) -> tuple[FArray, IArray]:
     """Distance to and index of the nearest of ``centres`` (shape (P, 2)) for each of ``points`` (shape (n, 2))."""
-    xy = np.ascontiguousarray(points, dtype=np.float64)
+    xy = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     c = np.ascontiguousarray(centres, dtype=np.float64)
     d = np.empty(xy.shape[0], dtype=np.float64)
     j = np.zeros(xy.shape[0], dtype=np.int64)
     if c.shape[0]:
-        _nearest_kernel(xy, c, d, j)
+        _nearest_kernel(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), c, d, j)
     else:
         d.fill(np.inf)
     return d, j
