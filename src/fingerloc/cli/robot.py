@@ -169,7 +169,13 @@ def robot_cmd(
         help="Simulated offices and sensors: 'paper' (calibrated to the paper's Table II) or 'alike' (the original).",
     ),
     workers: int | None = typer.Option(
-        None, "--workers", min=1, help="Processes running trials (default: cores, at most 4)."
+        None,
+        "--workers",
+        help="Run one task per trial on a local Dask cluster of N processes (default: a process pool of the "
+        "cores, at most 4; 1: in this process).",
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="Run one task per trial on an existing Dask cluster (tcp://HOST:PORT)."
     ),
     quick: bool = typer.Option(
         False, "--quick", help="Four small offices and small images: a smoke test, not the protocol."
@@ -181,7 +187,9 @@ def robot_cmd(
     """Simulate the paper's robot experiment (10 offices, 8 training + 2 test measurements each) and print Tables II-IV."""
     from ..errors import InvalidParameterError
     from ..experiments.robot import WORLD_PROFILES, RobotProtocol, run_robot, small_protocol
+    from ..parallel import check_cluster_options
 
+    check_cluster_options(workers, scheduler)
     check_output(json_out, "--json")
     if world not in WORLD_PROFILES:
         raise InvalidParameterError(f"--world must be one of {', '.join(WORLD_PROFILES)}, got {world!r}")
@@ -196,6 +204,7 @@ def robot_cmd(
             protocol=protocol,
             workers=workers,
             on_trial=on_trial,
+            scheduler=scheduler,
         )
     sim_note = f"world {world}, similarity {protocol.office_similarity:g}"
     print_robot_tables(res, console, title_note=f"{sim_note}, seed {seed}")

@@ -814,6 +814,7 @@ def run_robot(
     protocol: RobotProtocol | None = None,
     workers: int | None = None,
     on_trial: Callable[[int], None] | None = None,
+    scheduler: str | None = None,
 ) -> RobotResult:
     """Run the simulated robot experiment ``trials`` times (new offices each) and collect the figures.
 
@@ -824,17 +825,31 @@ def run_robot(
         Trial ``t`` uses the seed sequence ``(seed, t)``: results do not depend on ``workers``.
     protocol : RobotProtocol, optional
     workers : int, optional
-        Processes; default :func:`default_workers`. With two or more trials, each process runs
-        whole trials; with one, the offices are simulated in parallel. The figures do not
-        depend on it.
+        Processes. Default (None): a local process pool of :func:`default_workers`
+        processes, each running whole trials. Given (two or more, with two or more
+        trials): a Dask ``LocalCluster`` of that many processes, one task per trial
+        (:func:`fingerloc.parallel.run_tasks`). With one trial the offices are
+        simulated in parallel on a process pool. 1: in this process. The figures do
+        not depend on it.
     on_trial : callable(done), optional
         Called after each trial.
+    scheduler : str, optional
+        Address of an existing Dask cluster (``tcp://host:8786``): one task per
+        trial on it (not with ``workers``). The figures are those of the serial run.
     """
     if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
         raise InvalidParameterError(f"trials must be a positive integer, got {trials!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise InvalidParameterError(f"seed must be an integer >= 0, got {seed!r}")
     p = protocol if protocol is not None else RobotProtocol()
+    if scheduler is not None or (workers is not None and workers >= 2 and trials >= 2):
+        from ..parallel import run_tasks
+
+        # one Dask task per trial; each trial carries its seed sequence (seed, t)
+        done = None if on_trial is None else on_trial
+        results = run_tasks(_trial_job, [(p, seed, t) for t in range(trials)], workers=workers,
+                            scheduler=scheduler, on_done=done)  # fmt: skip
+        return RobotResult(protocol=p, seed=seed, trials=results)
     n_workers = default_workers() if workers is None else int(workers)
     results = []
     if n_workers >= 2 and trials >= 2:
