@@ -59,8 +59,13 @@ def small_log(tmp_path_factory):
     return _write(tmp_path_factory.mktemp("shared") / "rooms5-corrected.log")
 
 
-def test_shared_run_gives_the_unshared_figures(small_log):
-    shared = run_benchmark([small_log])  # default methods, shared within the log
+@pytest.fixture(scope="module")
+def shared_run(small_log):
+    return run_benchmark([small_log])  # default methods, shared within the log
+
+
+def test_shared_run_gives_the_unshared_figures(small_log, shared_run):
+    shared = shared_run
     scans, _ = load_log_scans(small_log)
     split = make_split(np.array([s.pose[:2] for s in scans]))
     alone = run_log(scans, split, [make_method(n) for n in DEFAULT_METHODS])  # no sharing at all
@@ -102,3 +107,22 @@ def test_sharing_happens_and_is_keyed_on_scans_and_labels(small_log):
     assert np.array_equal(m6.score(b), s1)
     with pytest.raises(AttributeError):
         shared_method("baseline-histogram").score(b)  # score before fit
+
+
+def test_sweep_script_cell_matches_the_benchmark(small_log, shared_run, tmp_path):
+    """scripts/sweep.py (docs/CLUSTER.md): preset laser2d, seed 0 is the benchmark's fingerprint / fingerprint-odometry."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "sweep.py"
+    spec = importlib.util.spec_from_file_location("fingerloc_sweep_example", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "sweep.json"
+    assert mod.main([str(small_log), "--seeds", "0", "--presets", "laser2d", "--json", str(out)]) == 0
+    (row,) = json.loads(out.read_text())
+    assert (row["log"], row["seed"], row["preset"]) == ("rooms5", 0, "laser2d")
+    bench = shared_run.to_json()["logs"]["rooms5"]["methods"]
+    for mine, theirs in (("single", "fingerprint"), ("odometry", "fingerprint-odometry")):
+        for fig in ("top1", "mean_rank", "recall5"):
+            assert row["methods"][mine][fig] == bench[theirs][fig], (mine, fig)

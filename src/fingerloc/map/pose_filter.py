@@ -362,8 +362,10 @@ class PoseFilter:
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
-        # the tree's query, compiled brute force (same distances; issue 17)
-        from ._nearest import nearest_centres
+        if self.centres.shape[0] > 256:  # many places: the tree
+            d, j = self._tree.query(xy)
+            return np.asarray(d, dtype=np.float64), np.asarray(j, dtype=np.int64)
+        from ._nearest import nearest_centres  # the tree's answer, compiled brute force (issue 17)
 
         return nearest_centres(xy, self.centres)
 
