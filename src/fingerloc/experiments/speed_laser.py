@@ -91,10 +91,10 @@ def laser_places(n_places: int, *, n_train: int = 3, seed: int = 20040426) -> La
         train, test = protocol_poses(w, n_train=n_train, n_test=1, random_state=rng)
         label = f"place-{p}"
         for pose in train:
-            data.train.append(hokuyo_scan(w, (pose[0], pose[1], rng.uniform(-math.pi, math.pi)), random_state=rng.integers(2**31)))
+            data.train.append(hokuyo_scan(w, (pose[0], pose[1], rng.uniform(-math.pi, math.pi)), random_state=int(rng.integers(2**31))))
             data.train_labels.append(label)
         for pose in test:
-            data.queries.append(hokuyo_scan(w, (pose[0], pose[1], rng.uniform(-math.pi, math.pi)), random_state=rng.integers(2**31)))
+            data.queries.append(hokuyo_scan(w, (pose[0], pose[1], rng.uniform(-math.pi, math.pi)), random_state=int(rng.integers(2**31))))
             data.query_labels.append(label)
     return data
 
@@ -143,6 +143,7 @@ def laser_figures(
     *, n_places: int = 1000, n_train: int = 3, n_queries: int = 20, chunk: int = 256, repeat: int = 3, seed: int = 20040426
 ) -> dict[str, Any]:
     """The figures of the ``laser`` section (module docstring); ``n_queries`` queries are timed one at a time."""
+    from ..fingerprint import make_fingerprint
     from ..pipeline.presets import resolve_preset
 
     t0 = time.perf_counter()
@@ -165,7 +166,7 @@ def laser_figures(
         "train_views_per_place": n_train,
         "beams": BEAMS,
         "references": len(train),
-        "mean_letters": float(np.mean([len(model.terms_["Fp"].fingerprint(o)) for o in queries])),
+        "mean_letters": float(np.mean([len(make_fingerprint(o, laser_letters=True)) for o in queries])),
         "simulate_s": sim_s,
         "extract_all_s": extract_all_s,
         "learn_s": learn_s,
@@ -180,7 +181,11 @@ def laser_figures(
 
     out["extract_ms"], out["extract_cpu_ms"] = per_query(lambda s: data.observations([s]), q_scans)
     for name, term in model.terms_.items():
-        out[f"term_{name}_ms"], out[f"term_{name}_cpu_ms"] = per_query(lambda o, t=term: t.log_likelihood([o]), q_obs)
+
+        def score(o: Observation, t: Any = term) -> object:
+            return t.log_likelihood([o])
+
+        out[f"term_{name}_ms"], out[f"term_{name}_cpu_ms"] = per_query(score, q_obs)
     out["localize_ms"], out["localize_cpu_ms"] = per_query(lambda o: localize_answers(model, [o]), q_obs)
     out["localize_with_extraction_ms"], out["localize_with_extraction_cpu_ms"] = per_query(
         lambda s: localize_answers(model, data.observations([s])), q_scans
