@@ -268,8 +268,14 @@ class FingerprintTerm(DistanceTerm):
         try:
             fps = state.get("fingerprints")
             if fps is None:  # recompute from the observations
-                fps = [[(f.letters, f.bearings) for f in (self.fingerprint(o) for o in g)] for g in groups]
-            self.fingerprints_ = [[Fingerprint(s, np.asarray(b, dtype=np.float64)) for s, b in g] for g in fps]
+                fps = [[None] * len(g) for g in groups]
+            self.fingerprints_ = [
+                [
+                    self.fingerprint(o) if f is None else Fingerprint(f[0], np.asarray(f[1], dtype=np.float64))
+                    for f, o in zip(fg, g, strict=True)  # a view without a stored fingerprint: from the observation
+                ]
+                for fg, g in zip(fps, groups, strict=True)
+            ]
             self.medoids_ = [int(m) for m in state.get("medoids", [0] * len(groups))]
             cons = state.get("consensus") or [None] * len(groups)
             self.consensus_ = [None if c is None else Fingerprint(c[0], np.asarray(c[1], dtype=np.float64)) for c in cons]
