@@ -252,12 +252,13 @@ def _ro(a: object, shape_tail: tuple[int, ...] = ()) -> FArray:
     return arr
 
 
+_EIGH: Any = None
 try:  # the LAPACK routine of np.linalg.eigh, without its per-call checks (same results)
     from numpy.linalg import _umath_linalg
 
     _EIGH = _umath_linalg.eigh_lo
 except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
-    _EIGH = None
+    pass
 
 
 def _eigh(a: FArray) -> tuple[FArray, FArray]:
