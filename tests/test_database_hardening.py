@@ -183,7 +183,7 @@ CRAFTED = {
     "label as a blob": ("UPDATE places SET label = x'00ff' WHERE id = 0", "label"),
     "lambdas as a string": ("UPDATE meta SET value = '\"x\"' WHERE key = 'lambdas'", "lambdas"),
     "record not an observation": ("UPDATE observations SET data = x'01ff' WHERE id = 1", "corrupt observation"),
-    "record of a wrong length": ("UPDATE observations SET data = data || x'00' WHERE id = 1", "corrupt observation"),
+    "record of a wrong length": ("UPDATE observations SET data = CAST(data || x'00' AS BLOB) WHERE id = 1", "corrupt observation"),
     "record as text": ("UPDATE observations SET data = 'abc' WHERE id = 1", "corrupt observation"),
     "sigma of zero": ("UPDATE mixtures SET sigmas = zeroblob(8 * length(sigmas) / 8)", "mixture"),
 }

@@ -27,6 +27,7 @@ from fingerloc import Observation
 from fingerloc.errors import DatabaseError
 from fingerloc.map._records import decode_observation, encode_observation
 from fingerloc.map.database import SCHEMA_VERSION, load_model, save_model
+from fingerloc.model import PlaceModel
 from fingerloc.pipeline.mapping import load_map
 from fingerloc.pipeline.readers import read_run
 
@@ -46,9 +47,11 @@ def answers():
     return json.loads((DATA / "v2_answers.json").read_text())
 
 
-def _same_observation(a: Observation, b: Observation, *, scan: bool = True) -> bool:
+def _same_observation(a: Observation, b: Observation, *, scan: bool = True, walls32: bool = False) -> bool:
     for k in ("ve", "cp", "cp_hue", "ex", "c", "b", "w", "w_length", "w_range"):
         x, y = getattr(a, k), getattr(b, k)
+        if walls32 and k in ("w_length", "w_range"):
+            x = x.astype(np.float32).astype(np.float64)
         if x.tobytes() != y.tobytes():
             return False
     for k in ("ranges", "range_bearings", "appearance") if scan else ("appearance",):
@@ -95,6 +98,7 @@ def test_version_3_round_trip_is_exact(tmp_path, rooms_log):
         assert con.execute("SELECT count(*) FROM fingerprints").fetchone() == (0,)  # every one recomputed exactly
         assert {r[0] for r in con.execute("SELECT encoding FROM range_descriptors")} <= {"|u1", "<u2"}
         assert con.execute("PRAGMA page_size").fetchone() == (1024,)
+        assert con.execute("SELECT value FROM meta WHERE key = 'default_fov'").fetchone() is not None  # 180 deg scans
         assert all(len(h) == 32 for (h,) in con.execute("SELECT hash FROM content_hashes"))
     lm = load_map(db)
     m, m2 = pm.model, lm.model
@@ -102,7 +106,7 @@ def test_version_3_round_trip_is_exact(tmp_path, rooms_log):
         assert len(a.observations) == len(b.observations)
         for oa, ob in zip(a.observations, b.observations, strict=True):
             assert oa.ranges is not None and ob.ranges is None  # the range term keeps counts, not scans
-            assert _same_observation(oa, ob, scan=False)
+            assert _same_observation(oa, ob, scan=False, walls32=True)
     for ga, gb in zip(m.terms_["Fp"].fingerprints_, m2.terms_["Fp"].fingerprints_, strict=True):
         for fa, fb in zip(ga, gb, strict=True):
             assert fa.letters == fb.letters and fa.bearings.tobytes() == fb.bearings.tobytes()
@@ -151,15 +155,38 @@ def observations(draw):
     return Observation(**kw, label="p", source=draw(st.none() | st.just("a.png")))
 
 
-@given(observations(), st.booleans())
-def test_binary_records_round_trip(obs, scan):
-    back = decode_observation(encode_observation(obs, scan=scan), label=obs.label, source=obs.source)
-    assert _same_observation(obs, back, scan=scan)
+@given(observations(), st.booleans(), st.booleans(), st.booleans())
+def test_binary_records_round_trip(obs, scan, walls32, default):
+    fov = obs.fov if default else None
+    data = encode_observation(obs, scan=scan, walls32=walls32, default_fov=fov)
+    back = decode_observation(data, label=obs.label, source=obs.source, default_fov=fov)
+    assert _same_observation(obs, back, scan=scan, walls32=walls32)
     assert scan or back.ranges is None
 
 
+def test_walls_at_a_class_edge_stay_exact(tmp_path):
+    """A wall 1 ulp short of 3 m is "medium"; as float32 it would be 3.0, "long": it is stored as float64."""
+    from fingerloc.fingerprint import make_fingerprint
+
+    edge = np.nextafter(3.0, 0.0)
+    assert np.float32(edge) == 3.0
+    obs = [Observation(c=[0.5], w=[0.1, 1.0], w_length=[edge, 1.5], w_range=[2.0, 2.0], label="a"),
+           Observation(c=[0.6], w=[1.0], w_length=[1.5], w_range=[2.0], label="a"),
+           Observation(c=[2.5], ex=[1.0], label="b")]  # fmt: skip
+    model = PlaceModel(terms=("Fp",), laser_letters=True, cyclic=True).fit(obs)
+    save_model(model, tmp_path / "w.sqlite")
+    back = load_model(tmp_path / "w.sqlite")
+    first = back.places_["a"].observations[0]
+    assert first.w_length.tobytes() == obs[0].w_length.tobytes()  # float64: exact
+    assert back.places_["a"].observations[1].w_length[0] == np.float32(1.5)
+    fp = make_fingerprint(first, laser_letters=True)
+    assert fp.letters == make_fingerprint(obs[0], laser_letters=True).letters
+    with sqlite3.connect(tmp_path / "w.sqlite") as con:
+        assert con.execute("SELECT count(*) FROM fingerprints").fetchone() == (0,)
+
+
 @pytest.mark.parametrize("data", [b"", b"\x02\x00" + bytes(9), b"\x01\x00" + bytes(8), b"\x01\x00\x01" + bytes(8),
-                                  b"\x01\x80" + bytes(9), "text"])  # fmt: skip
+                                  b"\x01\x40" + bytes(9), b"\x01\x44" + bytes(9), "text"])  # fmt: skip
 def test_corrupt_binary_records_are_refused(data):
     with pytest.raises(DatabaseError, match="corrupt observation record"):
         decode_observation(data)

@@ -296,6 +296,34 @@ def _array(b: Any) -> np.ndarray:
     return a
 
 
+def _default_fov(groups: list[list[Any]]) -> tuple[tuple[float, float], ...] | None:
+    """The field of view most observations share, when it is not the full circle (stored once, in ``meta``)."""
+    from collections import Counter
+
+    from ..observation import FULL_FOV
+
+    common = Counter(o.fov for g in groups for o in g).most_common(1)
+    return None if not common or common[0][0] == FULL_FOV or common[0][1] < 2 else common[0][0]
+
+
+def _observation_blob(obs: Any, stored_fp: Any, scan: bool, default_fov: Any, make_fp: Any) -> tuple[bytes, bool]:
+    """An observation's binary record, and whether its fingerprint must be stored too.
+
+    Wall lengths and ranges go as float32 when the fingerprint computed from
+    the decoded record is bit for bit ``stored_fp`` (else as float64); the
+    fingerprint is stored only when even the float64 record does not give it back.
+    """
+    data = b""
+    for walls32 in (True, False) if obs.w.size else (False,):
+        data = encode_observation(obs, scan=scan, default_fov=default_fov, walls32=walls32)
+        if stored_fp is None:
+            return data, False
+        again = make_fp(decode_observation(data, label=obs.label, source=obs.source, default_fov=default_fov))
+        if again.letters == stored_fp[0] and np.array_equal(again.bearings, stored_fp[1]):
+            return data, False
+    return data, True
+
+
 #: Encodings of the range term's rows in ``range_descriptors.encoding`` (schema version 3): numpy dtypes.
 _RANGE_ENCODINGS = {"<f8": "descriptors", "|u1": "counts", "<u2": "counts", "<u4": "counts"}
 
@@ -335,9 +363,16 @@ def _costs_to_json(costs: Any) -> Any:
     if costs is None:
         return None
     try:
-        return {"substitution": np.asarray(costs.substitution).tolist(), "indel": np.asarray(costs.indel).tolist()}
+        return {"substitution": _compact(np.asarray(costs.substitution).tolist()), "indel": _compact(np.asarray(costs.indel).tolist())}
     except AttributeError as err:
         raise DatabaseError(f"cannot store alignment costs of type {type(costs).__name__}") from err
+
+
+def _compact(values: Any) -> Any:
+    """Nested lists of floats with the whole numbers written as integers (``1`` for ``1.0``: the same value, shorter JSON)."""
+    if isinstance(values, list):
+        return [_compact(v) for v in values]
+    return int(values) if isinstance(values, float) and values.is_integer() and abs(values) < 2**53 else values
 
 
 def _costs_from_json(data: Any) -> Any:
@@ -449,6 +484,9 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                default_fov = _default_fov(state["observations"])
+                if default_fov is not None:
+                    meta["default_fov"] = _meta_json([list(pair) for pair in default_fov])
                 if any(isinstance(lab, int) and not isinstance(lab, bool) for lab in labels):
                     meta["labels"] = _meta_json([lab if isinstance(lab, int) and not isinstance(lab, bool) else str(lab) for lab in labels])
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
@@ -465,17 +503,14 @@ def _save_locked(
                         ),
                     )
                     for idx, obs in enumerate(group):
-                        # the range term keeps descriptors: the raw scan is not stored
-                        data = encode_observation(obs, scan=rng is None)
+                        stored = fp["fingerprints"][pid][idx] if fp else None
+                        data, keep_fp = _observation_blob(obs, stored, rng is None, default_fov, make_fp)
                         cur = con.execute(
                             "INSERT INTO observations(place_id, idx, data, source) VALUES (?, ?, ?, ?)",
                             (pid, idx, data, obs.source),
                         )
-                        if fp:  # stored only when the stored observation does not give it back bit for bit
-                            letters, bearings = fp["fingerprints"][pid][idx]
-                            again = make_fp(decode_observation(data, label=obs.label, source=obs.source))
-                            if again.letters != letters or not np.array_equal(again.bearings, bearings):
-                                con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, letters, _blob(bearings)))
+                        if keep_fp and stored is not None:
+                            con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, stored[0], _blob(stored[1])))
                 for name, t in terms.items():
                     for pid, mx in enumerate(t.get("mixtures", [])):
                         if mx is not None:
@@ -581,6 +616,9 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         unknown = _float_map(meta["unknown_costs"], "unknown_costs")
         weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
         typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
+        default_fov = None
+        if "default_fov" in meta:
+            default_fov = tuple((float(a), float(b)) for a, b in json.loads(meta["default_fov"]))
     except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
         raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
     labels: list[Any] = []
@@ -626,7 +664,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
                 raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
         else:
             try:
-                obs = decode_observation(record, label=labels[index[pid]], source=source)
+                obs = decode_observation(record, label=labels[index[pid]], source=source, default_fov=default_fov)
             except DatabaseError as err:
                 raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: {err}") from err
         observations[index[pid]].append(obs)
