@@ -1,34 +1,31 @@
 """The place database: one SQLite file, versioned schema, atomic saves, never pickle.
 
-Layout (schema version 1)::
+Layout (schema version 3, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
-                                                   -- params, lambdas, unknown_costs, fitted_weights (JSON)
+                                                   -- params, lambdas, unknown_costs, fitted_weights,
+                                                   -- default_fov, preset, calibration, runs (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
-    observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, record TEXT)
-                                                   -- the JSON Lines record of the observation
+    observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
+                                                   -- binary records (fingerloc.map._records)
     fingerprints(obs_id INTEGER PRIMARY KEY, letters TEXT, bearings BLOB)
+                                                   -- only those the records do not give back bit for bit
     mixtures(place_id INTEGER, term TEXT, weights BLOB, means BLOB, sigmas BLOB,
              PRIMARY KEY (place_id, term))
     graph_edges(src TEXT, dst TEXT, count INTEGER, PRIMARY KEY (src, dst))
-
-Schema version 2 adds the map of a recorded run (:class:`MapInfo`, written by
-``fingerloc map``), in its own tables and meta keys::
-
+    range_descriptors(place_id INTEGER PRIMARY KEY, width INTEGER, data BLOB, encoding TEXT)
+                                                   -- beam counts per bin (|u1, <u2, <u4) or float64 rows (<f8)
     place_positions(label TEXT PRIMARY KEY, idx INTEGER, x REAL, y REAL)
-                                                   -- place centres (metres), idx = creation order
-    content_hashes(hash TEXT PRIMARY KEY)          -- observation_hash of every stored observation
-    range_descriptors(place_id INTEGER PRIMARY KEY, width INTEGER, data BLOB)
-                                                   -- the range term's descriptors, rows of `width`;
-                                                   -- with them, observation records keep no raw scan
-    meta: preset (JSON: name, reason, every resolved option), calibration (JSON:
-          the filters' parameters), runs (JSON: the mapped runs' keys and mapping parts)
+    content_hashes(hash BLOB PRIMARY KEY) WITHOUT ROWID   -- SHA-256 digests of the stored observations
 
-Version 1 files still load (they have none of these). Learning an observation
-whose content hash is stored again does not duplicate it.
+Schema version 1 stored each observation as its JSON Lines record
+(``observations.record TEXT``) and every fingerprint; version 2 added the map
+of a recorded run (place positions, hex content hashes, float64 range
+descriptors, the meta keys preset, calibration and runs). Both still load.
+Learning an observation whose content hash is stored again does not duplicate it.
 
-Arrays are little-endian float64 blobs (radians). A save writes a complete new
+Arrays are little-endian float64 blobs (radians) unless said otherwise. A save writes a complete new
 file next to the target in one transaction, syncs it, and renames it over the
 target: a crash mid-write leaves the old file as it was.
 
