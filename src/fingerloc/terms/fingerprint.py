@@ -245,7 +245,7 @@ class FingerprintTerm(DistanceTerm):
                 lo = int(self._starts[place])
                 costs = row[lo : lo + len(fps)]
             else:
-                costs = alignment_costs([q], fps, cyclic=True, costs=self.costs)[0]
+                costs = alignment_costs([q], fps, cyclic=True, costs=self.costs, workers=1)[0]  # a few views: no threads
             least = float(costs.min())
             candidates = np.flatnonzero(costs <= least + 1e-9 * max(1.0, abs(least))).tolist()
         best: tuple[float, float | None, int] | None = None
