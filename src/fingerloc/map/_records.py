@@ -128,7 +128,8 @@ def decode_observation(
     parts = np.split(values, np.cumsum(sizes)[:-1])
     ve, cp, hue, ex, c, b, w = parts[:7]
     if w32:
-        short = np.frombuffer(data, dtype="<f4", offset=start + 8 * n64).astype(np.float64)
+        with np.errstate(invalid="ignore"):  # a NaN pattern: the observation refuses it below
+            short = np.frombuffer(data, dtype="<f4", offset=start + 8 * n64).astype(np.float64)
         w_len, w_rng = short[:n_w], short[n_w:]
         rest = parts[7:]
     else:
