@@ -45,7 +45,7 @@ def test_save_is_atomic(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("crash mid-write")
 
-    monkeypatch.setattr("fingerloc.map.database.observation_to_record", boom)
+    monkeypatch.setattr("fingerloc.map.database.encode_observation", boom)
     with pytest.raises(RuntimeError):
         save_model(PlaceModel(3).fit(obs, labels), path)
     assert path.read_bytes() == good

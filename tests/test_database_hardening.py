@@ -177,12 +177,14 @@ CRAFTED = {
     "observation of a missing place": ("UPDATE observations SET place_id = 77 WHERE id = 1", "place id 77"),
     "mixture of a missing place": ("UPDATE mixtures SET place_id = 55 WHERE rowid = 1", "place id 55"),
     "params as a list": ("UPDATE meta SET value = '[1, 2]' WHERE key = 'params'", "params"),
-    "bearings as text": ("UPDATE fingerprints SET bearings = 'abc'", "float64 blob"),
+    "bearings as text": ("INSERT OR REPLACE INTO fingerprints VALUES (1, 'c', 'abc')", "float64 blob"),
     "no observation rows": ("DELETE FROM observations", "no observation"),
     "graph count as text": ("INSERT INTO graph_edges VALUES ('a', 'b', 'many')", "count"),
     "label as a blob": ("UPDATE places SET label = x'00ff' WHERE id = 0", "label"),
     "lambdas as a string": ("UPDATE meta SET value = '\"x\"' WHERE key = 'lambdas'", "lambdas"),
-    "record not JSON": ("UPDATE observations SET record = '{' WHERE id = 1", "corrupt observation"),
+    "record not an observation": ("UPDATE observations SET data = x'01ff' WHERE id = 1", "corrupt observation"),
+    "record of a wrong length": ("UPDATE observations SET data = CAST(data || x'00' AS BLOB) WHERE id = 1", "corrupt observation"),
+    "record as text": ("UPDATE observations SET data = 'abc' WHERE id = 1", "corrupt observation"),
     "sigma of zero": ("UPDATE mixtures SET sigmas = zeroblob(8 * length(sigmas) / 8)", "mixture"),
 }
 

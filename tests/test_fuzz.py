@@ -129,7 +129,7 @@ def learned_db(tmp_path_factory):
 
 _COLUMNS = {
     "places": ["id", "label", "medoid", "consensus_letters", "consensus_bearings"],
-    "observations": ["place_id", "idx", "record"],
+    "observations": ["place_id", "idx", "data", "source"],
     "fingerprints": ["obs_id", "letters", "bearings"],
     "mixtures": ["place_id", "term", "weights", "means", "sigmas"],
     "graph_edges": ["src", "dst", "count"],

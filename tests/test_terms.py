@@ -184,7 +184,6 @@ def test_filters_refuse_bad_parameters_with_fingerloc_errors():
 
 
 def test_database_keeps_range_descriptors_not_scans(tmp_path):
-    import json
     import sqlite3
 
     rng = np.random.default_rng(9)
@@ -196,11 +195,15 @@ def test_database_keeps_range_descriptors_not_scans(tmp_path):
     m = PlaceModel(terms=("Fp", "R"), fp_likelihood="exp").fit(obs)
     db = tmp_path / "r.sqlite"
     save_model(m, db)
+    from fingerloc.map._records import decode_observation
+
     with sqlite3.connect(db) as con:
-        records = [json.loads(r) for (r,) in con.execute("SELECT record FROM observations")]
-    assert records and not any("scan" in r for r in records)
+        records = [decode_observation(r) for (r,) in con.execute("SELECT data FROM observations")]
+        encodings = {e for (e,) in con.execute("SELECT encoding FROM range_descriptors")}
+    assert records and not any(r.ranges is not None for r in records)
+    assert encodings <= {"|u1", "<u2"}  # beam counts, not float64 descriptors
     back = load_model(db)
-    np.testing.assert_allclose(back.term_log_likelihoods(obs)["R"], m.term_log_likelihoods(obs)["R"], rtol=1e-12)
+    np.testing.assert_array_equal(back.term_log_likelihoods(obs)["R"], m.term_log_likelihoods(obs)["R"])
     # the stored model still grows: a new view of "b" adds its descriptor to the stored ones
     back.add_places([obs[-1]])
     assert back.terms_["R"].descriptors_[1].shape[0] == 4

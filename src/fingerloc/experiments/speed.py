@@ -79,6 +79,7 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.speed_mog",
     "fingerloc.experiments.speed_align",
     "fingerloc.experiments.speed_model",
+    "fingerloc.experiments.speed_laser",
     "fingerloc.experiments.speed_sim",
     "fingerloc.experiments.carmen",
     "fingerloc.experiments.extractors",

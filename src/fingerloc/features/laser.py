@@ -44,6 +44,7 @@ applied), wrapped to ``[-pi, pi)``.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -251,6 +252,29 @@ def _ro(a: object, shape_tail: tuple[int, ...] = ()) -> FArray:
     return arr
 
 
+_EIGH: Any = None
+try:  # the LAPACK routine of np.linalg.eigh, without its per-call checks (same results)
+    from numpy.linalg import _umath_linalg
+
+    _EIGH = _umath_linalg.eigh_lo
+except (ImportError, AttributeError):  # pragma: no cover - another numpy layout
+    pass
+
+
+def _eigh(a: FArray) -> tuple[FArray, FArray]:
+    """``np.linalg.eigh(a)`` of a real symmetric matrix (the same values, less overhead)."""
+    if _EIGH is None:  # pragma: no cover
+        w, v = np.linalg.eigh(a)
+        return w, v
+    w, v = _EIGH(a, signature="d->dd")
+    return w, v
+
+
+def _norm(v: FArray) -> float:
+    """``float(np.linalg.norm(v))`` of a 1-D float64 vector (the same value: ``sqrt(v . v)``)."""
+    return math.sqrt(float(v.dot(v)))
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class LaserFeatures:
     """Features extracted from one scan.
@@ -293,8 +317,8 @@ class _Segment:
     after: int  # boundary kind after the last beam
 
 
-def _is_circular(b: FArray) -> bool:
-    step = float(np.median(np.diff(b)))
+def _is_circular(b: FArray, step: float | None = None) -> bool:
+    step = float(np.median(np.diff(b))) if step is None else step
     return bool(b[-1] - b[0] + step >= TWO_PI - 0.5 * step)
 
 
@@ -372,8 +396,8 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
         pts = np.column_stack([ox + r * np.cos(b + oth), oy + r * np.sin(b + oth)])
     pts[~valid] = np.nan
     points_orig = pts.copy()
-    circular = _is_circular(b)
     step = float(np.median(np.diff(b)))
+    circular = _is_circular(b, step)
 
     # consecutive-pair "connected" flags, pair k joins beam k and k+1
     def connected(rr: FArray, pp: FArray, phi: FArray) -> NDArray[np.bool_]:
@@ -422,7 +446,7 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
                 while k < n and not valid[k] and k - j - 1 < p.max_bridge_beams:
                     k += 1
                 if k < n and valid[k] and b[k] - b[j] <= _MAX_STEP_RATIO * step * (k - j):
-                    d = float(np.linalg.norm(pts[k] - pts[j]))
+                    d = _norm(pts[k] - pts[j])
                     thr = float(_break_threshold(np.array([min(r[j], r[k])]), np.array([b[k] - b[j]]), p)[0])
                     if d <= thr:
                         j = k
@@ -443,7 +467,7 @@ def _prepare(scan: Scan, p: LaserParams) -> _Prepared:
         if first.start == 0 and last.stop == n:
             # index n-1 and 0 are neighbours
             rr = np.array([min(r[-1], r[0])])
-            d = float(np.linalg.norm(pts[0] - pts[-1]))
+            d = _norm(pts[0] - pts[-1])
             thr = float(_break_threshold(rr, np.array([step]), p)[0])
             kind = _SEAM if d <= thr else _JUMP
         else:
@@ -475,15 +499,15 @@ def _tol(r: FArray, p: LaserParams) -> FArray:
 
 def _tls(pts: FArray) -> tuple[FArray, FArray, float]:
     """Total-least-squares line: centroid, unit direction, RMS orthogonal residual (m)."""
-    c = pts.mean(axis=0)
+    c = np.add.reduce(pts, axis=0) / len(pts)  # pts.mean(axis=0), without its overhead
     q = pts - c
     cov = q.T @ q
-    _, v = np.linalg.eigh(cov)
+    _, v = _eigh(cov)
     d = v[:, 1]
     if np.dot(pts[-1] - pts[0], d) < 0:
         d = -d
     normal = np.array([-d[1], d[0]])
-    rms = float(np.sqrt(np.mean((q @ normal) ** 2))) if len(pts) else 0.0
+    rms = float(np.sqrt(np.add.reduce((q @ normal) ** 2) / len(pts))) if len(pts) else 0.0
     return c, d, rms
 
 
@@ -555,7 +579,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
     for ln in lines:
         if not _is_line(ln):
             continue
-        if float(np.linalg.norm(ln.p1 - ln.p0)) < p.min_line_length:
+        if _norm(ln.p1 - ln.p0) < p.min_line_length:
             continue
         start, stop = int(idx[ln.start]), int(idx[ln.stop - 1]) + 1
         out.append(_Line(start, stop, ln.centroid, ln.direction, ln.p0, ln.p1))
@@ -563,7 +587,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
 
 
 def _is_line(ln: _Line) -> bool:
-    return bool(np.any(ln.direction != 0))
+    return bool(ln.direction[0] != 0 or ln.direction[1] != 0)
 
 
 def fit_lines(scan: Scan, **params: Any) -> FArray:
@@ -599,7 +623,7 @@ def _corner(a: _Line, b: _Line, p: LaserParams) -> FArray | None:
     x = _intersect(a, b)
     if x is None:
         return None
-    if np.linalg.norm(x - a.p1) > p.corner_max_dist or np.linalg.norm(x - b.p0) > p.corner_max_dist:
+    if _norm(x - a.p1) > p.corner_max_dist or _norm(x - b.p0) > p.corner_max_dist:
         return None
     return x
 
@@ -646,7 +670,7 @@ def _bridge(a: _Line, b: _Line, prep: _Prepared, p: LaserParams) -> list[FArray]
     if idx.size < p.bridge_min_points:
         return None
     pq = b.p0 - a.p1
-    length = float(np.linalg.norm(pq))
+    length = _norm(pq)
     if not p.min_line_length <= length <= p.bridge_max_length:
         return None
     d = pq / length
@@ -770,7 +794,7 @@ def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
             if len(g) < max(1, int(p.beacon_min_width / (r_g * abs(prep.step)))):
                 continue
         pts = prep.pts[g]
-        width = float(np.linalg.norm(pts[-1] - pts[0]))
+        width = _norm(pts[-1] - pts[0])
         if width > p.beacon_max_width:
             continue
         w = inten[g]
@@ -1024,7 +1048,7 @@ def _extremities(
         if seg.stop - seg.start < p.min_segment_points or not lines:
             continue
         first, last = seg.start, seg.stop - 1
-        if float(np.linalg.norm(pts[last] - pts[first])) < p.min_extremity_extent:
+        if _norm(pts[last] - pts[first]) < p.min_extremity_extent:
             continue
         for end, kind, sign, line, tip in (
             (first, seg.before, -1, lines[0], lines[0].p0),
@@ -1032,7 +1056,7 @@ def _extremities(
         ):
             if (k, 0 if sign < 0 else 1) in bridged:
                 continue  # a surface seen edge-on joins this end to the next segment
-            on_line = float(np.linalg.norm(tip - pts[end])) <= p.extremity_max_tail
+            on_line = _norm(tip - pts[end]) <= p.extremity_max_tail
             if kind in (_EDGE, _SEAM) or not on_line:
                 continue  # the scan's border, or a ragged (non-line) end
             if _end_is_hidden(scan, prep, line, end, kind, sign, p):

@@ -1,34 +1,31 @@
 """The place database: one SQLite file, versioned schema, atomic saves, never pickle.
 
-Layout (schema version 1)::
+Layout (schema version 3, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
-                                                   -- params, lambdas, unknown_costs, fitted_weights (JSON)
+                                                   -- params, lambdas, unknown_costs, fitted_weights,
+                                                   -- default_fov, preset, calibration, runs (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
-    observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, record TEXT)
-                                                   -- the JSON Lines record of the observation
+    observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
+                                                   -- binary records (fingerloc.map._records)
     fingerprints(obs_id INTEGER PRIMARY KEY, letters TEXT, bearings BLOB)
+                                                   -- only those the records do not give back bit for bit
     mixtures(place_id INTEGER, term TEXT, weights BLOB, means BLOB, sigmas BLOB,
              PRIMARY KEY (place_id, term))
     graph_edges(src TEXT, dst TEXT, count INTEGER, PRIMARY KEY (src, dst))
-
-Schema version 2 adds the map of a recorded run (:class:`MapInfo`, written by
-``fingerloc map``), in its own tables and meta keys::
-
+    range_descriptors(place_id INTEGER PRIMARY KEY, width INTEGER, data BLOB, encoding TEXT)
+                                                   -- beam counts per bin (|u1, <u2, <u4) or float64 rows (<f8)
     place_positions(label TEXT PRIMARY KEY, idx INTEGER, x REAL, y REAL)
-                                                   -- place centres (metres), idx = creation order
-    content_hashes(hash TEXT PRIMARY KEY)          -- observation_hash of every stored observation
-    range_descriptors(place_id INTEGER PRIMARY KEY, width INTEGER, data BLOB)
-                                                   -- the range term's descriptors, rows of `width`;
-                                                   -- with them, observation records keep no raw scan
-    meta: preset (JSON: name, reason, every resolved option), calibration (JSON:
-          the filters' parameters), runs (JSON: the mapped runs' keys and mapping parts)
+    content_hashes(hash BLOB PRIMARY KEY) WITHOUT ROWID   -- SHA-256 digests of the stored observations
 
-Version 1 files still load (they have none of these). Learning an observation
-whose content hash is stored again does not duplicate it.
+Schema version 1 stored each observation as its JSON Lines record
+(``observations.record TEXT``) and every fingerprint; version 2 added the map
+of a recorded run (place positions, hex content hashes, float64 range
+descriptors, the meta keys preset, calibration and runs). Both still load.
+Learning an observation whose content hash is stored again does not duplicate it.
 
-Arrays are little-endian float64 blobs (radians). A save writes a complete new
+Arrays are little-endian float64 blobs (radians) unless said otherwise. A save writes a complete new
 file next to the target in one transaction, syncs it, and renames it over the
 target: a crash mid-write leaves the old file as it was.
 
@@ -66,6 +63,7 @@ from .. import __version__
 from ..errors import DatabaseError, DataFormatError, FingerlocError
 from ..io.jsonl import observation_from_record, observation_to_record, parse_record
 from ..model import PlaceModel
+from ._records import decode_observation, encode_observation
 
 __all__ = [
     "FORMAT",
@@ -80,16 +78,18 @@ __all__ = [
 ]
 
 FORMAT = "fingerloc-places"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: Schema versions this fingerloc reads.
-READABLE_VERSIONS = ("1", "2")
+READABLE_VERSIONS = ("1", "2", "3")
+#: SQLite page size of a written database: small pages keep the tables of a small map small.
+PAGE_SIZE = 1024
 
 _SCHEMA = """
 CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE places(id INTEGER PRIMARY KEY, label TEXT UNIQUE NOT NULL, medoid INTEGER NOT NULL,
                     consensus_letters TEXT, consensus_bearings BLOB);
 CREATE TABLE observations(id INTEGER PRIMARY KEY, place_id INTEGER NOT NULL REFERENCES places(id),
-                          idx INTEGER NOT NULL, record TEXT NOT NULL);
+                          idx INTEGER NOT NULL, data BLOB NOT NULL, source TEXT);
 CREATE TABLE fingerprints(obs_id INTEGER PRIMARY KEY REFERENCES observations(id), letters TEXT NOT NULL,
                           bearings BLOB NOT NULL);
 CREATE TABLE mixtures(place_id INTEGER NOT NULL REFERENCES places(id), term TEXT NOT NULL,
@@ -97,13 +97,13 @@ CREATE TABLE mixtures(place_id INTEGER NOT NULL REFERENCES places(id), term TEXT
                       PRIMARY KEY (place_id, term));
 CREATE TABLE graph_edges(src TEXT NOT NULL, dst TEXT NOT NULL, count INTEGER NOT NULL, PRIMARY KEY (src, dst));
 CREATE TABLE range_descriptors(place_id INTEGER PRIMARY KEY REFERENCES places(id), width INTEGER NOT NULL,
-                               data BLOB NOT NULL);
+                               data BLOB NOT NULL, encoding TEXT NOT NULL);
 """
 
-# Schema version 2: the map of a recorded run (MapInfo), in its own tables.
+# The map of a recorded run (MapInfo), in its own tables (schema versions 2 and 3).
 _SCHEMA_MAP = """
 CREATE TABLE place_positions(label TEXT PRIMARY KEY, idx INTEGER NOT NULL, x REAL NOT NULL, y REAL NOT NULL);
-CREATE TABLE content_hashes(hash TEXT PRIMARY KEY);
+CREATE TABLE content_hashes(hash BLOB PRIMARY KEY) WITHOUT ROWID;
 """
 
 
@@ -157,12 +157,16 @@ def _write_map_info(con: sqlite3.Connection, info: MapInfo | None) -> None:
         "calibration": info.calibration,
         "runs": info.runs,
     }
-    con.executemany("INSERT INTO meta VALUES (?, ?)", [(k, json.dumps(v)) for k, v in meta.items() if v])
+    con.executemany("INSERT INTO meta VALUES (?, ?)", [(k, _meta_json(v)) for k, v in meta.items() if v])
     con.executemany(
         "INSERT INTO place_positions VALUES (?, ?, ?, ?)",
         [(str(lab), k, float(x), float(y)) for k, (lab, (x, y)) in enumerate(info.positions.items())],
     )
-    con.executemany("INSERT INTO content_hashes VALUES (?)", [(h,) for h in sorted(info.content_hashes)])
+    try:
+        digests = sorted(bytes.fromhex(h) for h in info.content_hashes)
+    except ValueError as err:
+        raise DatabaseError(f"a content hash is not hexadecimal ({err})") from err
+    con.executemany("INSERT INTO content_hashes VALUES (?)", [(h,) for h in digests])
 
 
 def read_map_info(path: str | Path) -> MapInfo:
@@ -187,7 +191,14 @@ def read_map_info(path: str | Path) -> MapInfo:
             raise DatabaseError(f"{path}: corrupt map information in the place database ({err})") from err
         for lab, x, y in con.execute("SELECT label, x, y FROM place_positions ORDER BY idx"):
             info.positions[str(lab)] = (float(x), float(y))
-        info.content_hashes = {str(h) for (h,) in con.execute("SELECT hash FROM content_hashes")}
+        hashes = set()
+        for (h,) in con.execute("SELECT hash FROM content_hashes"):
+            if isinstance(h, bytes):  # schema version 3: the digest itself
+                h = h.hex()
+            elif not isinstance(h, str):
+                raise DatabaseError(f"{path}: corrupt content hash in the place database ({h!r})")
+            hashes.add(h)
+        info.content_hashes = hashes
     return info
 
 
@@ -282,14 +293,83 @@ def _array(b: Any) -> np.ndarray:
     return a
 
 
+def _default_fov(groups: list[list[Any]]) -> tuple[tuple[float, float], ...] | None:
+    """The field of view most observations share, when it is not the full circle (stored once, in ``meta``)."""
+    from collections import Counter
+
+    from ..observation import FULL_FOV
+
+    common = Counter(o.fov for g in groups for o in g).most_common(1)
+    return None if not common or common[0][0] == FULL_FOV or common[0][1] < 2 else common[0][0]
+
+
+def _observation_blob(obs: Any, stored_fp: Any, scan: bool, default_fov: Any, make_fp: Any) -> tuple[bytes, bool]:
+    """An observation's binary record, and whether its fingerprint must be stored too.
+
+    Wall lengths and ranges go as float32 when the fingerprint computed from
+    the decoded record is bit for bit ``stored_fp`` (else as float64); the
+    fingerprint is stored only when even the float64 record does not give it back.
+    """
+    data = b""
+    for walls32 in (True, False) if obs.w.size else (False,):
+        data = encode_observation(obs, scan=scan, default_fov=default_fov, walls32=walls32)
+        if stored_fp is None:
+            return data, False
+        again = make_fp(decode_observation(data, label=obs.label, source=obs.source, default_fov=default_fov))
+        if again.letters == stored_fp[0] and np.array_equal(again.bearings, stored_fp[1]):
+            return data, False
+    return data, True
+
+
+#: Encodings of the range term's rows in ``range_descriptors.encoding`` (schema version 3): numpy dtypes.
+_RANGE_ENCODINGS = {"<f8": "descriptors", "|u1": "counts", "<u2": "counts", "<u4": "counts"}
+
+
+def _range_blob(desc: np.ndarray, counts: Any) -> tuple[bytes, str]:
+    """A place's range rows as (blob, encoding): its beam counts as small integers when they give the
+    descriptors back bit for bit, else the float64 descriptors."""
+    from ..terms.range import descriptors_from_counts
+
+    if counts is not None and counts.shape == desc.shape and np.array_equal(descriptors_from_counts(counts), desc):
+        top = int(counts.max(initial=0))
+        dtype = "|u1" if top < 2**8 else "<u2" if top < 2**16 else "<u4"
+        if top < 2**32 and int(counts.min(initial=0)) >= 0:
+            return np.ascontiguousarray(counts, dtype=dtype).tobytes(), dtype
+    return _blob(desc), "<f8"
+
+
+def _range_rows(data: Any, encoding: Any, width: int) -> tuple[str, np.ndarray]:
+    """``("descriptors", float64 rows)`` or ``("counts", int64 rows)`` of a ``range_descriptors`` row."""
+    kind = _RANGE_ENCODINGS.get(encoding) if isinstance(encoding, str) else None
+    if kind is None or not isinstance(data, bytes):
+        raise DatabaseError(f"corrupt range descriptors in the place database (encoding {encoding!r})")
+    if kind == "descriptors":
+        a = _array(data)
+    else:
+        item = np.dtype(encoding).itemsize
+        if len(data) % item:
+            raise DatabaseError(f"corrupt range counts in the place database ({len(data)} bytes of {encoding})")
+        a = np.frombuffer(data, dtype=encoding).astype(np.int64)
+    if a.size % width:
+        raise DatabaseError(f"corrupt range descriptors in the place database (not rows of {width})")
+    return kind, a.reshape(-1, width)
+
+
 def _costs_to_json(costs: Any) -> Any:
     """An alignment cost model as JSON: its full tables (``None`` for unit costs)."""
     if costs is None:
         return None
     try:
-        return {"substitution": np.asarray(costs.substitution).tolist(), "indel": np.asarray(costs.indel).tolist()}
+        return {"substitution": _compact(np.asarray(costs.substitution).tolist()), "indel": _compact(np.asarray(costs.indel).tolist())}
     except AttributeError as err:
         raise DatabaseError(f"cannot store alignment costs of type {type(costs).__name__}") from err
+
+
+def _compact(values: Any) -> Any:
+    """Nested lists of floats with the whole numbers written as integers (``1`` for ``1.0``: the same value, shorter JSON)."""
+    if isinstance(values, list):
+        return [_compact(v) for v in values]
+    return int(values) if isinstance(values, float) and values.is_integer() and abs(values) < 2**53 else values
 
 
 def _costs_from_json(data: Any) -> Any:
@@ -301,7 +381,7 @@ def _costs_from_json(data: Any) -> Any:
 
 
 def _meta_json(value: Any) -> str:
-    return json.dumps(value)
+    return json.dumps(value, separators=(",", ":"))
 
 
 def save_model(
@@ -370,6 +450,17 @@ def _save_locked(
     unknown = {n: t["unknown_cost"] for n, t in terms.items() if t.get("unknown_cost") is not None}
     directory = target.parent
     mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
+
+    def make_fp(obs: Any) -> Any:
+        from ..fingerprint import make_fingerprint
+
+        return make_fingerprint(
+            obs,
+            empty_step_deg=params["empty_step_deg"],
+            merge_tol_deg=params["merge_tol_deg"],
+            laser_letters=params["laser_letters"],
+        )
+
     try:
         fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=directory)
     except OSError as err:
@@ -377,6 +468,7 @@ def _save_locked(
     os.close(fd)
     try:
         with closing(sqlite3.connect(tmp)) as con:
+            con.execute(f"PRAGMA page_size={PAGE_SIZE}")  # before the first table
             con.execute("PRAGMA journal_mode=DELETE")
             with con:  # one transaction
                 con.executescript("BEGIN;" + _SCHEMA.replace(";\n", ";\n"))
@@ -389,6 +481,9 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                default_fov = _default_fov(state["observations"])
+                if default_fov is not None:
+                    meta["default_fov"] = _meta_json([list(pair) for pair in default_fov])
                 if any(isinstance(lab, int) and not isinstance(lab, bool) for lab in labels):
                     meta["labels"] = _meta_json([lab if isinstance(lab, int) and not isinstance(lab, bool) else str(lab) for lab in labels])
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
@@ -405,23 +500,22 @@ def _save_locked(
                         ),
                     )
                     for idx, obs in enumerate(group):
-                        rec = observation_to_record(obs, ndigits=12)
-                        if rng is not None:  # the range term keeps descriptors: the raw scan is not stored
-                            rec.pop("scan", None)
+                        stored = fp["fingerprints"][pid][idx] if fp else None
+                        data, keep_fp = _observation_blob(obs, stored, rng is None, default_fov, make_fp)
                         cur = con.execute(
-                            "INSERT INTO observations(place_id, idx, record) VALUES (?, ?, ?)",
-                            (pid, idx, json.dumps(rec)),
+                            "INSERT INTO observations(place_id, idx, data, source) VALUES (?, ?, ?, ?)",
+                            (pid, idx, data, obs.source),
                         )
-                        if fp:
-                            letters, bearings = fp["fingerprints"][pid][idx]
-                            con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, letters, _blob(bearings)))
+                        if keep_fp and stored is not None:
+                            con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, stored[0], _blob(stored[1])))
                 for name, t in terms.items():
                     for pid, mx in enumerate(t.get("mixtures", [])):
                         if mx is not None:
                             w, m, sg = mx
                             con.execute("INSERT INTO mixtures VALUES (?, ?, ?, ?, ?)", (pid, name, _blob(w), _blob(m), _blob(sg)))
                 for pid, desc in enumerate(rng["descriptors"] if rng is not None else []):
-                    con.execute("INSERT INTO range_descriptors VALUES (?, ?, ?)", (pid, int(desc.shape[1]), _blob(desc)))
+                    counts = rng.get("counts", [None] * (pid + 1))[pid]
+                    con.execute("INSERT INTO range_descriptors VALUES (?, ?, ?, ?)", (pid, int(desc.shape[1]), *_range_blob(desc, counts)))
                 for (src, dst), count in (graph_edges or {}).items():
                     con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
                 _write_map_info(con, info)
@@ -519,6 +613,9 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         unknown = _float_map(meta["unknown_costs"], "unknown_costs")
         weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
         typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
+        default_fov = None
+        if "default_fov" in meta:
+            default_fov = tuple((float(a), float(b)) for a, b in json.loads(meta["default_fov"]))
     except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
         raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
     labels: list[Any] = []
@@ -539,19 +636,34 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         consensus.append(None if cl is None else (cl, _array(cb)))
     observations: list[list[Any]] = [[] for _ in labels]
     fingerprints: list[list[Any]] = [[] for _ in labels]
-    q = (
-        "SELECT o.place_id, o.record, f.letters, f.bearings FROM observations o "
-        "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
-    )
-    for pid, record, letters, bearings in con.execute(q):
+    version = meta.get("schema_version")
+    if version in ("1", "2"):
+        q = (
+            "SELECT o.place_id, o.record, NULL, f.letters, f.bearings FROM observations o "
+            "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
+        )
+    else:
+        q = (
+            "SELECT o.place_id, o.data, o.source, f.letters, f.bearings FROM observations o "
+            "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
+        )
+    for pid, record, source, letters, bearings in con.execute(q):
         if pid not in index:
             raise DatabaseError(f"{path}: an observation row names place id {pid!r}, which the database does not hold")
-        if not isinstance(record, str) or not (letters is None or isinstance(letters, str)):
+        if not (letters is None or isinstance(letters, str)) or not (source is None or isinstance(source, str)):
             raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: observation row with a malformed record or fingerprint")
-        try:
-            obs = observation_from_record(parse_record(record))
-        except (ValueError, DataFormatError) as err:
-            raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
+        if version in ("1", "2"):
+            if not isinstance(record, str):
+                raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: observation row with a malformed record or fingerprint")
+            try:
+                obs = observation_from_record(parse_record(record))
+            except (ValueError, DataFormatError) as err:
+                raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
+        else:
+            try:
+                obs = decode_observation(record, label=labels[index[pid]], source=source, default_fov=default_fov)
+            except DatabaseError as err:
+                raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: {err}") from err
         observations[index[pid]].append(obs)
         fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
     mixtures: dict[str, list[Any]] = {}
@@ -563,18 +675,22 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
             raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: corrupt mixture of term {term!r}")
         mixtures.setdefault(term, [None] * len(labels))[index[pid]] = arrays
     descriptors: list[Any] | None = None
+    counts: list[Any] | None = None
     if con.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name='range_descriptors'").fetchone():
-        rows_d = con.execute("SELECT place_id, width, data FROM range_descriptors").fetchall()
+        enc = "encoding" if version not in ("1", "2") else "'<f8'"
+        rows_d = con.execute(f"SELECT place_id, width, data, {enc} FROM range_descriptors").fetchall()
         if rows_d:
             descriptors = [None] * len(labels)
-            for pid, width, data in rows_d:
+            counts = [None] * len(labels)
+            for pid, width, data, encoding in rows_d:
                 if pid not in index or isinstance(width, bool) or not isinstance(width, int) or width < 1:
                     raise DatabaseError(f"{path}: a range descriptor row names place id {pid!r} or width {width!r}")
-                a = _array(data)
-                if a.size % width:
-                    raise DatabaseError(f"{path}: range descriptors of place id {pid!r} are not rows of {width}")
-                descriptors[index[pid]] = a.reshape(-1, width)
-            if any(d is None for d in descriptors):
+                try:
+                    kind, block = _range_rows(data, encoding, width)
+                except DatabaseError as err:
+                    raise DatabaseError(f"{path}: place id {pid!r}: {err}") from err
+                (descriptors if kind == "descriptors" else counts)[index[pid]] = block
+            if any(d is None and c is None for d, c in zip(descriptors, counts, strict=True)):
                 raise DatabaseError(f"{path}: range descriptors are missing for some places")
     if not labels:
         raise DatabaseError(f"{path}: the place database holds no place")
@@ -595,10 +711,9 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if descriptors is not None:  # else (older databases) the range term describes the stored scans again
         terms_state["R"]["descriptors"] = descriptors
-    if all(f is not None for g in fingerprints for f in g):
-        terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
-    else:  # no stored fingerprint for some view: the term recomputes them
-        terms_state["Fp"].update(medoids=medoids, consensus=consensus)
+        terms_state["R"]["counts"] = counts
+    # a view without a stored fingerprint gets it from its stored observation (the term computes it)
+    terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     for name in ("VE", "CP", "Ex", "B"):
         terms_state.setdefault(name, {"mixtures": [None] * len(labels)})
     state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights}

@@ -30,6 +30,11 @@ from .distance import DistanceTerm
 
 __all__ = ["FingerprintTerm", "consensus_fingerprint", "crop_fingerprint"]
 
+#: The latest batch of :meth:`FingerprintTerm.distances`: id -> (query, fingerprint, row of the costs), costs.
+_Recent = tuple[dict[int, tuple[Observation, Fingerprint, int]], FArray | None]
+#: Most costs (queries x references) of the latest batch kept for the headings (64 MB of float64).
+_KEEP_COSTS = 1 << 23
+
 
 class FingerprintTerm(DistanceTerm):
     """``P(Fp | Loc)`` from alignment costs to each place's stored fingerprints.
@@ -139,6 +144,7 @@ class FingerprintTerm(DistanceTerm):
         self._owner = np.asarray(owner, dtype=np.int64)
         self._starts = np.searchsorted(self._owner, np.arange(len(self.fingerprints_)))
         self._crop_cache: dict[Any, Any] = {}
+        self._recent: _Recent = ({}, None)  # the latest batch's queries and costs (distances)
 
     def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
         from ..align import alignment_costs
@@ -159,7 +165,13 @@ class FingerprintTerm(DistanceTerm):
         return self._crop_cache[fov]
 
     def distances(self, observations: Sequence[Observation]) -> FArray:
-        """Alignment cost of each observation to each place, shape ``(n, P)`` (per ``reference``)."""
+        """Alignment cost of each observation to each place, shape ``(n, P)`` (per ``reference``).
+
+        With ``cyclic`` every query is aligned against the same references
+        (the field of view does not crop them), in one batch. The costs to
+        every reference of the latest batch are kept (when not too many) for
+        :meth:`heading_at`, with the queries' fingerprints.
+        """
         from ..align import alignment_costs
 
         obs = list(observations)
@@ -167,11 +179,25 @@ class FingerprintTerm(DistanceTerm):
         out = np.full((len(obs), len(self.fingerprints_)), np.inf)
         groups: dict[Any, list[int]] = {}
         for i, o in enumerate(obs):
-            groups.setdefault(o.fov, []).append(i)
+            groups.setdefault(FULL_FOV if self.cyclic else o.fov, []).append(i)
+        recent: dict[int, tuple[Observation, Fingerprint, int]] = {}
         for fov, idx in groups.items():
             d = alignment_costs([qfps[i] for i in idx], self._references_for(fov), cyclic=self.cyclic, costs=self.costs)
             out[idx] = min_per_place_groups(d, self._starts)
+            if self.cyclic and self.reference == "all" and d.size <= _KEEP_COSTS:
+                recent = {id(obs[i]): (obs[i], qfps[i], r) for r, i in enumerate(idx)}
+                self._recent = (recent, d)
+        if not recent:
+            self._recent = ({id(o): (o, f, -1) for o, f in zip(obs, qfps, strict=True)}, None)
         return out
+
+    def _query(self, obs: Observation) -> tuple[Fingerprint, FArray | None]:
+        """The fingerprint of a query and its costs to every reference, from the latest batch when it held it."""
+        recent, d = self.__dict__.get("_recent", ({}, None))
+        hit = recent.get(id(obs))
+        if hit is not None and hit[0] is obs:
+            return hit[1], (None if d is None or hit[2] < 0 else d[hit[2]])
+        return self.fingerprint(obs), None
 
     def headings(self, observations: Sequence[Observation]) -> FArray | None:
         """Heading of each observation at each place, radians, shape ``(n, P)`` (NaN where none).
@@ -201,13 +227,30 @@ class FingerprintTerm(DistanceTerm):
         return out
 
     def heading_at(self, obs: Observation, place: int) -> tuple[float | None, int]:
-        """Heading (degrees) of one view at one place, and the index of the training view it is measured against."""
-        from ..align import cyclic_alignment
+        """Heading (degrees) of one view at one place, and the index of the training view it is measured against.
 
-        q = self.fingerprint(obs)
+        The view is the first of the place's training views with the least
+        cyclic cost. Only the views whose batch cost (:func:`fingerloc.align.alignment_costs`,
+        from the latest :meth:`distances` call when it holds this query) is
+        within 1e-9 of the least are aligned again with their alignment, so
+        the answer is that of aligning every view.
+        """
+        from ..align import alignment_costs, cyclic_alignment
+
+        q, row = self._query(obs)
+        fps = self.fingerprints_[place]
+        candidates: Sequence[int] = range(len(fps))
+        if len(fps) > 1:
+            if row is not None:
+                lo = int(self._starts[place])
+                costs = row[lo : lo + len(fps)]
+            else:
+                costs = alignment_costs([q], fps, cyclic=True, costs=self.costs, workers=1)[0]  # a few views: no threads
+            least = float(costs.min())
+            candidates = np.flatnonzero(costs <= least + 1e-9 * max(1.0, abs(least))).tolist()
         best: tuple[float, float | None, int] | None = None
-        for v, fp in enumerate(self.fingerprints_[place]):
-            r = cyclic_alignment(q, fp, costs=self.costs)
+        for v in candidates:
+            r = cyclic_alignment(q, fps[v], costs=self.costs)
             if best is None or r.cost < best[0]:
                 best = (r.cost, r.heading_deg, v)
         return (None, -1) if best is None else (best[1], best[2])
@@ -225,8 +268,14 @@ class FingerprintTerm(DistanceTerm):
         try:
             fps = state.get("fingerprints")
             if fps is None:  # recompute from the observations
-                fps = [[(f.letters, f.bearings) for f in (self.fingerprint(o) for o in g)] for g in groups]
-            self.fingerprints_ = [[Fingerprint(s, np.asarray(b, dtype=np.float64)) for s, b in g] for g in fps]
+                fps = [[None] * len(g) for g in groups]
+            self.fingerprints_ = [
+                [
+                    self.fingerprint(o) if f is None else Fingerprint(f[0], np.asarray(f[1], dtype=np.float64))
+                    for f, o in zip(fg, g, strict=True)  # a view without a stored fingerprint: from the observation
+                ]
+                for fg, g in zip(fps, groups, strict=True)
+            ]
             self.medoids_ = [int(m) for m in state.get("medoids", [0] * len(groups))]
             cons = state.get("consensus") or [None] * len(groups)
             self.consensus_ = [None if c is None else Fingerprint(c[0], np.asarray(c[1], dtype=np.float64)) for c in cons]

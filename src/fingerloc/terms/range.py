@@ -22,7 +22,7 @@ from ..observation import Observation
 from .base import FArray
 from .distance import DistanceTerm
 
-__all__ = ["RangeTerm", "cumulative_range_histogram", "range_descriptor"]
+__all__ = ["RangeTerm", "cumulative_range_histogram", "descriptors_from_counts", "range_counts", "range_descriptor"]
 
 
 class RangeTerm(DistanceTerm):
@@ -38,6 +38,11 @@ class RangeTerm(DistanceTerm):
     ----------
     descriptors_ : list of ndarray, each (v_j, len(bins) + 1)
         Per place, the descriptor of each training view that carries ranges.
+    counts_ : list of (ndarray of int64, each (v_j, len(bins) + 1), or None)
+        Per place, the beam counts per bin the descriptors come from
+        (:func:`descriptors_from_counts`); ``None`` for a place read from a
+        database that stored only the descriptors. The place database keeps
+        these small integers instead of the float64 descriptors.
     """
 
     name = "R"
@@ -52,17 +57,21 @@ class RangeTerm(DistanceTerm):
         """Upper bin edges, metres."""
         return np.arange(self.bin_m, self.max_m + 1e-9, self.bin_m)
 
+    def _descriptors(self, group: Sequence[Observation]) -> FArray:
+        return descriptors_from_counts(self._counts(group))
+
     def descriptor(self, obs: Observation) -> FArray:
         """The cumulative range histogram of one observation (:func:`range_descriptor`)."""
         return range_descriptor(obs, self.bins())
 
-    def _descriptors(self, group: Sequence[Observation]) -> FArray:
+    def _counts(self, group: Sequence[Observation]) -> NDArray[np.int64]:
         width = self.bins().size + 1
-        rows = [self.descriptor(o) for o in group if o.ranges is not None]
-        return np.stack(rows) if rows else np.zeros((0, width))
+        rows = [range_counts(o.ranges, self.bins()) for o in group if o.ranges is not None]
+        return np.stack(rows) if rows else np.zeros((0, width), dtype=np.int64)
 
     def fit(self, groups: Sequence[Sequence[Observation]]) -> RangeTerm:
-        self.descriptors_ = [self._descriptors(g) for g in groups]
+        self.counts_: list[NDArray[np.int64] | None] = [self._counts(g) for g in groups]
+        self.descriptors_ = [descriptors_from_counts(c) for c in self.counts_ if c is not None]
         self._n_seen = [len(g) for g in groups]
         self._index()
         self.calibrate(groups)
@@ -77,10 +86,13 @@ class RangeTerm(DistanceTerm):
         width = self.bins().size + 1
         grow = len(groups) - len(self.descriptors_)
         self.descriptors_ += [np.zeros((0, width)) for _ in range(grow)]
+        self.counts_ += [np.zeros((0, width), dtype=np.int64) for _ in range(grow)]
         self._n_seen += [0] * grow
         for j in changed:
-            fresh = self._descriptors(groups[j][self._n_seen[j] :])
-            self.descriptors_[j] = np.vstack([self.descriptors_[j], fresh])
+            fresh = self._counts(groups[j][self._n_seen[j] :])
+            self.descriptors_[j] = np.vstack([self.descriptors_[j], descriptors_from_counts(fresh)])
+            old = self.counts_[j]
+            self.counts_[j] = None if old is None else np.vstack([old, fresh])
             self._n_seen[j] = len(groups[j])
         self._index()
         return self
@@ -139,16 +151,37 @@ class RangeTerm(DistanceTerm):
         return super().unknown_log_likelihood(observations) * has
 
     def to_state(self) -> dict[str, Any]:
-        return {"descriptors": [d.copy() for d in self.descriptors_], **self._calibration_state()}
+        return {
+            "descriptors": [d.copy() for d in self.descriptors_],
+            "counts": [None if c is None else c.copy() for c in self.__dict__.get("counts_", [None] * len(self.descriptors_))],
+            **self._calibration_state(),
+        }
 
     def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> RangeTerm:
+        """Restore the term: per place its beam counts (``state["counts"]``), else its descriptors, else the scans."""
         width = self.bins().size + 1
         descs = state.get("descriptors")
-        if descs is None:  # recompute from the observations (databases that stored raw ranges)
-            self.descriptors_ = [self._descriptors(g) for g in groups]
+        counts = state.get("counts")
+        if descs is None and counts is None:  # recompute from the observations (databases that stored raw ranges)
+            self.counts_ = [self._counts(g) for g in groups]
+            self.descriptors_ = [descriptors_from_counts(c) for c in self.counts_ if c is not None]
         else:
+            n = len(counts if counts is not None else descs)  # type: ignore[arg-type]
+            self.counts_ = []
+            self.descriptors_ = []
             try:
-                self.descriptors_ = [np.asarray(d, dtype=np.float64).reshape(-1, width) for d in descs]
+                for j in range(n):
+                    c = None if counts is None else counts[j]
+                    if c is not None:
+                        c = np.asarray(c, dtype=np.int64).reshape(-1, width)
+                        if np.any(c < 0):
+                            raise DatabaseError("stored range counts are negative")
+                        self.descriptors_.append(descriptors_from_counts(c))
+                    elif descs is not None and descs[j] is not None:
+                        self.descriptors_.append(np.asarray(descs[j], dtype=np.float64).reshape(-1, width))
+                    else:
+                        raise DatabaseError(f"stored range term: place {j} has neither counts nor descriptors")
+                    self.counts_.append(c)
             except ValueError as err:
                 raise DatabaseError(f"stored range descriptors do not have {width} columns") from err
         if len(self.descriptors_) != len(groups):
@@ -173,6 +206,29 @@ def range_descriptor(obs: Observation, bins: FArray) -> FArray:
     return cumulative_range_histogram(obs.ranges, bins)
 
 
+def range_counts(ranges: FArray, bins: FArray) -> NDArray[np.int64]:
+    """Beams per bin of a range profile, shape ``(len(bins) + 1,)`` (see :func:`cumulative_range_histogram`)."""
+    r = np.asarray(ranges, dtype=np.float64)
+    idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
+    return np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1)
+
+
+def descriptors_from_counts(counts: NDArray[np.int64]) -> FArray:
+    """Cumulative histograms of rows of beam counts, shape ``counts.shape``: each row divided by its sum, then summed up.
+
+    The very values of :func:`cumulative_range_histogram` (a row of zeros gives all ones).
+    """
+    h = np.asarray(counts).astype(np.float64)
+    if h.ndim == 1:
+        total = h.sum()
+        return np.cumsum(h / total) if total > 0 else np.ones(h.size)
+    out = np.ones(h.shape)
+    total = h.sum(axis=1)
+    live = total > 0
+    out[live] = np.cumsum(h[live] / total[live, None], axis=1)
+    return out
+
+
 def cumulative_range_histogram(ranges: FArray, bins: FArray) -> FArray:
     """Cumulative histogram of beam ranges (metres), shape ``(len(bins) + 1,)``; see :func:`range_descriptor`.
 
@@ -182,8 +238,4 @@ def cumulative_range_histogram(ranges: FArray, bins: FArray) -> FArray:
     are divided by the number of beams, so the last entry is 1 (all ones for
     an empty scan).
     """
-    r = np.asarray(ranges, dtype=np.float64)
-    idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
-    h = np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1).astype(np.float64)
-    total = h.sum()
-    return np.cumsum(h / total) if total > 0 else np.ones(bins.size + 1)
+    return descriptors_from_counts(range_counts(ranges, bins))

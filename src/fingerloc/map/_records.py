@@ -1,0 +1,153 @@
+"""Observations as compact binary records (place database schema version 3; docs/FORMATS.md §2).
+
+A record holds an :class:`~fingerloc.observation.Observation`'s numbers
+exactly, as little-endian float64 in radians, without the place label (the
+row's place gives it) or the source (a column of its own)::
+
+    byte 0        codec version (1)
+    byte 1        flags: 1 pose, 2 timestamp, 4 field of view, 8 appearance, 16 scan, 32 wide counts,
+                  64 the database's default field of view (none stored), 128 wall lengths and
+                  ranges as float32
+    9 counts      VE, CP, Ex, c, B, W, fov ranges, appearance values, scan beams:
+                  uint8 each, or uint32 each with the "wide counts" flag
+    float64 data  VE, CP bearings, CP hues, Ex, c, B, W bearings, W lengths, W ranges
+                  (with flag 128 these two as float32, after the float64 values),
+                  pose (x, y, theta) if flagged, timestamp if flagged,
+                  fov (start, width) pairs, appearance, scan ranges, scan bearings
+
+Decoding gives back the very observation (every array bit for bit: the
+stored bearings are already wrapped and sorted, and wrapping them again
+changes nothing), so what the place database recomputes from it (the
+fingerprints) equals what was computed before saving. The one quantised
+encoding, float32 wall lengths and ranges (7 significant digits: 1 micrometre
+at 10 m), is used by the database only when the fingerprint computed from
+the decoded observation is bit for bit the one computed before (the wall
+letters depend on them).
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from ..errors import DatabaseError, FingerlocError
+from ..observation import FULL_FOV, Observation
+
+__all__ = ["decode_observation", "encode_observation"]
+
+_VERSION = 1
+_POSE, _TIME, _FOV, _APPEARANCE, _SCAN, _WIDE, _DEFAULT_FOV, _WALLS32 = 1, 2, 4, 8, 16, 32, 64, 128
+Fov = tuple[tuple[float, float], ...]
+_N_COUNTS = 9
+
+
+def encode_observation(
+    obs: Observation, *, scan: bool = True, default_fov: Fov | None = None, walls32: bool = False
+) -> bytes:
+    """The binary record of an observation (module docstring).
+
+    ``scan=False`` leaves its range profile out; an observation whose field
+    of view is ``default_fov`` stores none (the database keeps it once);
+    ``walls32`` stores wall lengths and ranges as float32 when they stay
+    positive and finite.
+    """
+    flags = 0
+    fov: list[float] = []
+    if default_fov is not None and obs.fov == default_fov:
+        flags |= _DEFAULT_FOV
+    elif obs.fov != FULL_FOV:
+        fov = [v for pair in obs.fov for v in pair]
+        flags |= _FOV
+    tail: list[object] = []
+    if obs.pose is not None:
+        flags |= _POSE
+        tail.append(np.asarray(obs.pose, dtype=np.float64))
+    if obs.timestamp is not None:
+        flags |= _TIME
+        tail.append(np.asarray([obs.timestamp], dtype=np.float64))
+    tail.append(np.asarray(fov, dtype=np.float64))
+    app = np.empty(0) if obs.appearance is None else obs.appearance
+    if obs.appearance is not None:
+        flags |= _APPEARANCE
+    tail.append(app)
+    ranges = bearings = np.empty(0)
+    if scan and obs.ranges is not None and obs.range_bearings is not None:
+        flags |= _SCAN
+        ranges, bearings = obs.ranges, obs.range_bearings
+    tail += [ranges, bearings]
+    walls: list[object] = [obs.w_length, obs.w_range]
+    short = b""
+    if walls32 and obs.w.size:
+        w32 = np.concatenate([obs.w_length, obs.w_range]).astype("<f4")
+        if np.all(np.isfinite(w32)) and np.all(w32 > 0):
+            flags |= _WALLS32
+            walls, short = [], w32.tobytes()
+    counts = [obs.ve.size, obs.cp.size, obs.ex.size, obs.c.size, obs.b.size, obs.w.size, len(fov) // 2, app.size, ranges.size]
+    wide = max(counts) > 255
+    if wide:
+        flags |= _WIDE
+    head = struct.pack(f"<BB{_N_COUNTS}{'I' if wide else 'B'}", _VERSION, flags, *counts)
+    arrays = [obs.ve, obs.cp, obs.cp_hue, obs.ex, obs.c, obs.b, obs.w, *walls, *tail]
+    return head + b"".join(np.ascontiguousarray(a, dtype="<f8").tobytes() for a in arrays) + short  # type: ignore[call-overload]
+
+
+def decode_observation(
+    data: object, *, label: str | None = None, source: str | None = None, default_fov: Fov | None = None
+) -> Observation:
+    """The observation of a binary record (:func:`encode_observation`), with its place label and source.
+
+    Raises
+    ------
+    DatabaseError
+        When the record is not one (wrong type, version, length, or values an observation refuses).
+    """
+    if not isinstance(data, bytes) or len(data) < 2 + _N_COUNTS:
+        raise DatabaseError(f"corrupt observation record in the place database (got {type(data).__name__})")
+    version, flags = data[0], data[1]
+    if version != _VERSION or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
+        raise DatabaseError(f"corrupt observation record in the place database (version {version}, flags {flags})")
+    fmt = f"<{_N_COUNTS}{'I' if flags & _WIDE else 'B'}"
+    start = 2 + struct.calcsize(fmt)
+    if len(data) < start:
+        raise DatabaseError("corrupt observation record in the place database (truncated)")
+    n_ve, n_cp, n_ex, n_c, n_b, n_w, n_fov, n_app, n_scan = struct.unpack_from(fmt, data, 2)
+    w32 = bool(flags & _WALLS32)
+    sizes = [n_ve, n_cp, n_cp, n_ex, n_c, n_b, n_w] + ([] if w32 else [n_w, n_w])
+    sizes += [3] if flags & _POSE else []
+    sizes += [1] if flags & _TIME else []
+    sizes += [2 * n_fov, n_app, n_scan, n_scan]
+    n64 = sum(sizes)
+    if (
+        len(data) != start + 8 * n64 + (8 * n_w if w32 else 0)
+        or bool(n_fov) != bool(flags & _FOV)
+        or bool(n_app) != bool(flags & _APPEARANCE)
+    ):
+        raise DatabaseError("corrupt observation record in the place database (its length does not match its counts)")
+    values = np.frombuffer(data, dtype="<f8", offset=start, count=n64).astype(np.float64)
+    parts = np.split(values, np.cumsum(sizes)[:-1])
+    ve, cp, hue, ex, c, b, w = parts[:7]
+    if w32:
+        with np.errstate(invalid="ignore"):  # a NaN pattern: the observation refuses it below
+            short = np.frombuffer(data, dtype="<f4", offset=start + 8 * n64).astype(np.float64)
+        w_len, w_rng = short[:n_w], short[n_w:]
+        rest = parts[7:]
+    else:
+        w_len, w_rng = parts[7], parts[8]
+        rest = parts[9:]
+    pose = tuple(float(v) for v in rest.pop(0)) if flags & _POSE else None
+    timestamp = float(rest.pop(0)[0]) if flags & _TIME else None
+    fov_v, app, ranges, bearings = rest
+    fov = tuple((float(fov_v[2 * k]), float(fov_v[2 * k + 1])) for k in range(n_fov)) if n_fov else FULL_FOV
+    if flags & _DEFAULT_FOV and default_fov is not None:
+        fov = default_fov
+    scan = bool(flags & _SCAN)
+    try:
+        return Observation(
+            ve=ve, cp=cp, cp_hue=hue, ex=ex, c=c, b=b, w=w, w_length=w_len, w_range=w_rng,
+            ranges=ranges if scan else None, range_bearings=bearings if scan else None,
+            fov=fov, label=label, pose=pose, timestamp=timestamp,  # type: ignore[arg-type]
+            appearance=app if flags & _APPEARANCE else None, source=source,
+        )  # fmt: skip
+    except FingerlocError as err:
+        raise DatabaseError(f"corrupt observation record in the place database ({err})") from err
