@@ -65,15 +65,16 @@ def _log_norm(s: float) -> float:  # pragma: no cover - compiled
 def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
     """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
 
-    ``mx`` and ``ssum`` are (n,) scratch. Loops run component-major so the
-    compiler can vectorise all but the exponentials; a term below
-    ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
-    the sum in double precision).
+    ``mx`` and ``ssum`` are (n,) scratch. The log-terms run component-major
+    (the compiler vectorises them); the exponentials, each point's sum, its
+    reciprocal and the log-likelihood product then run point by point, so
+    the chain of divisions of the product overlaps with the next points'
+    ``exp`` calls. A term below ``exp(-_SKIP)`` times the largest one is
+    taken as 0 (it could not change the sum in double precision).
     """
     n = x.shape[0]
     for i in range(n):
         mx[i] = -np.inf
-        ssum[i] = 0.0
     for j in range(k):
         if w[j] > 0.0:
             cj = math.log(w[j]) + _log_norm(sg[j])
@@ -87,26 +88,26 @@ def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
                 a = cj - dj * dj * invj
                 r[j, i] = a
                 mx[i] = a if a > mx[i] else mx[i]
-    for j in range(k):
-        if w[j] > 0.0:
+        else:  # a dead or padding component: its term is exp(-inf) = 0 below
             for i in range(n):
-                t = r[j, i] - mx[i]
-                # exp(0) is exactly 1: the largest term of each point needs no call
-                e = 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)
-                r[j, i] = e
-                ssum[i] += e
-        else:
-            for i in range(n):
-                r[j, i] = 0.0
+                r[j, i] = -np.inf
                 d[j, i] = 0.0
-    # log-likelihood: sum_i (mx_i + log s_i) with s_i = 1 / ssum_i in [1, K]; one log per many points
-    # (in the loop that takes the reciprocals: the divisions of the product overlap with them)
+    # log-likelihood: sum_i (mx_i + log s_i) with s_i = sum_j exp(a_ji - mx_i) in [1, K]; one log per many points
     total = 0.0
     prod = 1.0
     for i in range(n):
-        ssum[i] = 1.0 / ssum[i]
-        total += mx[i]
-        prod /= ssum[i]
+        m = mx[i]
+        s = 0.0
+        for j in range(k):
+            t = r[j, i] - m
+            # exp(0) is exactly 1: the largest term of each point needs no call
+            e = 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)
+            r[j, i] = e
+            s += e
+        q = 1.0 / s
+        ssum[i] = q
+        total += m
+        prod /= q
         if prod > 1e200:
             total += math.log(prod)
             prod = 1.0
