@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -448,3 +449,73 @@ def test_fit_fast_path_equals_fit_mixtures(n, k, n_init, seed):
     np.testing.assert_array_equal(gm.means_, ms.means[0])
     np.testing.assert_array_equal(gm.sigmas_, ms.sigmas[0])
     assert (gm.converged_, gm.n_iter_, gm.lower_bound_) == (ms.converged[0], ms.n_iter[0], ms.lower_bound[0])
+
+
+@functools.cache
+def _exp_neg_loop():
+    from numba import njit
+
+    from fingerloc import _mog_kernels as k
+
+    @njit
+    def many(t, out):  # pragma: no cover - compiled
+        for i in range(t.shape[0]):
+            out[i] = k._exp_neg(t[i])
+
+    return many
+
+
+def _exp_neg(t):
+    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    out = np.empty_like(t)
+    _exp_neg_loop()(t, out)
+    return out
+
+
+def test_exp_neg_within_one_ulp_of_the_c_library():
+    # the E-step's branch-free exp, against math.exp (the C library) on many values and at the edges
+    rng = np.random.default_rng(0)
+    t = np.concatenate([-rng.uniform(0, 40.0, 200_000), -rng.uniform(0, 1e-6, 1000), [0.0, -40.0, -math.log(2)]])
+    got = _exp_neg(t)
+    ref = np.array([math.exp(v) for v in t])
+    ulps = np.abs(got.view(np.int64) - ref.view(np.int64))
+    assert ulps.max() <= 1
+    assert (ulps == 0).mean() > 0.8
+    assert got[-3] == 1.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-40.0, 0.0))
+def test_exp_neg_property(t):
+    e = float(_exp_neg(t)[0])
+    assert abs(e - math.exp(t)) <= 2.3e-16 * math.exp(t)
+
+
+@pytest.mark.parametrize(
+    "x",
+    [
+        np.array([0.1, 2 * np.pi - 1e-17, -1e-17, 7.0, -3.2]),  # values that wrap, one onto the edge at pi
+        np.array([0.5, np.pi, -np.pi, 1.0])[::-1],  # a negative stride, and pi itself
+        np.linspace(-9, 9, 31)[::2],
+    ],
+)
+def test_fit_fast_path_wraps_like_wrap(x):
+    # AngularMixture.fit folds pi onto -pi inside the compiled call: the fit must equal fit_mixtures,
+    # which wraps with fingerloc.angles.wrap, and fit on the wrapped bearings given as a list
+    from fingerloc.angles import wrap
+
+    gm = AngularMixture(2, random_state=3).fit(x)
+    ms = fit_mixtures([x], 2, random_state=3)
+    other = AngularMixture(2, random_state=3).fit(list(wrap(x)))
+    for a in (ms.means[0], other.means_):
+        np.testing.assert_array_equal(gm.means_, a)
+    np.testing.assert_array_equal(gm.sigmas_, ms.sigmas[0])
+    assert gm.n_components_ == int(np.count_nonzero(ms.weights[0] > 0))
+
+
+@pytest.mark.parametrize("bad", [np.array([0.1, np.nan]), np.array([np.inf, 0.2]), np.array([], dtype=float)])
+def test_fit_fast_path_rejects_non_finite_and_empty(bad):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no numpy RuntimeWarning on the way
+        with pytest.raises(InvalidParameterError, match=r"non-finite|empty"):
+            AngularMixture(2).fit(bad)
