@@ -457,7 +457,7 @@ def _exp_neg_loop():
 
     from fingerloc import _mog_kernels as k
 
-    @njit
+    @njit(fastmath={"contract"})  # as the E-step, which inlines it: the polynomial runs on fused multiply-adds
     def many(t, out):  # pragma: no cover - compiled
         for i in range(t.shape[0]):
             out[i] = k._exp_neg(t[i])
