@@ -519,3 +519,43 @@ def test_fit_fast_path_rejects_non_finite_and_empty(bad):
         warnings.simplefilter("error")  # and no numpy RuntimeWarning on the way
         with pytest.raises(InvalidParameterError, match=r"non-finite|empty"):
             AngularMixture(2).fit(bad)
+
+
+def test_e_step_equals_its_exp_and_an_oracle():
+    # the E-step builds 2^k from its bits: its responsibilities must be those written with _exp_neg,
+    # and agree with a plain numpy computation (math.exp) to rounding
+    from numba import njit
+
+    from fingerloc import _mog_kernels as k
+    from fingerloc.angles import wrap
+
+    @njit(fastmath={"contract"})
+    def resp(x, w, mu, sg, out):  # pragma: no cover - compiled
+        for j in range(w.shape[0]):
+            cj = math.log(w[j]) + k._log_norm(sg[j])
+            for i in range(x.shape[0]):
+                out[j, i] = cj - k._dist(mu[j], x[i]) ** 2 * (0.5 / (sg[j] * sg[j]))
+        for i in range(x.shape[0]):
+            m = out[:, i].max()
+            s = 0.0
+            for j in range(w.shape[0]):
+                t = out[j, i] - m
+                out[j, i] = 1.0 if t == 0.0 else (k._exp_neg(t) if t > -k._SKIP else 0.0)
+                s += out[j, i]
+            for j in range(w.shape[0]):
+                out[j, i] *= 1.0 / s
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        kk, n = int(rng.integers(1, 7)), int(rng.integers(1, 120))
+        x = wrap(rng.uniform(-4, 4, n))
+        w = rng.dirichlet(np.ones(kk))
+        mu = wrap(rng.uniform(-4, 4, kk))
+        sg = rng.uniform(0.01, 3.0, kk)
+        d, r = np.empty((kk, n)), np.empty((kk, n))
+        ll = k._e_step(x, kk, w, mu, sg, d, r, np.empty(n), np.empty(n), np.empty(n, dtype=np.int64))
+        want = np.empty((kk, n))
+        resp(x, w, mu, sg, want)
+        np.testing.assert_allclose(r, want, rtol=1e-14, atol=1e-300)
+        dens = sum(w[j] * np.exp(component_log_density(x, mu[j], sg[j])) for j in range(kk))
+        assert ll == pytest.approx(np.log(dens).mean(), rel=1e-12, abs=1e-12)

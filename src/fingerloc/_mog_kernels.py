@@ -73,17 +73,8 @@ def _log_norm(s: float) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
-    """exp(t) for t in [-_SKIP, 0], within one unit in the last place of the correctly rounded value.
-
-    Branch-free so a loop of it vectorises (the C library's ``exp`` is a call
-    per value): t = k ln 2 + r with k the nearest integer to t / ln 2 (ln 2
-    split in two for an exact reduction), a degree-13 Taylor polynomial for
-    exp(r) on |r| <= ln 2 / 2, then the factor 2^k, k in [-58, 0], as one exact
-    power-of-two product per bit of -k. Compiled with fused multiply-adds, as
-    in :func:`_e_step`: equal to the C library's ``exp`` for 94 % of
-    arguments and one ulp away for the rest (tests/test_mog.py).
-    """
+def _exp_poly(t: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """(p, k) with exp(t) = p 2^k, k the nearest integer to t / ln 2, p = exp(t - k ln 2) in [0.7, 1.42] (see :func:`_exp_neg`)."""
     kf = (t * _INV_LN2 + _ROUND) - _ROUND
     r = (t - kf * _LN2_HI) - kf * _LN2_LO
     p = _E13 * r + _E12
@@ -99,6 +90,22 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
     p = p * r + _E2
     p = p * r + 1.0
     p = p * r + 1.0
+    return p, kf
+
+
+@njit(cache=True, inline="always")
+def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
+    """exp(t) for t in [-_SKIP, 0], within one unit in the last place of the correctly rounded value.
+
+    Branch-free so a loop of it vectorises (the C library's ``exp`` is a call
+    per value): t = k ln 2 + r with k the nearest integer to t / ln 2 (ln 2
+    split in two for an exact reduction), a degree-13 Taylor polynomial for
+    exp(r) on |r| <= ln 2 / 2, then the factor 2^k, k in [-58, 0], as one exact
+    power-of-two product per bit of -k. Compiled with fused multiply-adds, as
+    in :func:`_e_step`: equal to the C library's ``exp`` for 94 % of
+    arguments and one ulp away for the rest (tests/test_mog.py).
+    """
+    p, kf = _exp_poly(t)
     m = -kf
     b = m >= 32.0
     p = p * (2.0**-32 if b else 1.0)
@@ -119,13 +126,14 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath={"contract"})
-def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
+def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
     """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
 
-    ``mx`` and ``ssum`` are (n,) scratch. Every loop runs component-major and
-    branch-free, so the compiler vectorises all of them but the log-likelihood
-    product: the exponentials are :func:`_exp_neg`, inlined, its polynomial on
-    fused multiply-adds (``fastmath={"contract"}``, nothing else relaxed). A term below
+    ``mx``, ``ssum`` (float64) and ``bits`` (int64) are (n,) scratch. Every
+    loop runs component-major and branch-free, so the compiler vectorises all
+    of them but the log-likelihood product. The exponentials are those of
+    :func:`_exp_neg` (its polynomial on fused multiply-adds: ``fastmath`` is
+    ``contract`` only), the factor 2^k built from its bits. A term below
     ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
     the sum in double precision); the largest one is exactly 1.
     """
@@ -146,12 +154,18 @@ def _e_step(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
                 a = cj - dj * dj * invj
                 r[j, i] = a
                 mx[i] = a if a > mx[i] else mx[i]
+    # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) built from its bits, in a second loop:
+    # an exact power of two either way, so the same values, in fewer instructions
+    scale = bits.view(np.float64)
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 t = r[j, i] - mx[i]
-                e = _exp_neg(t if t > -_SKIP else -_SKIP)
-                e = 1.0 if t == 0.0 else (e if t > -_SKIP else 0.0)
+                p, kf = _exp_poly(t if t > -_SKIP else -_SKIP)
+                bits[i] = (np.int64(kf) + 1023) << 52
+                r[j, i] = 1.0 if t == 0.0 else (p if t > -_SKIP else 0.0)  # k = 0 where t = 0
+            for i in range(n):
+                e = r[j, i] * scale[i]
                 r[j, i] = e
                 ssum[i] += e
         else:
@@ -312,7 +326,8 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     wb = np.empty(k)
     mub = np.empty(k)
     sgb = np.empty(k)
-    ll = _e_step(x, k, w, mu, sg, d, r, mx, ssum)
+    bits = np.empty(x.shape[0], dtype=np.int64)
+    ll = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
     rec = trace.shape[0] > 0
     if rec:
         trace[0] = ll
@@ -325,7 +340,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
             sgb[j] = sg[j]
         _m_step(x, k, w, mu, sg, d, r, min_sigma)
         it += 1
-        ll_new = _e_step(x, k, w, mu, sg, d, r, mx, ssum)
+        ll_new = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
         if rec:
             trace[it] = ll_new
         gain = ll_new - ll
