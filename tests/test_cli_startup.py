@@ -66,3 +66,49 @@ def test_every_command_help_works(capsys):
         code, out, err = run_cli(capsys, *path, "--help")
         assert code == 0, (path, err)
         assert out.startswith("Usage: fingerloc") and " ".join(path) in out.splitlines()[0], path
+
+
+def test_help_imports_neither_numpy_nor_rich():
+    # `fingerloc --help` and every command's --help, each in a fresh interpreter (what the console
+    # script runs): the help text is click's, so nothing numeric and no rich console is needed
+    from fingerloc.cli import app
+
+    paths = _command_paths(typer.main.get_command(app))
+    code = (
+        "import sys\n"
+        "from fingerloc.cli import main\n"
+        "for args in ARGS:\n"
+        "    try:\n        main([*args, '--help'])\n    except SystemExit as e:\n        assert e.code == 0, (args, e.code)\n"
+        "print(','.join(m for m in ('numpy', 'rich.console', 'scipy', 'numba') if m in sys.modules), file=sys.stderr)\n"
+    )
+    for group in (paths[:1], paths):  # the root help alone, then all of them in one process
+        res = subprocess.run(
+            [sys.executable, "-c", f"ARGS = {group!r}\n" + code], capture_output=True, text=True, check=True
+        )
+        assert res.stdout.count("Usage: fingerloc") == len(group)
+        assert res.stderr.strip() == "", f"imported by --help: {res.stderr.strip()}"
+
+
+def test_help_kind_names_are_the_readers():
+    # cli.features names the input kinds in its help without importing the readers (numpy)
+    from fingerloc.cli import features
+    from fingerloc.pipeline.files import KINDS
+
+    assert features.KIND_NAMES == tuple(KINDS)
+    assert features.KINDS is KINDS and features.FeatureOptions.__name__ == "FeatureOptions"
+
+
+def test_lazy_console_and_lazy_names_work():
+    from fingerloc._lazy import LazyAttr, LazyModule
+    from fingerloc.cli.app import console, err_console, real_console
+
+    m = LazyModule("json")
+    assert m.dumps([1]) == "[1]" and "dumps" in vars(m)
+    f = LazyAttr("json", "loads")
+    assert f("[2]") == [2] and f.resolve() is __import__("json").loads
+    from rich.console import Console
+
+    assert isinstance(real_console(console), Console) and isinstance(real_console(err_console), Console)
+    assert real_console(err_console).stderr and not real_console(console).stderr
+    c = Console()
+    assert real_console(c) is c

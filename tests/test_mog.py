@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -448,3 +449,113 @@ def test_fit_fast_path_equals_fit_mixtures(n, k, n_init, seed):
     np.testing.assert_array_equal(gm.means_, ms.means[0])
     np.testing.assert_array_equal(gm.sigmas_, ms.sigmas[0])
     assert (gm.converged_, gm.n_iter_, gm.lower_bound_) == (ms.converged[0], ms.n_iter[0], ms.lower_bound[0])
+
+
+@functools.cache
+def _exp_neg_loop():
+    from numba import njit
+
+    from fingerloc import _mog_kernels as k
+
+    @njit(fastmath={"contract"})  # as the E-step, which inlines it: the polynomial runs on fused multiply-adds
+    def many(t, out):  # pragma: no cover - compiled
+        for i in range(t.shape[0]):
+            out[i] = k._exp_neg(t[i])
+
+    return many
+
+
+def _exp_neg(t):
+    t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    out = np.empty_like(t)
+    _exp_neg_loop()(t, out)
+    return out
+
+
+def test_exp_neg_within_one_ulp_of_the_c_library():
+    # the E-step's branch-free exp, against math.exp (the C library) on many values and at the edges
+    rng = np.random.default_rng(0)
+    t = np.concatenate([-rng.uniform(0, 40.0, 200_000), -rng.uniform(0, 1e-6, 1000), [0.0, -40.0, -math.log(2)]])
+    got = _exp_neg(t)
+    ref = np.array([math.exp(v) for v in t])
+    ulps = np.abs(got.view(np.int64) - ref.view(np.int64))
+    assert ulps.max() <= 1
+    assert (ulps == 0).mean() > 0.8
+    assert got[-3] == 1.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-40.0, 0.0))
+def test_exp_neg_property(t):
+    e = float(_exp_neg(t)[0])
+    assert abs(e - math.exp(t)) <= 2.3e-16 * math.exp(t)
+
+
+@pytest.mark.parametrize(
+    "x",
+    [
+        np.array([0.1, 2 * np.pi - 1e-17, -1e-17, 7.0, -3.2]),  # values that wrap, one onto the edge at pi
+        np.array([0.5, np.pi, -np.pi, 1.0])[::-1],  # a negative stride, and pi itself
+        np.linspace(-9, 9, 31)[::2],
+    ],
+)
+def test_fit_fast_path_wraps_like_wrap(x):
+    # AngularMixture.fit folds pi onto -pi inside the compiled call: the fit must equal fit_mixtures,
+    # which wraps with fingerloc.angles.wrap, and fit on the wrapped bearings given as a list
+    from fingerloc.angles import wrap
+
+    gm = AngularMixture(2, random_state=3).fit(x)
+    ms = fit_mixtures([x], 2, random_state=3)
+    other = AngularMixture(2, random_state=3).fit(list(wrap(x)))
+    for a in (ms.means[0], other.means_):
+        np.testing.assert_array_equal(gm.means_, a)
+    np.testing.assert_array_equal(gm.sigmas_, ms.sigmas[0])
+    assert gm.n_components_ == int(np.count_nonzero(ms.weights[0] > 0))
+
+
+@pytest.mark.parametrize("bad", [np.array([0.1, np.nan]), np.array([np.inf, 0.2]), np.array([], dtype=float)])
+def test_fit_fast_path_rejects_non_finite_and_empty(bad):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no numpy RuntimeWarning on the way
+        with pytest.raises(InvalidParameterError, match=r"non-finite|empty"):
+            AngularMixture(2).fit(bad)
+
+
+def test_e_step_equals_its_exp_and_an_oracle():
+    # the E-step builds 2^k from its bits: its responsibilities must be those written with _exp_neg,
+    # and agree with a plain numpy computation (math.exp) to rounding
+    from numba import njit
+
+    from fingerloc import _mog_kernels as k
+    from fingerloc.angles import wrap
+
+    @njit(fastmath={"contract"})
+    def resp(x, w, mu, sg, out):  # pragma: no cover - compiled
+        for j in range(w.shape[0]):
+            cj = math.log(w[j]) + k._log_norm(sg[j])
+            for i in range(x.shape[0]):
+                out[j, i] = cj - k._dist(mu[j], x[i]) ** 2 * (0.5 / (sg[j] * sg[j]))
+        for i in range(x.shape[0]):
+            m = out[:, i].max()
+            s = 0.0
+            for j in range(w.shape[0]):
+                t = out[j, i] - m
+                out[j, i] = 1.0 if t == 0.0 else (k._exp_neg(t) if t > -k._SKIP else 0.0)
+                s += out[j, i]
+            for j in range(w.shape[0]):
+                out[j, i] *= 1.0 / s
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        kk, n = int(rng.integers(1, 7)), int(rng.integers(1, 120))
+        x = wrap(rng.uniform(-4, 4, n))
+        w = rng.dirichlet(np.ones(kk))
+        mu = wrap(rng.uniform(-4, 4, kk))
+        sg = rng.uniform(0.01, 3.0, kk)
+        d, r = np.empty((kk, n)), np.empty((kk, n))
+        ll = k._e_step(x, kk, w, mu, sg, d, r, np.empty(n), np.empty(n), np.empty(n, dtype=np.int64))
+        want = np.empty((kk, n))
+        resp(x, w, mu, sg, want)
+        np.testing.assert_allclose(r, want, rtol=1e-14, atol=1e-300)
+        dens = sum(w[j] * np.exp(component_log_density(x, mu[j], sg[j])) for j in range(kk))
+        assert ll == pytest.approx(np.log(dens).mean(), rel=1e-12, abs=1e-12)

@@ -69,7 +69,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import _mog_kernels as _k
 from ._estimator import ParamsMixin
 from ._numba_guard import try_parallel
-from .angles import wrap
+from .angles import TWO_PI, wrap
 from .errors import InvalidParameterError, NotFittedError
 from .validation import check_random_state
 
@@ -110,6 +110,19 @@ def _check_int(name: str, value: object, minimum: int) -> int:
 def _check_params(
     n_components: object, tol: object, max_iter: object, n_init: object, min_sigma_deg: object
 ) -> tuple[int, float, int, int, float]:
+    if (  # the common case, plain ints and floats in range, checked at the cost of one call
+        type(n_components) is int
+        and type(max_iter) is int
+        and type(n_init) is int
+        and type(tol) is float
+        and (type(min_sigma_deg) is float or type(min_sigma_deg) is int)
+        and n_components >= 1
+        and max_iter >= 1
+        and n_init >= 1
+        and 0.0 <= tol < math.inf
+        and 0.0 < min_sigma_deg <= 360.0
+    ):
+        return n_components, tol, max_iter, n_init, float(min_sigma_deg)
     k = _check_int("n_components", n_components, 1)
     it = _check_int("max_iter", max_iter, 1)
     ni = _check_int("n_init", n_init, 1)
@@ -492,18 +505,27 @@ class AngularMixture(ParamsMixin):
         k, tol_f, it, ni, msd = _check_params(
             self.n_components, self.tol, self.max_iter, self.n_init, self.min_sigma_deg
         )
-        rng = check_random_state(self.random_state)
-        xa = _as_bearings(X, "X")
-        if xa.size == 0:
-            raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
-        u = rng.random((1, ni, k))  # the draws fit_mixtures makes for one sample
+        rs = self.random_state
+        rng = np.random.default_rng(rs) if type(rs) is int and rs >= 0 else check_random_state(rs)
+        if type(X) is np.ndarray and X.dtype == np.float64 and X.ndim == 1 and X.size:
+            # the common case, with fewer numpy calls: the check for nan and inf is compiled, and
+            # fit_single does the last step of wrap(X) (fingerloc.angles.wrap), the fold of pi to -pi
+            if not _k.all_finite(X):
+                raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
+            xa = np.mod(X + np.pi, TWO_PI)
+            xa -= np.pi
+        else:
+            xa = _as_bearings(X, "X")
+            if xa.size == 0:
+                raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
+        u = rng.random((ni, k))  # the draws fit_mixtures makes for one sample (its u[m], shape (n_init, k))
         params = np.empty((3, k))
-        conv, n_iter, ll = _k.fit_single(xa, k, u[0], tol_f, it, math.radians(msd), params)
-        self.weights_, self.means_, self.sigmas_ = params[0], params[1], params[2]
+        conv, n_iter, ll, used = _k.fit_single(xa, k, u, tol_f, it, math.radians(msd), params)
+        self.weights_, self.means_, self.sigmas_ = params
         self.converged_ = bool(conv)
         self.n_iter_ = int(n_iter)
         self.lower_bound_ = float(ll)
-        self.n_components_ = int(np.count_nonzero(self.weights_ > 0))
+        self.n_components_ = int(used)
         if not self.converged_:
             warnings.warn(
                 f"EM did not converge in max_iter={self.max_iter} iterations (tol={self.tol}); raise max_iter or tol",

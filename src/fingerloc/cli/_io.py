@@ -22,11 +22,15 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
-from rich.text import Text
-
+from .._lazy import LazyAttr
 from ..errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from rich.text import Text
+else:
+    Text = LazyAttr("rich.text", "Text")  # rich is imported when a command prints
 
 __all__ = ["atomic_write_text", "check_output", "lit", "strict_json", "write_json"]
 

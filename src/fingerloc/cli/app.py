@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING, Any
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from .._version import __version__
 
@@ -24,21 +23,51 @@ reproduce_app = typer.Typer(help="Reproduce the paper's tables.", no_args_is_hel
 app.add_typer(bench_app, name="bench")
 app.add_typer(reproduce_app, name="reproduce")
 
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+class _LazyConsole:
+    """A :class:`rich.console.Console` made on first use: ``--help`` needs no rich (its output is click's)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self._kwargs = kwargs
+        self._console: Console | None = None
+
+    def resolve(self) -> Console:
+        """The real console."""
+        if self._console is None:
+            from rich.console import Console
+
+            self._console = Console(**self._kwargs)
+        return self._console
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.resolve(), name)
+
+
 #: Normal output.
-console = Console(highlight=False, markup=False, emoji=False)
+console: Console = _LazyConsole(highlight=False, markup=False, emoji=False)  # type: ignore[assignment]
 #: Progress bars and notes, on stderr so stdout stays clean for pipes.
-err_console = Console(stderr=True, highlight=False, markup=False, emoji=False, soft_wrap=True)
+err_console: Console = _LazyConsole(stderr=True, highlight=False, markup=False, emoji=False, soft_wrap=True)  # type: ignore[assignment]
+
+
+def real_console(c: Console) -> Console:
+    """The rich console behind ``c`` (:data:`console`, :data:`err_console` or a real one), for rich's own classes."""
+    return c.resolve() if isinstance(c, _LazyConsole) else c
 
 
 @contextmanager
 def trial_progress(label: str, total: int) -> Iterator[Callable[[int], None]]:
     """A progress bar on stderr over ``total`` trials; yields ``on_trial(done)``."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     with Progress(
         TextColumn(label),
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
-        console=err_console,
+        console=real_console(err_console),
         transient=True,
     ) as progress:
         task = progress.add_task("trials", total=total)

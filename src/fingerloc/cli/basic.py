@@ -7,8 +7,6 @@ from pathlib import Path
 
 import typer
 
-from ..fingerprint import make_fingerprint
-from ..io.jsonl import iter_observations
 from .app import app
 
 
@@ -20,6 +18,9 @@ def fingerprint_cmd(
     merge_tol_deg: float = typer.Option(5.0, min=0.0, max=180.0, help="Corner/edge merge tolerance into 'f', degrees."),
 ) -> None:
     """Print the fingerprint of each observation, one line each."""
+    from ..fingerprint import make_fingerprint  # numpy: not for --help
+    from ..io.jsonl import iter_observations
+
     for obs in iter_observations(data):
         fp = make_fingerprint(obs, empty_step_deg=empty_step_deg, merge_tol_deg=merge_tol_deg)
         if as_json:

@@ -12,10 +12,9 @@ import time
 from pathlib import Path
 
 import typer
-from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from ._io import check_output
-from .app import app, console, err_console
+from .app import app, console, err_console, real_console
 
 
 @app.command("demo")
@@ -59,8 +58,14 @@ def demo_cmd(
     n_workers = default_workers() if workers is None else workers
     timings: dict[str, float] = {}
     n_meas = protocol.n_offices * (protocol.n_train + (2 if random_heading else 1) * protocol.n_test)
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
     with Progress(
-        SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=err_console, transient=True
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        TimeElapsedColumn(),
+        console=real_console(err_console),
+        transient=True,
     ) as progress:
         task = progress.add_task(
             f"simulating {protocol.n_offices} offices, {n_meas} scans and omnidirectional images, "

@@ -7,21 +7,41 @@ and saves what they return.
 
 from __future__ import annotations
 
+from importlib import import_module
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import typer
 
-from ..angles import deg_to_rad, rad_to_deg360
+from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
-from ..fingerprint import hue_letter
-from ..observation import Observation
-from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind, load_image, panorama_from_file
 from ._io import check_output
-from .app import app, bench_app, console, err_console
+from .app import app, bench_app, console, err_console, real_console
 from .options import BASE_FRAME_HELP, POSE_SOURCE_HELP, TOPIC_HELP, bag_options
 
+# numpy and the readers are imported when a command runs, not for --help
+if TYPE_CHECKING:
+    import numpy as np
+
+    from ..observation import Observation
+    from ..pipeline.files import KINDS, FeatureOptions, load_image, panorama_from_file
+else:
+    np = LazyModule("numpy")
+deg_to_rad = LazyAttr("fingerloc.angles", "deg_to_rad")
+rad_to_deg360 = LazyAttr("fingerloc.angles", "rad_to_deg360")
+hue_letter = LazyAttr("fingerloc.fingerprint", "hue_letter")
+
 __all__ = ["KINDS", "FeatureOptions", "format_observation", "load_image", "panorama_from_file"]
+
+#: The names of :data:`fingerloc.pipeline.files.KINDS`, in its order, for the help text (tests/test_cli_startup.py).
+KIND_NAMES = ("panorama", "omni", "carmen", "bag")
+_FROM_FILES = ("KINDS", "FeatureOptions", "load_image", "panorama_from_file")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FROM_FILES:  # re-exported from fingerloc.pipeline.files, imported on first use
+        return getattr(import_module("fingerloc.pipeline.files"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def format_observation(name: str, obs: Observation) -> str:
@@ -54,7 +74,7 @@ def features_cmd(
     kind: str = typer.Option(
         "auto",
         "--kind",
-        help=f"Input kind: auto | {' | '.join(KINDS)}. auto: .log, .log.gz, .gz, .clf -> carmen; "
+        help=f"Input kind: auto | {' | '.join(KIND_NAMES)}. auto: .log, .log.gz, .gz, .clf -> carmen; "
         ".bag, .db3, .mcap or a ROS 2 bag folder -> bag; other files -> omni with --center, else panorama.",
     ),
     bearing_offset_deg: float = typer.Option(
@@ -121,6 +141,8 @@ def features_cmd(
         from ..io.jsonl import check_text
 
         check_text(place, "--place")
+    from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind
+
     if kind != "auto" and kind not in KINDS:
         raise InvalidParameterError(f"--kind must be one of auto, {', '.join(KINDS)}, got {kind!r}")
     if band is not None and not (0.0 <= band[0] < band[1] <= 1.0):
@@ -192,7 +214,7 @@ def bench_features_cmd(
     check_output(json_out, "--json")
     if not 0 <= jpeg <= 100:
         raise InvalidParameterError(f"--jpeg must be in 0..100, got {jpeg}")
-    with Progress(console=err_console, transient=True) as progress:
+    with Progress(console=real_console(err_console), transient=True) as progress:
         task = progress.add_task("extracting", total=offices * poses)
         res = run_extractor_bench(
             n_offices=offices,
@@ -257,7 +279,7 @@ def bench_panorama_cmd(
         raise InvalidParameterError(f"--components must be >= 1, got {components}")
     if width < 64:
         raise InvalidParameterError(f"--width must be >= 64 columns, got {width}")
-    with Progress(console=err_console, transient=True) as progress:
+    with Progress(console=real_console(err_console), transient=True) as progress:
         tasks: dict[str, object] = {}
 
         def step(name: str, done: int, total: int) -> None:

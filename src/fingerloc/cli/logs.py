@@ -14,16 +14,29 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from ..errors import InvalidParameterError
-from ..pipeline.files import LASER_KINDS
-from ..pipeline.readers import detect_kind
 from ._io import check_output
 from .app import bench_app, console, err_console
 from .bench import write_json
 
 if TYPE_CHECKING:
     from ..observation import Observation
+    from ..pipeline.files import LASER_KINDS
+    from ..pipeline.readers import detect_kind
 
 __all__ = ["LASER_KINDS", "carmen_cmd", "detect_kind", "format_scan_line", "print_benchmark"]
+
+
+def __getattr__(name: str) -> Any:
+    # re-exported from the library, imported on first use (not for --help)
+    if name == "LASER_KINDS":
+        from ..pipeline.files import LASER_KINDS
+
+        return LASER_KINDS
+    if name == "detect_kind":
+        from ..pipeline.readers import detect_kind
+
+        return detect_kind
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def format_scan_line(name: str, obs: Observation) -> str:

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
-from rich.table import Table
 
+from .._lazy import LazyAttr
 from ._io import check_output
 from .app import console, reproduce_app, trial_progress
 from .bench import write_json
+
+if TYPE_CHECKING:
+    from rich.table import Table
+else:
+    Table = LazyAttr("rich.table", "Table")  # imported when the command runs, not for --help
 
 # The defaults of fingerloc.experiments.table1 (DEFAULT_PLACE_SPREAD_DEG, DEFAULT_N_EDGES), repeated here so
 # that the CLI starts without importing numba; tests/test_table1.py checks they agree.

@@ -11,14 +11,19 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import typer
 
+from .._lazy import LazyModule
 from ..errors import InvalidParameterError
 from ._io import check_output
 from .app import err_console
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    np = LazyModule("numpy")  # imported when a command runs, not for --help
 
 __all__ = [
     "BASE_FRAME_HELP",

@@ -9,14 +9,12 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import typer
-from rich.table import Table
 
+from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
-from ..io.jsonl import read_observations
 from ._io import JsonRecordStream, atomic_text_file, lit
 from .app import app, console, err_console
 from .options import (
@@ -31,6 +29,14 @@ from .options import (
     read_run_files,
     stored_options,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
+    from rich.table import Table
+else:  # imported when a command runs, not for --help
+    np = LazyModule("numpy")
+    Table = LazyAttr("rich.table", "Table")
+read_observations = LazyAttr("fingerloc.io.jsonl", "read_observations")
 
 #: PlaceModel parameter -> the ``learn`` option that sets it (messages name the option).
 _FLAGS = {

@@ -8,15 +8,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
-import numpy as np
 import typer
 
+from .._lazy import LazyModule
 from ..errors import InvalidParameterError
 from ._io import check_output
 from .app import bench_app, console, err_console
 from .bench import write_json
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    np = LazyModule("numpy")  # imported when a command runs, not for --help
 
 __all__ = ["carmen_report", "check_report", "localize_report", "map_report", "track_report"]
 

@@ -6,15 +6,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import typer
-from rich.console import Console
-from rich.table import Table
 
+from .._lazy import LazyAttr
 from ._io import check_output
 from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
 if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Table
+
     from ..experiments.robot import RobotResult
+else:
+    Table = LazyAttr("rich.table", "Table")  # imported when a command runs, not for --help
 
 _METHOD_NAMES = {
     "minimum_energy": "string matching, minimum energy",

@@ -5,15 +5,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import typer
 
+from .._lazy import LazyModule
 from ..errors import InvalidParameterError
 from ._io import check_output
 from .app import app, bench_app, console, err_console
 from .bench import write_json
+
+if TYPE_CHECKING:
+    import numpy as np
+else:
+    np = LazyModule("numpy")  # imported when a command runs, not for --help
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
