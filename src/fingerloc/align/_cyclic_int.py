@@ -74,6 +74,8 @@ __all__ = ["LANES8", "integer_costs", "nw_batch_cyclic_i8"]
 LANES8 = 256
 #: Largest magnitude an intermediate value of the int8 kernel may reach.
 _I8_LIMIT = 127
+#: Bytes in a page: the span of address bits that a load and an earlier store must not share.
+_PAGE = 4096
 #: Scales tried, smallest first: powers of two, so that ``cost * scale`` is exact.
 _SCALES = tuple(2**e for e in range(0, 7))
 
@@ -144,8 +146,17 @@ def nw_batch_cyclic_i8(
         bc = blocks[blk]
         lens = blens[blk]
         big = block_len[blk]
-        # prof[c, j, k] = s(c, b_j) - g(c) - g(b_j) for letter j of reference k: contiguous in the lanes
-        prof = np.empty((nl, maxlen, LANES8), dtype=np.int8)
+        # prof[c, j, k] = s(c, b_j) - g(c) - g(b_j) for letter j of reference k: contiguous in the lanes.
+        # One buffer holds prof (page-aligned, one letter every multiple of 4096 bytes) and hv, half a page
+        # further on: a store to hv[j] then shares its address bits 0-11 with no load of prof[., j] or of
+        # the next seven columns that follows it. Such "4K aliasing" makes the loads wait for the store:
+        # up to 1.9x slower, depending on where the allocator had put separate arrays.
+        prow = -(-maxlen // 16) * 16
+        raw = np.empty(nl * prow * LANES8 + maxlen * LANES8 + 2 * _PAGE, dtype=np.int8)
+        p0 = (_PAGE - raw.ctypes.data % _PAGE) % _PAGE
+        prof = raw[p0 : p0 + nl * prow * LANES8].reshape((nl, prow, LANES8))
+        h0 = p0 + nl * prow * LANES8 + _PAGE // 2
+        hv = raw[h0 : h0 + maxlen * LANES8].reshape((maxlen, LANES8))  # H[i, j] = D[i, j+1] - D[i, j] - g(b_j)
         for c in range(nl):
             gc = indel[c]
             for j in range(big):
@@ -163,7 +174,6 @@ def nw_batch_cyclic_i8(
                 keep[j, k] = -1
         # The last row's sum fits int16 when every |H| <= 2 gmax over at most ``big`` columns does.
         narrow = 2 * gmax * big <= 32767
-        hv = np.empty((maxlen, LANES8), dtype=np.int8)  # H[i, j] = D[i, j+1] - D[i, j] - g(b_j)
         u1 = np.empty(LANES8, dtype=np.int8)  # U[i, j] = D[i, j] - D[i-1, j] - g(a_i), left of the cell
         u2 = np.empty(LANES8, dtype=np.int8)  # the same on the next row
         s16 = np.empty(LANES8, dtype=np.int16)
