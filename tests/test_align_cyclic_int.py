@@ -158,3 +158,62 @@ def test_int8_kernel_empty_strings_only():
     np.testing.assert_array_equal(
         alignment_costs(["", ""], ["cvn", "", "A"], cyclic=True, costs=FEATURE), [[2.5, 0, 1]] * 2
     )
+
+
+# -- the shifted two-row kernel: its separate paths ---------------------------------------
+
+
+@pytest.mark.parametrize("n_query", [0, 1, 2, 3, 4, 5])
+def test_int8_kernel_odd_and_even_queries(n_query):
+    # rows go two a sweep; an odd query ends with one row alone
+    rng = np.random.default_rng(n_query)
+    letters = np.array(list("vcfnABh"))
+    q = "".join(rng.choice(letters, n_query))
+    rs = ["".join(rng.choice(letters, int(m))) for m in rng.integers(0, 9, 40)]
+    out = alignment_costs([q], rs, cyclic=True, costs=FEATURE)
+    np.testing.assert_array_equal(out, [[python_cyclic(q, r, FEATURE) for r in rs]])
+
+
+@pytest.mark.parametrize(
+    "cm",
+    [
+        CostModel(substitution=0.0, indel=0.0),  # every cost 0: every alignment ties
+        CostModel(substitution=2.0, indel=2.0),  # all-equal costs
+        CostModel(substitution=0.0, indel=0.5),  # substitutions free
+        CostModel(substitution=4.0, indel=0.25),  # a substitution dearer than two indels
+    ],
+)
+def test_int8_kernel_degenerate_models(cm):
+    assert integer_costs(cm.substitution, cm.indel) is not None
+    rng = np.random.default_rng(11)
+    letters = np.array(list(ALPHABET))
+    qs = ["".join(rng.choice(letters, n)) for n in (0, 1, 7, 12)]
+    rs = ["".join(rng.choice(letters, n)) for n in (0, 1, 2, 6, 12, 30)] + qs
+    np.testing.assert_array_equal(alignment_costs(qs, rs, cyclic=True, costs=cm), brute(qs, rs, cm))
+
+
+@settings(max_examples=15, deadline=None)
+@given(dyadic_models(), st.integers(0, 2**32 - 1), st.sampled_from([ALPHABET, "vcfn", "nv"]))
+def test_int8_kernel_mixed_blocks_equal_brute(cm, seed, alphabet):
+    # several blocks whose lanes end at different columns (the masked part of the last row's sum), very
+    # different lengths side by side, queries of both parities
+    rng = np.random.default_rng(seed)
+    letters = np.array(list(alphabet))
+    n_refs = int(rng.integers(1, 2 * LANES8 + 40))
+    lens = rng.integers(0, 25, n_refs)
+    lens[rng.integers(0, n_refs, 3)] = 0
+    rs = ["".join(rng.choice(letters, int(m))) for m in lens]
+    qs = ["".join(rng.choice(letters, int(n))) for n in rng.integers(0, 25, 3)]
+    out = alignment_costs(qs, rs, cyclic=True, costs=cm, workers=2)
+    np.testing.assert_array_equal(out, brute(qs, rs, cm))
+
+
+@pytest.mark.parametrize("m", [390, 391])
+def test_int8_kernel_last_row_sum_at_the_int16_limit(m):
+    # costs at the int8 limit (indel 42): each H of the last row can be -84, and 84 * 390 = 32760 fits
+    # int16 while 84 * 391 does not: the sum must switch to int32 there, not wrap
+    cm = CostModel(substitution=43.0, indel=42.0)
+    q = "v" * m
+    rs = ["v" * m, "v" * (m - 1) + "c", "c" + "v" * (m - 1), "v" * (m - 3), "", "v"]
+    out = alignment_costs([q], rs, cyclic=True, costs=cm)
+    np.testing.assert_array_equal(out, [[0.0, 43.0, 43.0, 126.0, 42.0 * m, 42.0 * (m - 1)]])

@@ -21,11 +21,27 @@ kernel computes the same costs, bit for bit, several times faster:
       u[i, j] = z - h[i-1, j]
       h[i, j] = z - u[i, j-1]
 
-  Every intermediate value lies within ``2 max indel + max substitution``,
-  so with ``scale * (2 max indel + max substitution) <= 127`` the lanes are
-  int8: a 512-bit register carries 64 cells instead of 8 float64 ones. The
-  cost is recovered as ``D[n, m] = D[n, 0] + sum_j h[n, j]``, with
-  ``D[n, 0]`` the indels of the whole query (the same for every rotation).
+  Shifting both differences by the indel of their own letter,
+  ``H = h - g(b_j)`` and ``U = u - g(a_i)`` (both in ``[-2 max indel, 0]``),
+  folds the two indel additions into the substitution profile,
+  ``s'(a, b) = s(a, b) - g(a) - g(b)``::
+
+      z       = min( s'(a_i, b_j), H[i-1, j], U[i, j-1] )
+      U[i, j] = z - H[i-1, j]
+      H[i, j] = z - U[i, j-1]
+
+  four operations a cell instead of six (two additions fewer), and rows and
+  columns start at ``H = U = 0``. Every intermediate value lies within
+  ``2 max indel + max substitution``, so with
+  ``scale * (2 max indel + max substitution) <= 127`` the lanes are int8: a
+  512-bit register carries 64 cells instead of 8 float64 ones. The cost is
+  recovered as ``D[n, m] = D[n, 0] + D[0, m] + sum_j H[n, j]``, with
+  ``D[n, 0]`` the indels of the whole query (the same for every rotation)
+  and ``D[0, m]`` those of the reference; the sum runs in int16 lanes
+  while ``2 max indel * m <= 32767``, else in int32.
+* **Two rows a sweep.** Each sweep over a reference computes two query rows,
+  the second one column behind the first, so the row of ``H`` goes through
+  memory once for both; the ``U`` of both rows stay in registers.
 * **Rotate the query, not the references.** The cyclic cost is symmetric
   and invariant under rotating either string (see
   :mod:`fingerloc.align._cyclic`), so ``min over r of NW(a[r:] + a[:r], b)``
@@ -58,6 +74,8 @@ __all__ = ["LANES8", "integer_costs", "nw_batch_cyclic_i8"]
 LANES8 = 256
 #: Largest magnitude an intermediate value of the int8 kernel may reach.
 _I8_LIMIT = 127
+#: Bytes in a page: the span of address bits that a load and an earlier store must not share.
+_PAGE = 4096
 #: Scales tried, smallest first: powers of two, so that ``cost * scale`` is exact.
 _SCALES = tuple(2**e for e in range(0, 7))
 
@@ -117,65 +135,117 @@ def nw_batch_cyclic_i8(
     nb = blocks.shape[0]
     maxlen = blocks.shape[1]
     nl = sub.shape[0]
+    maxq = 0
+    for q in range(nq):
+        maxq = max(maxq, qoff[q + 1] - qoff[q])
+    gmax = 0
+    for c in range(nl):
+        gmax = max(gmax, int(indel[c]))
     out = np.empty((nq, nb * LANES8), dtype=np.int32)
     for blk in prange(nb):
         bc = blocks[blk]
         lens = blens[blk]
         big = block_len[blk]
-        # prof[c, j, k] = sub[c, letter j of reference k]: contiguous in the lanes
-        prof = np.empty((nl, maxlen, LANES8), dtype=np.int8)
+        # prof[c, j, k] = s(c, b_j) - g(c) - g(b_j) for letter j of reference k: contiguous in the lanes.
+        # One buffer holds prof (page-aligned, one letter every multiple of 4096 bytes) and hv, half a page
+        # further on: a store to hv[j] then shares its address bits 0-11 with no load of prof[., j] or of
+        # the next seven columns that follows it. Such "4K aliasing" makes the loads wait for the store:
+        # up to 1.9x slower, depending on where the allocator had put separate arrays.
+        prow = -(-maxlen // 16) * 16
+        raw = np.empty(nl * prow * LANES8 + maxlen * LANES8 + 2 * _PAGE, dtype=np.int8)
+        p0 = (_PAGE - raw.ctypes.data % _PAGE) % _PAGE
+        prof = raw[p0 : p0 + nl * prow * LANES8].reshape((nl, prow, LANES8))
+        h0 = p0 + nl * prow * LANES8 + _PAGE // 2
+        hv = raw[h0 : h0 + maxlen * LANES8].reshape((maxlen, LANES8))  # H[i, j] = D[i, j+1] - D[i, j] - g(b_j)
         for c in range(nl):
+            gc = indel[c]
             for j in range(big):
                 for k in range(LANES8):
-                    prof[c, j, k] = sub[c, bc[j, k]]
-        indb = np.empty((maxlen, LANES8), dtype=np.int8)
-        for j in range(big):
-            for k in range(LANES8):
-                indb[j, k] = indel[bc[j, k]]
-        hv = np.empty((maxlen, LANES8), dtype=np.int8)  # h[i, j+1] = D[i, j+1] - D[i, j]
-        ul = np.empty(LANES8, dtype=np.int8)  # u[i, j] = D[i, j] - D[i-1, j], left of the current cell
-        acc = np.empty(LANES8, dtype=np.int32)
+                    b = bc[j, k]
+                    prof[c, j, k] = sub[c, b] - gc - indel[b]
+        # gsum[k] = D[0, m_k], every letter of reference k inserted; keep[j, k] = -1 where j < m_k, else 0
+        gsum = np.zeros(LANES8, dtype=np.int32)
+        keep = np.zeros((maxlen, LANES8), dtype=np.int8)
+        short = big
+        for k in range(LANES8):
+            short = min(short, lens[k])
+            for j in range(lens[k]):
+                gsum[k] += indel[bc[j, k]]
+                keep[j, k] = -1
+        # The last row's sum fits int16 when every |H| <= 2 gmax over at most ``big`` columns does.
+        narrow = 2 * gmax * big <= 32767
+        u1 = np.empty(LANES8, dtype=np.int8)  # U[i, j] = D[i, j] - D[i-1, j] - g(a_i), left of the cell
+        u2 = np.empty(LANES8, dtype=np.int8)  # the same on the next row
+        s16 = np.empty(LANES8, dtype=np.int16)
+        s32 = np.empty(LANES8, dtype=np.int32)
         best = np.empty(LANES8, dtype=np.int32)
+        aa = np.empty(2 * maxq, dtype=np.int64)  # the query twice: rotation r reads aa[r : r + n]
         for q in range(nq):
             q0 = qoff[q]
             n = qoff[q + 1] - q0
             base = 0  # D[n, 0]: every query letter deleted, whatever the rotation
             for i in range(n):
                 base += indel[qcodes[q0 + i]]
+                aa[i] = qcodes[q0 + i]
+                aa[i + n] = qcodes[q0 + i]
             for k in range(LANES8):
                 best[k] = 2**30
             for r in range(max(n, 1)):
                 for j in range(big):
                     for k in range(LANES8):
-                        hv[j, k] = indb[j, k]  # row 0: D[0, j] = sum of the reference's indels
-                ii = r
-                for _ in range(n):
-                    ca = qcodes[q0 + ii]
-                    ii += 1
-                    if ii == n:
-                        ii = 0
-                    da = indel[ca]
-                    pr = prof[ca]
+                        hv[j, k] = 0  # row 0: D[0, j+1] - D[0, j] = g(b_j)
+                i = 0
+                while i + 1 < n:  # two rows per sweep: H goes through memory once for both
+                    p1 = prof[aa[r + i]]
+                    p2 = prof[aa[r + i + 1]]
                     for k in range(LANES8):
-                        ul[k] = da  # u[i, 0] = D[i, 0] - D[i-1, 0]
+                        u1[k] = 0  # column 0: D[i, 0] - D[i-1, 0] = g(a_i)
+                        u2[k] = 0
                     for j in range(big):
                         for k in range(LANES8):  # vectorised over the references
-                            # z = D[i,j] - D[i-1,j-1] = min(s(a_i, b_j), h[i-1,j] + g(a_i), u[i,j-1] + g(b_j));
-                            # every sum cast back to int8 so that LLVM keeps 8-bit lanes (exact: no overflow)
+                            # z = D[i,j] - D[i-1,j-1] - g(a_i) - g(b_j) = min(s'(a_i, b_j), H[i-1,j], U[i,j-1]);
+                            # every result cast back to int8 so that LLVM keeps 8-bit lanes (exact: no overflow)
                             h = hv[j, k]
-                            u = ul[k]
-                            z = min(pr[j, k], np.int8(h + da))
-                            z = min(z, np.int8(u + indb[j, k]))
-                            ul[k] = np.int8(z - h)
-                            hv[j, k] = np.int8(z - u)
-                for k in range(LANES8):
-                    acc[k] = base
-                for j in range(big):
+                            x = u1[k]
+                            z = min(min(p1[j, k], h), x)
+                            u1[k] = np.int8(z - h)
+                            h = np.int8(z - x)
+                            x = u2[k]
+                            z = min(min(p2[j, k], h), x)
+                            u2[k] = np.int8(z - h)
+                            hv[j, k] = np.int8(z - x)
+                    i += 2
+                if i < n:  # an odd query: its last row alone
+                    p1 = prof[aa[r + i]]
                     for k in range(LANES8):
-                        if j < lens[k]:
-                            acc[k] += hv[j, k]
-                for k in range(LANES8):
-                    best[k] = min(best[k], acc[k])
+                        u1[k] = 0
+                    for j in range(big):
+                        for k in range(LANES8):
+                            h = hv[j, k]
+                            x = u1[k]
+                            z = min(min(p1[j, k], h), x)
+                            u1[k] = np.int8(z - h)
+                            hv[j, k] = np.int8(z - x)
+                # D[n, m_k] = D[n, 0] + D[0, m_k] + sum of H[n, j] over j < m_k
+                if narrow:
+                    for k in range(LANES8):
+                        s16[k] = 0
+                    for j in range(short):  # columns every lane has
+                        for k in range(LANES8):
+                            s16[k] = np.int16(s16[k] + hv[j, k])
+                    for j in range(short, big):
+                        for k in range(LANES8):
+                            s16[k] = np.int16(s16[k] + (hv[j, k] & keep[j, k]))
+                    for k in range(LANES8):
+                        best[k] = min(best[k], base + gsum[k] + s16[k])
+                else:
+                    for k in range(LANES8):
+                        s32[k] = 0
+                    for j in range(big):
+                        for k in range(LANES8):
+                            s32[k] += hv[j, k] & keep[j, k]
+                    for k in range(LANES8):
+                        best[k] = min(best[k], base + gsum[k] + s32[k])
             for k in range(LANES8):
                 out[q, blk * LANES8 + k] = best[k]
     return out
