@@ -102,7 +102,12 @@ def wall_letter(length_m: float, range_m: float) -> str:
     return WALL_LETTERS[ri * (len(WALL_LENGTH_EDGES_M) + 1) + li]
 
 
+_ALPHABET_SET = frozenset(ALPHABET)
+
+
 def _check_letters(letters: str) -> None:
+    if _ALPHABET_SET.issuperset(letters):  # the common case, without a Python loop
+        return
     for i, ch in enumerate(letters):
         if ch not in ALPHABET:
             raise UnknownLetterError(
