@@ -106,3 +106,47 @@ def test_worker_refuses_another_database(golden):
     task = LinesTask(str(golden / "paper.sqlite"), "0" * 64, str(golden / "q.jsonl"), 0, [(1, '{"features": {}}')], 3, False, False)
     res = answer_lines(task)
     assert isinstance(res, tuple) and res[0] == "error" and "differs from the client's" in res[1]
+
+
+def test_records_with_non_finite_numbers_are_encoded_as_before(monkeypatch):
+    """Non-finite terms (a place a term rules out: -inf; NaN, +inf) become null, listed under "nulls" as before."""
+    import numpy as np
+
+    from fingerloc.cli._localize import answer_chunk, encode_record, parse_lines
+    from fingerloc.metrics import rank_scores
+    from fingerloc.model import normalise_log
+    from fingerloc.pipeline.mapping import load_map
+
+    model = load_map(GOLDEN / "paper.sqlite").model
+    lines = (GOLDEN / "q.jsonl").read_text(encoding="utf-8").splitlines()
+    obs = parse_lines(GOLDEN / "q.jsonl", [(k + 1, ln) for k, ln in enumerate(lines) if ln.strip()][:40])
+    real = model.term_log_likelihoods
+    terms = real(obs)
+    terms["Fp"][3, 1] = -np.inf
+    terms["Fp"][5, :] = -np.inf  # every place ruled out: the uniform posterior
+    terms["VE"][7, 2] = np.nan
+    terms["Ex"][8, 0] = np.inf
+    monkeypatch.setattr(model, "term_log_likelihoods", lambda o: {t: v.copy() for t, v in terms.items()})
+    got = answer_chunk(model, obs, [f"q:{i}" for i in range(len(obs))], 10, 3, table=False, records=True)
+    # the records as the code of a5df8c7 built them, through the generic strict encoder
+    classes = [str(c) for c in model.classes_]
+    logp = normalise_log(model.combine(terms))
+    ranks = rank_scores(logp)
+    best = np.argmax(logp, axis=1)
+    post = np.exp(logp)
+    for i, o in enumerate(obs):
+        col = classes.index(o.label) if o.label in classes else -1
+        rec = {
+            "index": 10 + i, "name": f"q:{i}", "place": o.label, "best": classes[best[i]],
+            "posterior": dict(zip(classes, post[i].tolist(), strict=True)),
+            "rank_of_true": int(ranks[i, col]) if col >= 0 else None,
+            "terms": {t: dict(zip(classes, ll[i].tolist(), strict=True)) for t, ll in terms.items()},
+            "heading_deg": None, "heading_ref": None,
+        }  # fmt: skip
+        text, nulls = encode_record(rec)
+        assert got.records[i] == text
+        assert got.nulls[i] == nulls
+    assert got.nulls[3] == {"/terms/Fp/room 1": "not a finite number: -inf"}
+    assert got.nulls[5] == {f"/terms/Fp/room {j}": "not a finite number: -inf" for j in range(6)}
+    assert got.nulls[7] == {"/terms/VE/room 2": "not a finite number: nan"}  # its row is dead: a uniform posterior
+    assert got.nulls[8] == {"/terms/Ex/room 0": "not a finite number: inf"}

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -37,6 +38,21 @@ def encode_record(record: Any) -> tuple[str, dict[str, str]]:
     """One record as strict JSON text (non-finite numbers as ``null``) and where those nulls are (paths inside it)."""
     clean, nulls = strict_json(record)
     return json.dumps(clean, allow_nan=False), nulls
+
+
+def _finite(v: float, where: str, nulls: dict[str, str]) -> float | None:
+    """``v``, or None (noted in ``nulls`` as :func:`encode_record` notes it) when it is not finite."""
+    if math.isfinite(v):
+        return v
+    nulls[where] = f"not a finite number: {v!r}"
+    return None
+
+
+def _float_map(keys: list[str], values: list[float], finite: bool, where: str, nulls: dict[str, str]) -> dict[str, Any]:
+    """``dict(zip(keys, values))`` with non-finite values as None, as :func:`encode_record` writes it; ``finite``: all are."""
+    if finite:
+        return dict(zip(keys, values, strict=True))
+    return {k: _finite(v, f"{where}/{k}", nulls) for k, v in zip(keys, values, strict=True)}
 
 
 @dataclass(slots=True)
@@ -110,25 +126,28 @@ def answer_chunk(
     if records:
         assert post is not None
         places = list(model.places_.values())
-        term_rows = {t: ll.tolist() for t, ll in terms.items()}
+        term_rows = {t: (ll.tolist(), np.isfinite(ll).all(axis=1).tolist()) for t, ll in terms.items()}
+        post_rows: list[list[float]] = post.tolist()
+        post_finite = [bool(v) for v in np.isfinite(post).all(axis=1)]
         for i, o in enumerate(obs):
             best = classes[int(best_cols[i])]
             ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
+            nulls: dict[str, str] = {}
             rec: dict[str, Any] = {
                 "index": start + i,
                 "name": names[i],
                 "place": o.label,
                 "best": best,
-                "posterior": dict(zip(classes, post[i].tolist(), strict=True)),
+                "posterior": _float_map(classes, post_rows[i], bool(post_finite[i]), "/posterior", nulls),
                 "rank_of_true": int(rank_of_true[i]) if rank_of_true[i] > 0 else None,
-                "terms": {t: dict(zip(classes, ll[i], strict=True)) for t, ll in term_rows.items()},
-                "heading_deg": None if np.isnan(headings[i]) else float(headings[i]),
+                "terms": {t: _float_map(classes, ll[i], bool(ok[i]), f"/terms/{t}", nulls) for t, (ll, ok) in term_rows.items()},
+                "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
                 "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
             }
             if unknown is not None:
-                rec["unknown"] = float(unknown[i])
-            text, nulls = encode_record(rec)
-            out.records.append(text)
+                rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)
+            # what encode_record gives for this record (tests/test_localize_stream.py), without walking every number
+            out.records.append(json.dumps(rec, allow_nan=False))
             out.nulls.append(nulls)
     if table:
         assert post is not None
