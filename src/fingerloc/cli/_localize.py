@@ -128,7 +128,7 @@ def answer_chunk(
         places = list(model.places_.values())
         term_rows = {t: (ll.tolist(), np.isfinite(ll).all(axis=1).tolist()) for t, ll in terms.items()}
         post_rows: list[list[float]] = post.tolist()
-        post_finite = [bool(v) for v in np.isfinite(post).all(axis=1)]
+        post_finite = np.asarray(np.isfinite(post).all(axis=1), dtype=bool).tolist()
         for i, o in enumerate(obs):
             best = classes[int(best_cols[i])]
             ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
