@@ -310,3 +310,15 @@ def test_heading_on_periodic_strings_picks_the_consistent_rotation():
         res = cyclic_alignment(a, b)
         assert res.cost == 0.0
         assert abs((res.heading_deg - turn_deg + 180.0) % 360.0 - 180.0) < 1e-6
+
+
+def test_unit_costs_with_repeated_references_equal_each_pair():
+    """Equal references are aligned once and copied (issue 17): every column still equals its own alignment."""
+    from fingerloc.align import alignment_costs, global_alignment
+    from fingerloc.fingerprint import parse_fingerprint
+
+    refs = [parse_fingerprint(s) for s in ["vnc", "fnnv", "vnc", "", "fnnv", "vnc", "cbn"]]
+    queries = [parse_fingerprint(s) for s in ["vcn", "fnv", ""]]
+    got = alignment_costs(queries, refs)
+    want = [[global_alignment(q, r) for r in refs] for q in queries]
+    assert got.shape == (3, 7) and got.tolist() == want

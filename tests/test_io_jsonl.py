@@ -115,3 +115,100 @@ def test_walls_and_scan_roundtrip(tmp_path):
 def test_bad_wall_and_scan(tmp_path, line, match):
     with pytest.raises(DataFormatError, match=match):
         read_observations(_write(tmp_path, [line]))
+
+
+# -- the fast path of observation_from_record (issue 17): the same observations bit for bit -----------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from fingerloc.io import jsonl as _jsonl  # noqa: E402
+
+from .conftest import fuzz_examples  # noqa: E402
+
+_FIELDS = ("ve", "cp", "cp_hue", "ex", "c", "b", "w", "w_length", "w_range")
+
+
+def _validating(record):
+    """observation_from_record with the fast path switched off."""
+    saved = _jsonl._fast_observation
+    _jsonl._fast_observation = lambda r: None
+    try:
+        return _jsonl.observation_from_record(record)
+    finally:
+        _jsonl._fast_observation = saved
+
+
+def _identical(a, b):
+    for n in _FIELDS:
+        x, y = getattr(a, n), getattr(b, n)
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), n
+        assert not x.flags.writeable and not y.flags.writeable
+    for n in ("ranges", "range_bearings", "appearance", "fov", "label", "pose", "timestamp", "source"):
+        assert repr(getattr(a, n)) == repr(getattr(b, n)), n
+
+
+_number = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True, width=64),
+    st.floats(-1e4, 1e4),
+    st.integers(-(2**60), 2**60),
+    st.booleans(),
+    st.just(-0.0),
+    st.just(1e-300),
+)
+_value = st.one_of(_number, st.text(max_size=3), st.none(), st.lists(_number, max_size=3))
+_record = st.fixed_dictionaries(
+    {"features": st.one_of(
+        st.dictionaries(st.sampled_from(["VE", "Ex", "c", "B", "CP", "W", "X"]),
+                        st.one_of(st.lists(_number, max_size=6), _value), max_size=4),
+        _value)},
+    optional={
+        "place": st.one_of(st.text(max_size=4), st.just("\ud800"), _value),
+        "pose": st.one_of(st.lists(_number, min_size=2, max_size=4), _value),
+        "fov": st.one_of(st.lists(st.lists(_number, min_size=1, max_size=3), max_size=3), _value),
+        "timestamp": _value,
+        "source": st.one_of(st.text(max_size=3), _value),
+        "extra": _value,
+    },
+)  # fmt: skip
+
+
+@settings(max_examples=fuzz_examples(300), deadline=None)
+@given(_record)
+def test_fast_path_builds_what_the_validating_path_builds(record):
+    fast = _jsonl._fast_observation(record)
+    try:
+        slow = _validating(record)
+    except DataFormatError:
+        assert fast is None  # the fast path never accepts what the checks refuse
+        return
+    if fast is not None:
+        _identical(fast, slow)
+
+
+def test_fast_path_takes_plain_records_and_leaves_the_rest():
+    plain = {"place": "a", "pose": [1, 2.5, 90], "fov": [[-90, 90], [100, 120]], "timestamp": 3, "source": "s",
+             "features": {"VE": [359.9999, -0.0, 1e-300, 720], "Ex": [5], "c": [], "B": [181.25]}}  # fmt: skip
+    fast = _jsonl._fast_observation(plain)
+    assert fast is not None
+    _identical(fast, _validating(plain))
+    assert fast == _jsonl.observation_from_record(plain)
+    for other in (
+        {**plain, "features": {"CP": [{"bearing": 1, "hue": 2}]}},
+        {**plain, "scan": {"bearings": [0], "ranges": [1]}},
+        {**plain, "appearance": [1.0]},
+        {**plain, "features": {"VE": [True]}},
+        {**plain, "features": {"VE": [float("nan")]}},
+        {**plain, "place": "\ud800"},
+        {**plain, "fov": [[10, 10]]},
+        {**plain, "pose": [2e9, 0, 0]},
+    ):
+        assert _jsonl._fast_observation(other) is None
+
+
+def test_parse_record_keeps_json_loads_errors():
+    with pytest.raises(DataFormatError, match="BOM"):
+        _jsonl.parse_record('\ufeff{"features": {}}')
+    with pytest.raises(DataFormatError, match="40"):
+        _jsonl.parse_record('{"features": {"VE": [' + "1" * 41 + "]}}")
+    assert _jsonl.parse_record(b'{"features": {}}') == {"features": {}}

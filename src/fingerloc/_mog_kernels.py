@@ -488,6 +488,7 @@ def _log_density_rows(x, w, mu, sg, out, lo, hi):  # pragma: no cover
     a = np.empty((kmax, n))
     mx = np.empty(n)
     ssum = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
     for m in range(lo, hi):
         for i in range(n):
             mx[i] = -np.inf
@@ -506,8 +507,18 @@ def _log_density_rows(x, w, mu, sg, out, lo, hi):  # pragma: no cover
                     mx[i] = t if t > mx[i] else mx[i]
         for j in range(kmax):
             if w[m, j] > 0.0:
+                # ssum += 1 where t == 0 (exp(0) == 1 exactly), exp(t) where -_SKIP < t < 0, else 0: the ones
+                # and zeros in one branch-free pass that also lists the few bearings needing exp, then those
+                # (adding 0.0 first changes nothing: the same sums in the same component order, bit for bit)
+                cnt = 0
                 for i in range(n):
                     t = a[j, i] - mx[i]
-                    ssum[i] += 1.0 if t == 0.0 else (math.exp(t) if t > -_SKIP else 0.0)  # exp(0) == 1 exactly
+                    ssum[i] += 1.0 if t == 0.0 else 0.0
+                    idx[cnt] = i
+                    cnt += 1 if (t > -_SKIP and t != 0.0) else 0
+                for c in range(cnt):
+                    i = idx[c]
+                    ssum[i] += math.exp(a[j, i] - mx[i])
         for i in range(n):
-            out[m, i] = mx[i] + math.log(ssum[i])
+            # log(1.0) is exactly +0.0: most bearings are far from all but one component, so skip the call
+            out[m, i] = mx[i] + (0.0 if ssum[i] == 1.0 else math.log(ssum[i]))

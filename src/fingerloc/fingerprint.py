@@ -42,6 +42,7 @@ corridor), fixed before any benchmark and not tuned per log.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -102,7 +103,12 @@ def wall_letter(length_m: float, range_m: float) -> str:
     return WALL_LETTERS[ri * (len(WALL_LENGTH_EDGES_M) + 1) + li]
 
 
+_ALPHABET_SET = frozenset(ALPHABET)
+
+
 def _check_letters(letters: str) -> None:
+    if _ALPHABET_SET.issuperset(letters):  # the common case, without a Python loop
+        return
     for i, ch in enumerate(letters):
         if ch not in ALPHABET:
             raise UnknownLetterError(
@@ -220,6 +226,16 @@ def parse_fingerprint(text: str, bearings_deg: ArrayLike | None = None) -> Finge
 _seen_pieces_deg = fov_pieces_deg
 
 
+@functools.lru_cache(maxsize=64)
+def _seen_pieces_cached(fov: tuple[tuple[float, float], ...]) -> tuple[list[tuple[float, float]], bool]:
+    """:func:`_seen_pieces_deg` of a field of view (cached: observations share a few), and whether it is the full circle.
+
+    Callers must not change the list.
+    """
+    pieces = _seen_pieces_deg(fov)
+    return pieces, pieces == [(0.0, 360.0)]
+
+
 def _seen_intervals(a: float, b: float, pieces: list[tuple[float, float]]) -> list[tuple[float, float]]:
     """Parts of ``[a, b]`` (degrees, ``0 <= a < 360``, ``a <= b <= a + 360``) inside the seen pieces."""
     out: list[tuple[float, float]] = []
@@ -333,13 +349,15 @@ def make_fingerprint(
         ]
     feats.sort(key=lambda t: (t[0], _TIE_ORDER[t[1]]))
 
-    pieces = _seen_pieces_deg(obs.fov)
-
-    full = pieces == [(0.0, 360.0)]
+    pieces, full = _seen_pieces_cached(obs.fov)
 
     def empty_space(a: float, b: float) -> list[float]:
         # bearings (deg) of the n letters of the gap [a, b]
-        intervals = [(a, b)] if full else _seen_intervals(a, b, pieces)
+        if full:  # _place_empty([(a, b)], count) without the loop over intervals: the same floats
+            width = b - a
+            count = math.floor((width + GAP_TOL_DEG) / empty_step_deg)
+            return [a + t if t <= width else b for t in [(j + 0.5) * width / count for j in range(count)]]
+        intervals = _seen_intervals(a, b, pieces)
         seen = sum(hi - lo for lo, hi in intervals)
         return _place_empty(intervals, math.floor((seen + GAP_TOL_DEG) / empty_step_deg))
 

@@ -234,6 +234,41 @@ class Observation:
             object.__setattr__(self, "ranges", r)
             object.__setattr__(self, "range_bearings", rb)
 
+    @classmethod
+    def _checked(
+        cls,
+        bearings: dict[str, FArray],
+        *,
+        fov: tuple[tuple[float, float], ...],
+        label: str | None,
+        pose: tuple[float, float, float] | None,
+        timestamp: float | None,
+        source: str | None,
+    ) -> Observation:
+        """An observation from values already checked, without :meth:`__post_init__` (the JSON Lines fast path).
+
+        ``bearings`` maps ``ve``, ``ex``, ``c``, ``b`` to radians already
+        wrapped, sorted and read-only (a missing one is empty); ``fov`` is in
+        its final form (``__post_init__``'s), ``pose`` three finite floats
+        (radians), ``timestamp`` a finite float. The caller guarantees what
+        ``__post_init__`` would check: :func:`fingerloc.io.jsonl.observation_from_record`
+        builds the same observation through the validating path whenever its
+        fast path has any doubt (``tests/test_io_jsonl.py`` compares the two).
+        """
+        obs = object.__new__(cls)
+        put = object.__setattr__
+        for name in ("ve", "cp", "cp_hue", "ex", "c", "b", "w", "w_length", "w_range"):
+            put(obs, name, bearings.get(name, _EMPTY))
+        put(obs, "ranges", None)
+        put(obs, "range_bearings", None)
+        put(obs, "fov", fov)
+        put(obs, "label", label)
+        put(obs, "pose", pose)
+        put(obs, "timestamp", timestamp)
+        put(obs, "appearance", None)
+        put(obs, "source", source)
+        return obs
+
     # -- convenience -----------------------------------------------------
     @classmethod
     def from_degrees(
@@ -364,6 +399,10 @@ class Observation:
 
     __hash__ = None  # type: ignore[assignment]
 
+
+#: The empty bearing array every :meth:`Observation._checked` observation shares (read-only).
+_EMPTY: FArray = np.empty(0)
+_EMPTY.setflags(write=False)
 
 _ATTR = {"VE": "ve", "CP": "cp", "Ex": "ex", "c": "c", "B": "b", "W": "w"}
 _ARRAYS = ("ve", "cp", "cp_hue", "ex", "c", "b", "w", "w_length", "w_range")

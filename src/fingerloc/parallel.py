@@ -24,12 +24,13 @@ Dask (``distributed``) is imported only when a cluster is asked for.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 from .errors import FingerlocError, InvalidParameterError
 
-__all__ = ["ClusterError", "check_cluster_options", "run_tasks"]
+__all__ = ["ClusterError", "check_cluster_options", "iter_tasks", "run_tasks"]
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
@@ -113,8 +114,21 @@ def run_tasks(
         return out
     if not items:
         return []
+    from distributed import as_completed
+
+    with _client(workers, scheduler, processes) as client:
+        futures = client.map(fn, items, pure=False)
+        if on_done is not None:
+            for done, _ in enumerate(as_completed(futures), start=1):
+                on_done(done)
+        return list(client.gather(futures))
+
+
+@contextmanager
+def _client(workers: int | None, scheduler: str | None, processes: bool) -> Iterator[Any]:
+    """A Dask client: of a ``LocalCluster`` of ``workers`` single-threaded workers (closed after), or of ``scheduler``."""
     try:
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, LocalCluster
     except ImportError as err:  # pragma: no cover - dask is a dependency
         raise ClusterError(
             "--workers/--scheduler need Dask's distributed package: pip install 'dask[distributed]'"
@@ -139,11 +153,45 @@ def run_tasks(
                 raise ClusterError(f"--workers {workers}: could not start a local Dask cluster ({err})") from err
             client = Client(cluster)
         with client:
-            futures = client.map(fn, items, pure=False)
-            if on_done is not None:
-                for done, _ in enumerate(as_completed(futures), start=1):
-                    on_done(done)
-            return list(client.gather(futures))
+            yield client
     finally:
         if cluster is not None:
             cluster.close()
+
+
+def iter_tasks(
+    fn: Callable[[_T], _R],
+    tasks: Iterable[_T],
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    processes: bool = True,
+    in_flight: int | None = None,
+) -> Iterator[_R]:
+    """``fn(t)`` for each task, yielded in task order as they finish, serially or on Dask.
+
+    Unlike :func:`run_tasks`, ``tasks`` may be a generator and results come
+    back one at a time: at most ``in_flight`` tasks (default: twice the
+    cluster's threads, at least 2) are submitted and not yet yielded, so the
+    memory stays bounded however many tasks there are (``localize --workers``
+    on a long file). Serially (no ``workers`` nor ``scheduler``) this is
+    ``map(fn, tasks)``. Arguments and errors as :func:`run_tasks`.
+    """
+    check_cluster_options(workers, scheduler)
+    if in_flight is not None and (isinstance(in_flight, bool) or not isinstance(in_flight, int) or in_flight < 1):
+        raise InvalidParameterError(f"in_flight must be a positive integer, got {in_flight!r}")
+    if workers is None and scheduler is None:
+        for task in tasks:
+            yield fn(task)
+        return
+    from collections import deque
+
+    with _client(workers, scheduler, processes) as client:
+        window = in_flight or max(2, 2 * sum(client.nthreads().values()))
+        pending: deque[Any] = deque()
+        for task in tasks:
+            pending.append(client.submit(fn, task, pure=False))
+            if len(pending) >= window:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()

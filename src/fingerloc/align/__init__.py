@@ -322,9 +322,13 @@ def alignment_costs(
     if nq == 0 or nr == 0:
         return np.zeros((nq, nr))
     if not cyclic and cm.is_unit:
+        # equal references (views of one place often give one string) are aligned once, then copied
+        first: dict[str, int] = {}
+        cols = np.fromiter((first.setdefault(r, len(first)) for r in rs), dtype=np.int64, count=nr)
         # rapidfuzz splits the work by query rows: extra threads for a handful of queries only cost start-up
-        res = rf_process.cdist(qs, rs, scorer=Levenshtein.distance, workers=min(nw, nq), dtype=np.int32)
-        return np.asarray(res, dtype=np.float64)
+        res = rf_process.cdist(qs, list(first), scorer=Levenshtein.distance, workers=min(nw, nq), dtype=np.int32)
+        out = np.asarray(res, dtype=np.float64)
+        return out if len(first) == nr else out[:, cols]
     qcodes, qoff = encode_many(qs)
     rcodes, roff = encode_many(rs)
     if cyclic and cm.is_unit:

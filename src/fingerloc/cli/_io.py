@@ -169,8 +169,12 @@ class JsonRecordStream:
     def add(self, record: object) -> None:
         """Append one record."""
         clean, nulls = strict_json(record)
+        self.add_encoded(json.dumps(clean, allow_nan=False), nulls)
+
+    def add_encoded(self, text: str, nulls: dict[str, str]) -> None:
+        """Append one record already encoded as strict JSON ``text``; ``nulls``: its ``null`` paths inside it and why."""
         self._nulls.update({f"/{self._key}/{self._n}{k}": v for k, v in nulls.items()})
-        self._fh.write(("" if self._n == 0 else ",\n") + json.dumps(clean, allow_nan=False))
+        self._fh.write(("" if self._n == 0 else ",\n") + text)
         self._n += 1
 
     def finish(self, tail: dict[str, object]) -> None:

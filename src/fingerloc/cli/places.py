@@ -7,7 +7,6 @@ import itertools
 import json
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,6 +15,7 @@ import typer
 from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
 from ._io import JsonRecordStream, atomic_text_file, lit
+from ._localize import LOCALIZE_CHUNK, answer_chunk
 from .app import app, console, err_console
 from .options import (
     BASE_FRAME_OPTION,
@@ -212,6 +212,12 @@ def localize_cmd(
     pose_source: str = POSE_SOURCE_OPTION,
     base_frame: str | None = BASE_FRAME_OPTION,
     skip_bad: bool = SKIP_BAD_OPTION,
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, max=256, help="JSON Lines: answer chunks of observations on a local Dask cluster of this many processes."
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="JSON Lines: answer chunks of observations on an existing Dask cluster (tcp://HOST:PORT)."
+    ),
 ) -> None:
     """Answer "where am I?" for each observation: the posterior over the learned places.
 
@@ -220,45 +226,65 @@ def localize_cmd(
     every scan within the map's radius of a place is a query labelled with
     its nearest place (on the very run the map was made from: only the scans
     after its mapping part), so the summary gives top-1 and mean rank.
+    JSON Lines are read as a stream, a chunk of observations at a time, and
+    the answers are written as they come (memory does not grow with the file).
     """
+    from ..parallel import check_cluster_options
     from ..pipeline.mapping import load_map
+    from ..pipeline.readers import detect_kind
     from .reports import check_report, localize_report
 
     if top < 1:
         raise InvalidParameterError(f"--top must be >= 1, got {top}")
+    check_cluster_options(workers, scheduler)
     check_output(json_out, "--json")
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
+    if kind not in ("auto", "carmen", "bag", "jsonl"):
+        raise InvalidParameterError(f"--kind must be one of auto, carmen, bag, jsonl, got {kind!r}")
+    jsonl = kind == "jsonl" or (kind == "auto" and detect_kind(data) is None)
+    cluster = workers is not None or scheduler is not None
+    if cluster and not jsonl:
+        raise InvalidParameterError("--workers/--scheduler: localize runs on Dask for JSON Lines input only")
+    if cluster and report is not None:
+        raise InvalidParameterError("--report keeps every answer in memory: give it without --workers/--scheduler")
     lm = load_map(db)
     model = lm.model
-    run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
-    obs, names = queries_of_run(run, lm)
     classes = [str(c) for c in model.classes_]
     preset = None if lm.preset is None else lm.preset.name
+    records = json_out is not None
+    if cluster:
+        chunks = _cluster_chunks(data, db, top, table=not quiet, records=records, workers=workers, scheduler=scheduler)
+    elif jsonl and report is None:  # a stream: a chunk of lines at a time
+        chunks = _serial_chunks(data, model, top, table=not quiet, records=records)
+    else:
+        run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
+        obs, names = queries_of_run(run, lm)
+        keep = report is not None
+        chunks = (
+            answer_chunk(model, obs[s : s + LOCALIZE_CHUNK], names[s:], s, top, table=not quiet, records=records, keep=keep)
+            for s in range(0, len(obs), LOCALIZE_CHUNK)
+        )
     rank_list: list[int] = []
     pairs: list[tuple[str, str]] = []  # (true, best) of every labelled observation, for the confusion matrix
     kept: list[tuple[Any, Any]] = []  # (log posterior, ranks) per chunk, for the report only
+    n = 0
     with contextlib.ExitStack() as stack:
         stream = None
         if json_out is not None:
             stream = JsonRecordStream(stack.enter_context(atomic_text_file(json_out)), "observations")
-        for start in range(0, len(obs), LOCALIZE_CHUNK):
-            chunk = obs[start : start + LOCALIZE_CHUNK]
-            answers = _localize_chunk(model, chunk, names[start:], start, top, table=not quiet)
+        for answers in chunks:
             if stream is not None:
-                for rec in answers.records():
-                    stream.add(rec)
-            for i, o in enumerate(chunk):
-                r = answers.rank_of_true[i]
-                if r > 0:
-                    rank_list.append(int(r))
-                    pairs.append((str(o.label), classes[answers.best_cols[i]]))
-            if answers.table is not None:
-                console.print(answers.table)
-            logp, ranks = answers.logp, answers.ranks
+                for text, nulls in zip(answers.records, answers.nulls, strict=True):
+                    stream.add_encoded(text, nulls)
+            rank_list += [r for r in answers.rank_of_true if r > 0]
+            pairs += answers.pairs
+            if answers.rows:
+                console.print(_answers_table(answers.rows, top, cyclic=bool(model.cyclic)))
             if report is not None:
-                kept.append((logp, ranks))
-        summary: dict[str, Any] = {"n": len(obs), "top1": None, "mean_rank": None}
+                kept.append((answers.logp, answers.ranks))
+            n += answers.n
+        summary: dict[str, Any] = {"n": n, "top1": None, "mean_rank": None}
         if rank_list:
             summary["top1"] = float(np.mean(np.array(rank_list) == 1))
             summary["mean_rank"] = float(np.mean(rank_list))
@@ -279,87 +305,48 @@ def localize_cmd(
         localize_report(report, model=model, observations=obs, log_proba=logp_all, ranks=ranks_all, data=data, db=db)
 
 
-#: Observations answered at once by ``localize``: its memory does not grow with the file's length.
-LOCALIZE_CHUNK = 256
+def _answers_table(rows: list[list[str]], top: int, *, cyclic: bool) -> Table:
+    """The per-observation table of one chunk of answers."""
+    tab = Table(show_header=True)
+    for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if cyclic else ()):
+        tab.add_column(c, overflow="fold")  # long place names wrap, never cut
+    for row in rows:
+        tab.add_row(*row)
+    return tab
 
 
-@dataclass(slots=True)
-class _Answers:
-    """``localize``'s answers for one chunk of observations; the JSON records are built on demand."""
+def _serial_chunks(data: Path, model: Any, top: int, *, table: bool, records: bool) -> Iterator[Any]:
+    """Answers of a JSON Lines file, chunk after chunk, in this process (a stream: bounded memory)."""
+    from ._localize import jsonl_chunks, parse_lines
 
-    model: Any
-    obs: list[Any]
-    names: list[str]
-    start: int
-    terms: dict[str, Any]
-    logp: Any
-    ranks: Any
-    best_cols: Any
-    rank_of_true: Any  # 0 where the observation has no learned label
-    headings: Any
-    refs: Any
-    unknown: Any
-    table: Table | None
-
-    def records(self) -> Iterator[dict[str, Any]]:
-        """One JSON record per observation (the posterior and every term over every place)."""
-        classes = [str(c) for c in self.model.classes_]
-        places = list(self.model.places_.values())
-        post = np.exp(self.logp)
-        for i, o in enumerate(self.obs):
-            best = classes[int(self.best_cols[i])]
-            ref = places[int(self.best_cols[i])].observations[int(self.refs[i])] if self.refs[i] >= 0 else None
-            rec: dict[str, Any] = {
-                "index": self.start + i,
-                "name": self.names[i],
-                "place": o.label,
-                "best": best,
-                "posterior": dict(zip(classes, post[i].tolist(), strict=True)),
-                "rank_of_true": int(self.rank_of_true[i]) if self.rank_of_true[i] > 0 else None,
-                "terms": {t: dict(zip(classes, ll[i].tolist(), strict=True)) for t, ll in self.terms.items()},
-                "heading_deg": None if np.isnan(self.headings[i]) else float(self.headings[i]),
-                "heading_ref": None if ref is None else (ref.source or f"{best}#{int(self.refs[i])}"),
-            }
-            if self.unknown is not None:
-                rec["unknown"] = float(self.unknown[i])
-            yield rec
+    for start, lines in jsonl_chunks(data):
+        obs = parse_lines(data, lines)
+        names = [f"{data.name}:{start + i + 1}" for i in range(len(obs))]
+        yield answer_chunk(model, obs, names, start, top, table=table, records=records)
 
 
-def _localize_chunk(model: Any, obs: list[Any], names: list[str], start: int, top: int, *, table: bool) -> _Answers:
-    """Posterior, ranks and headings of one chunk of observations (the terms computed once), and its table."""
-    from ..metrics import rank_scores
-    from ..model import normalise_log
+def _cluster_chunks(
+    data: Path, db: Path, top: int, *, table: bool, records: bool, workers: int | None, scheduler: str | None
+) -> Iterator[Any]:
+    """Answers of a JSON Lines file from Dask tasks (a chunk of lines each), in input order, a bounded number in flight."""
+    from ..errors import DataFormatError
+    from ..parallel import iter_tasks
+    from ._localize import LinesTask, answer_lines, file_sha256, jsonl_chunks
 
-    classes = [str(c) for c in model.classes_]
-    terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
-    logp = normalise_log(model.combine(terms))
-    ranks = rank_scores(logp)
-    best_cols = np.argmax(logp, axis=1) if len(obs) else np.zeros(0, dtype=np.int64)
-    col = {c: j for j, c in enumerate(classes)}
-    truth = np.array([col.get(str(o.label), -1) if o.label is not None else -1 for o in obs], dtype=np.int64)
-    rank_of_true = np.where(truth >= 0, ranks[np.arange(len(obs)), np.maximum(truth, 0)], 0)
-    headings = np.full(len(obs), np.nan)
-    refs = np.full(len(obs), -1, dtype=np.int64)
-    if model.cyclic and len(obs):
-        # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
-        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
-        headings = np.mod(-h, 360.0)
-    unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
-    tab = None
-    if table:
-        tab = Table(show_header=True)
-        for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if model.cyclic else ()):
-            tab.add_column(c, overflow="fold")  # long place names wrap, never cut
-        post = np.exp(logp)
-        for i, o in enumerate(obs):
-            order = np.argsort(-logp[i], kind="stable")[:top]
-            topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
-            r = rank_of_true[i]
-            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if model.cyclic:
-                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
-            tab.add_row(*row)
-    return _Answers(model, obs, names, start, terms, logp, ranks, best_cols, rank_of_true, headings, refs, unknown, tab)
+    sha = file_sha256(db)
+    where = str(Path(db).absolute())
+    tasks = (
+        LinesTask(where, sha, str(Path(data).absolute()), start, lines, top, table, records)
+        for start, lines in jsonl_chunks(data, LOCALIZE_TASK)
+    )
+    for res in iter_tasks(answer_lines, tasks, workers=workers, scheduler=scheduler):
+        if isinstance(res, tuple):
+            raise DataFormatError(res[1])
+        yield res
+
+
+#: Observations per Dask task of ``localize --workers`` (each task answers them in chunks of :data:`LOCALIZE_CHUNK`).
+LOCALIZE_TASK = LOCALIZE_CHUNK
 
 
 def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:

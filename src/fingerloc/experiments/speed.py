@@ -85,4 +85,5 @@ _SECTION_MODULES: list[str] = [
     "fingerloc.experiments.extractors",
     "fingerloc.experiments.speed_markov",
     "fingerloc.experiments.speed_startup",
+    "fingerloc.experiments.speed_localize",
 ]

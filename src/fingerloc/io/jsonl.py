@@ -33,9 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from ..angles import rad_to_deg360
+from ..angles import TWO_PI, deg_to_rad, rad_to_deg360, wrap
 from ..errors import DataFormatError, EmptyInputError, FingerlocError
-from ..observation import FEATURE_TYPES, Observation
+from ..observation import FEATURE_TYPES, FULL_FOV, Observation, fov_from_degrees
 
 __all__ = [
     "check_text",
@@ -66,6 +66,9 @@ class _LimitError(ValueError):
     """A record exceeds a parsing limit (raised inside ``json.loads``)."""
 
 
+_DECODER = json.JSONDecoder(parse_int=_parse_int)
+
+
 def parse_record(line: str) -> Any:
     """Decode one JSON Lines record with fingerloc's limits.
 
@@ -80,7 +83,11 @@ def parse_record(line: str) -> Any:
         Without a location (callers add it).
     """
     try:
-        return json.loads(line, parse_int=_parse_int)
+        if not isinstance(line, str):
+            return json.loads(line, parse_int=_parse_int)
+        if line.startswith("\ufeff"):  # what json.loads checks before decoding
+            raise json.JSONDecodeError("Unexpected UTF-8 BOM (decode using utf-8-sig)", line, 0)
+        return _DECODER.decode(line)  # json.loads(line, parse_int=...) without building a decoder per line
     except json.JSONDecodeError as err:
         raise DataFormatError(f"malformed JSON ({err.msg} at column {err.colno})") from err
     except _LimitError as err:
@@ -113,6 +120,99 @@ def _bearing_list(value: Any, key: str) -> list[float]:
     return [_number(v, f"bearing in features.{key}") for v in value]
 
 
+#: Feature keys the fast path reads (plain bearing lists) -> the Observation attribute.
+_FAST_KEYS = {"VE": "ve", "Ex": "ex", "c": "c", "B": "b"}
+#: Top-level keys the fast path understands; a record with another known key takes the validating path.
+_SLOW_KEYS = frozenset({"scan", "appearance"})
+
+
+def _fast_numbers(values: Any) -> list[float] | None:
+    """``values`` as floats when it is a list of plain finite numbers that need no conversion check; else None."""
+    if type(values) is not list:
+        return None
+    for v in values:
+        t = type(v)
+        if t is not float and (t is not int or not -(2**53) <= v <= 2**53):
+            return None
+    out = [float(v) for v in values]
+    return out if all(map(math.isfinite, out)) else None
+
+
+def _fast_observation(record: Any) -> Observation | None:
+    """The observation of a plain record (bearing lists, place, pose, fov, timestamp, source), or None.
+
+    None whenever anything is unusual (another feature type, a value that is
+    not a plain finite number, a key it does not read, a wrong type...): the
+    validating path then builds the observation or names the error. What it
+    returns equals, bit for bit, what the validating path builds
+    (``tests/test_io_jsonl.py`` checks both on drawn and hostile records).
+    """
+    if type(record) is not dict or "features" not in record or not _SLOW_KEYS.isdisjoint(record):
+        return None
+    feats = record["features"]
+    if type(feats) is not dict:
+        return None
+    lists: list[tuple[str, list[float]]] = []
+    for key, value in feats.items():
+        attr = _FAST_KEYS.get(key)
+        vals = None if attr is None else _fast_numbers(value)
+        if vals is None:
+            return None
+        if vals:
+            lists.append((attr, vals))  # type: ignore[arg-type]
+    place = record.get("place")
+    if place is not None and (type(place) is not str or not _valid_text(place)):
+        return None
+    source = record.get("source")
+    if source is not None and type(source) is not str:
+        return None
+    pose = record.get("pose")
+    if pose is not None:
+        p = _fast_numbers(pose)
+        if p is None or len(p) != 3 or max(abs(p[0]), abs(p[1])) > MAX_COORD_M:
+            return None
+        pose = (p[0], p[1], float(deg_to_rad(p[2])))
+    ts = record.get("timestamp")
+    if ts is not None:
+        t = _fast_numbers([ts])
+        if t is None:
+            return None
+        ts = t[0]
+    fov = record.get("fov")
+    if fov is None:
+        fov_t = FULL_FOV
+    else:
+        if type(fov) is not list or not fov:
+            return None
+        bounds = []
+        for r in fov:
+            b = _fast_numbers(r)
+            if b is None or len(b) != 2 or b[0] == b[1]:
+                return None
+            bounds.append(b)
+        # Observation.from_degrees, then Observation.__post_init__'s normal form (the same calls)
+        fov_t = tuple((float(wrap(s)), min(w, TWO_PI)) for s, w in fov_from_degrees(bounds))
+    bearings: dict[str, Any] = {}
+    if lists:
+        # deg_to_rad (from_degrees), then wrap again (__post_init__): elementwise, so one call for all types
+        flat = wrap(deg_to_rad(np.array([v for _, vals in lists for v in vals], dtype=np.float64)))
+        k = 0
+        for attr, vals in lists:
+            arr = np.sort(flat[k : k + len(vals)])
+            arr.setflags(write=False)
+            bearings[attr] = arr
+            k += len(vals)
+    return Observation._checked(bearings, fov=fov_t, label=place, pose=pose, timestamp=ts, source=source)
+
+
+def _valid_text(value: str) -> bool:
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 def observation_from_record(record: Any) -> Observation:
     """Build an :class:`Observation` from one decoded JSON record.
 
@@ -121,6 +221,9 @@ def observation_from_record(record: Any) -> Observation:
     DataFormatError
         Naming the bad key or value (without a location: callers add it).
     """
+    fast = _fast_observation(record)
+    if fast is not None:
+        return fast
     if not isinstance(record, Mapping):
         raise DataFormatError(f"a record must be a JSON object, got {type(record).__name__}")
     if "features" not in record:

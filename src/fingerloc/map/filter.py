@@ -38,8 +38,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import expm
-from scipy.optimize import minimize_scalar
 
 from .._lse import logsumexp  # scipy.special.logsumexp, bit for bit, without its per-call overhead
 from .._types import FArray
@@ -221,6 +219,8 @@ class TransitionModel:
         if distance is not None and self.metres_per_move is not None:
             d = _check_distance(distance)
             rate = d / self.metres_per_move
+            from scipy.linalg import expm  # imported when used: localize never needs it
+
             k = expm(rate * (self.move - np.eye(p))) if rate > 0 else np.eye(p)
             k = np.clip(k, 0.0, None)
             k /= k.sum(axis=1, keepdims=True)
@@ -310,6 +310,8 @@ def fit_likelihood_scale(scores: Any, labels: Any, *, bounds: tuple[float, float
         b = math.exp(log_beta)
         return float(-(b * true - logsumexp(b * s, axis=1)).mean())
 
+    from scipy.optimize import minimize_scalar
+
     res = minimize_scalar(nll, bounds=(math.log(bounds[0]), math.log(bounds[1])), method="bounded",
                           options={"xatol": 1e-4})  # fmt: skip
     return float(math.exp(res.x))
@@ -353,6 +355,8 @@ def fit_outlier_weight(log_likelihood: Any, labels: Any, *, bounds: tuple[float,
 
     def nll(rho: float) -> float:
         return float(-np.mean(np.logaddexp(math.log1p(-rho) + soft, math.log(rho / p))))
+
+    from scipy.optimize import minimize_scalar
 
     res = minimize_scalar(nll, bounds=bounds, method="bounded", options={"xatol": 1e-5})
     return float(res.x)

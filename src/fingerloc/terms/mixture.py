@@ -116,6 +116,8 @@ class MixtureTerm(Term):
         from ..mog import mixture_log_density
 
         w, m, s, has = self._stack
+        if x.size and has.all():  # every place has a mixture: no copy into a uniform background
+            return self._with_outliers(mixture_log_density(x, w, m, s))
         out = np.full((w.shape[0], x.size), LOG_UNIFORM)
         if x.size and has.any():
             out[has] = mixture_log_density(x, w[has], m[has], s[has])
@@ -167,8 +169,14 @@ class MixtureTerm(Term):
             dens = self.place_log_density(np.concatenate(xs))  # (P, total bearings)
             starts = np.cumsum([0] + [x.size for x in xs[:-1]])
             sums = np.add.reduceat(dens, starts, axis=1).T  # (len(plain), P)
+            sizes = np.array([x.size for x in xs], dtype=np.float64)
+            by_fov: dict[Any, list[int]] = {}
             for k, i in enumerate(plain):
-                ll[i] = sums[k] - xs[k].size * self.fov_log_mass(obs[i].fov)
+                by_fov.setdefault(obs[i].fov, []).append(k)
+            rows = np.asarray(plain, dtype=np.int64)
+            for fov, ks in by_fov.items():  # per observation: sums - n_bearings * log mass in its fov
+                mass = self.fov_log_mass(fov)
+                ll[rows[ks]] = sums[ks] - sizes[ks, None] * mass[None, :]
         return ll
 
     def _rotated(self, o: Observation, x: FArray, rot: FArray) -> FArray:

@@ -1,0 +1,277 @@
+"""The work of ``fingerloc localize``, chunk by chunk: serially in this process or as Dask tasks.
+
+A *chunk* is a run of consecutive observations (:data:`LOCALIZE_CHUNK` of
+them). :func:`answer_chunk` computes its answers (the terms once, then the
+posterior, ranks and headings) and returns plain data: the JSON records
+already encoded as text, the table rows, the ranks of the true places. The
+serial command calls it chunk after chunk; with ``--workers`` /
+``--scheduler`` each Dask task is :func:`answer_lines`, which parses a chunk
+of JSON Lines text with the reader's own checks, loads the place database
+once per worker process, and calls the same function, so the output is the
+same byte for byte. Only text and plain numbers travel between processes
+(never a pickled observation or model).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DatabaseError, DataFormatError, EmptyInputError
+from ._io import strict_json
+
+__all__ = ["LOCALIZE_CHUNK", "ChunkAnswers", "LinesTask", "answer_chunk", "answer_lines", "encode_record", "jsonl_chunks"]
+
+#: Observations answered at once: ``localize``'s memory does not grow with the file's length.
+LOCALIZE_CHUNK = 256
+
+
+def encode_record(record: Any) -> tuple[str, dict[str, str]]:
+    """One record as strict JSON text (non-finite numbers as ``null``) and where those nulls are (paths inside it)."""
+    clean, nulls = strict_json(record)
+    return json.dumps(clean, allow_nan=False), nulls
+
+
+def _finite(v: float, where: str, nulls: dict[str, str]) -> float | None:
+    """``v``, or None (noted in ``nulls`` as :func:`encode_record` notes it) when it is not finite."""
+    if math.isfinite(v):
+        return v
+    nulls[where] = f"not a finite number: {v!r}"
+    return None
+
+
+def _float_map(keys: list[str], values: list[float], finite: bool, where: str, nulls: dict[str, str]) -> dict[str, Any]:
+    """``dict(zip(keys, values))`` with non-finite values as None, as :func:`encode_record` writes it; ``finite``: all are."""
+    if finite:
+        return dict(zip(keys, values, strict=True))
+    return {k: _finite(v, f"{where}/{k}", nulls) for k, v in zip(keys, values, strict=True)}
+
+
+@dataclass(slots=True)
+class ChunkAnswers:
+    """``localize``'s answers for one chunk, as plain data (what a Dask task returns).
+
+    Attributes
+    ----------
+    n : int
+        Observations answered.
+    records : list of str
+        Each observation's JSON record, encoded (empty unless asked for).
+    nulls : list of dict
+        Per record: path inside it -> why a number was written as ``null``.
+    rows : list of list of str
+        The table's rows (empty unless asked for).
+    rank_of_true : list of int
+        Rank of the labelled place per observation, 0 when it has none.
+    pairs : list of (str, str)
+        (true place, best place) of each labelled observation.
+    logp, ranks : ndarray or None
+        The log posterior and every place's rank, kept only for ``--report``.
+    """
+
+    n: int
+    records: list[str] = field(default_factory=list)
+    nulls: list[dict[str, str]] = field(default_factory=list)
+    rows: list[list[str]] = field(default_factory=list)
+    rank_of_true: list[int] = field(default_factory=list)
+    pairs: list[tuple[str, str]] = field(default_factory=list)
+    logp: Any = None
+    ranks: Any = None
+
+
+def answer_chunk(
+    model: Any, obs: list[Any], names: list[str], start: int, top: int, *, table: bool, records: bool, keep: bool = False
+) -> ChunkAnswers:
+    """Posterior, ranks and headings of one chunk (the terms computed once); its records and table rows.
+
+    ``start`` is the index of the chunk's first observation among all the
+    answered ones; ``keep`` keeps the log posterior and rank matrix (for the report).
+    """
+    from ..metrics import rank_scores
+    from ..model import normalise_log
+
+    classes = [str(c) for c in model.classes_]
+    n = len(obs)
+    terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
+    logp = normalise_log(model.combine(terms))
+    best_cols = np.argmax(logp, axis=1) if n else np.zeros(0, dtype=np.int64)
+    col = {c: j for j, c in enumerate(classes)}
+    truth = np.array([col.get(str(o.label), -1) if o.label is not None else -1 for o in obs], dtype=np.int64)
+    rows_n = np.arange(n)
+    ranks = rank_scores(logp) if keep else None
+    # rank of the true place: how many places score at least as high (ties count against), as rank_scores
+    at_truth = logp[rows_n, np.maximum(truth, 0)] if n else np.zeros(0)
+    rank_all = (logp >= at_truth[:, None]).sum(axis=1) if n else np.zeros(0, dtype=np.int64)
+    rank_of_true = np.where(truth >= 0, rank_all, 0)
+    headings = np.full(n, np.nan)
+    refs = np.full(n, -1, dtype=np.int64)
+    if model.cyclic and n:
+        # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
+        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
+        headings = np.mod(-h, 360.0)
+    unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
+    out = ChunkAnswers(n, rank_of_true=[int(r) for r in rank_of_true])
+    out.pairs = [(str(o.label), classes[int(best_cols[i])]) for i, o in enumerate(obs) if rank_of_true[i] > 0]
+    if keep:
+        out.logp, out.ranks = logp, ranks
+    post = np.exp(logp) if (table or records) else None
+    if records:
+        assert post is not None
+        places = list(model.places_.values())
+        term_rows = {t: (ll.tolist(), np.isfinite(ll).all(axis=1).tolist()) for t, ll in terms.items()}
+        post_rows: list[list[float]] = post.tolist()
+        post_finite = np.asarray(np.isfinite(post).all(axis=1), dtype=bool).tolist()
+        for i, o in enumerate(obs):
+            best = classes[int(best_cols[i])]
+            ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
+            nulls: dict[str, str] = {}
+            rec: dict[str, Any] = {
+                "index": start + i,
+                "name": names[i],
+                "place": o.label,
+                "best": best,
+                "posterior": _float_map(classes, post_rows[i], bool(post_finite[i]), "/posterior", nulls),
+                "rank_of_true": int(rank_of_true[i]) if rank_of_true[i] > 0 else None,
+                "terms": {t: _float_map(classes, ll[i], bool(ok[i]), f"/terms/{t}", nulls) for t, (ll, ok) in term_rows.items()},
+                "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
+                "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
+            }
+            if unknown is not None:
+                rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)
+            # what encode_record gives for this record (tests/test_localize_stream.py), without walking every number
+            out.records.append(json.dumps(rec, allow_nan=False))
+            out.nulls.append(nulls)
+    if table:
+        assert post is not None
+        for i, o in enumerate(obs):
+            order = np.argsort(-logp[i], kind="stable")[:top]
+            topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
+            r = rank_of_true[i]
+            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
+            if model.cyclic:
+                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
+            out.rows.append(row)
+    return out
+
+
+# -- JSON Lines in chunks ---------------------------------------------------------------------------
+
+
+def jsonl_chunks(path: Path, size: int = LOCALIZE_CHUNK) -> Iterator[tuple[int, list[tuple[int, str]]]]:
+    """The non-blank lines of a JSON Lines file in chunks of ``size``: (index of the chunk's first observation, [(line number, text)]).
+
+    Lines are split as :func:`fingerloc.io.jsonl.iter_observations` splits
+    them (text mode, UTF-8); the text is not parsed here.
+
+    Raises
+    ------
+    DataFormatError
+        The file cannot be read or is not UTF-8 (naming the line).
+    EmptyInputError
+        When it holds no non-blank line.
+    """
+    try:
+        fh = path.open("r", encoding="utf-8")
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=path) from err
+    count = 0
+    chunk: list[tuple[int, str]] = []
+    with fh:
+        lineno = 0
+        try:
+            for lineno, line in enumerate(fh, start=1):
+                if not line.strip():
+                    continue
+                chunk.append((lineno, line))
+                if len(chunk) == size:
+                    yield count, chunk
+                    count += len(chunk)
+                    chunk = []
+        except UnicodeDecodeError as err:
+            raise DataFormatError("not a UTF-8 text file", path=path, line=lineno + 1) from err
+    if chunk:
+        yield count, chunk
+        count += len(chunk)
+    if count == 0:
+        raise EmptyInputError("no observation in file (empty)", path=path)
+
+
+def parse_lines(path: Path, lines: list[tuple[int, str]]) -> list[Any]:
+    """The observations of a chunk of JSON Lines, with the reader's checks and messages (``FILE:LINE: ...``)."""
+    from ..io.jsonl import observation_from_record, parse_record
+
+    out = []
+    for lineno, line in lines:
+        try:
+            out.append(observation_from_record(parse_record(line)))
+        except DataFormatError as err:
+            raise err.at(path=path, line=lineno) from err
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class LinesTask:
+    """One Dask task of ``localize --workers``: a chunk of JSON Lines text and how to answer it.
+
+    ``db_sha256`` is the client's database content hash: a worker that finds
+    another file at ``db`` refuses it instead of answering with another map.
+    """
+
+    db: str
+    db_sha256: str
+    data: str
+    start: int
+    lines: list[tuple[int, str]]
+    top: int
+    table: bool
+    records: bool
+
+
+#: Per worker process: (database path, content hash) -> the loaded map (each worker loads it once).
+_MAPS: dict[tuple[str, str], Any] = {}
+_MAPS_LOCK = threading.Lock()
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 hex of a file's bytes."""
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _worker_map(db: str, sha: str) -> Any:
+    from ..pipeline.mapping import load_map
+
+    with _MAPS_LOCK:
+        lm = _MAPS.get((db, sha))
+        if lm is None:
+            if file_sha256(Path(db)) != sha:
+                raise DatabaseError(f"{db}: the worker's file differs from the client's (give workers the same database)")
+            lm = load_map(db)
+            _MAPS.clear()  # one database at a time
+            _MAPS[(db, sha)] = lm
+    return lm
+
+
+def answer_lines(task: LinesTask) -> ChunkAnswers | tuple[str, str]:
+    """A Dask task: parse the chunk's lines and answer them; a fingerloc error comes back as ``("error", message)``."""
+    from ..errors import FingerlocError
+
+    try:
+        lm = _worker_map(task.db, task.db_sha256)
+        path = Path(task.data)
+        obs = parse_lines(path, task.lines)
+        names = [f"{path.name}:{task.start + i + 1}" for i in range(len(obs))]
+        return answer_chunk(lm.model, obs, names, task.start, task.top, table=task.table, records=task.records)
+    except FingerlocError as err:  # re-raised by the client as one line, whatever Dask does with exceptions
+        return ("error", str(err))
