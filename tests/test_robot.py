@@ -270,6 +270,7 @@ def test_explain_query_names_the_terms_that_pulled_wrong(trial):
     _, data, ev = trial
     why = explain_query(data, ev)
     assert why is not None
+    assert f"Between the training and the test visit of {why.truth}: " in why.reason  # the default world's later visit
     answers = np.argmax(ev.posterior, axis=1)
     wrong = np.flatnonzero(answers != ev.truth)
     if wrong.size:  # the full program's first wrong answer is the one explained

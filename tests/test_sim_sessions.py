@@ -86,3 +86,16 @@ def test_session_change_checks_its_settings():
         with pytest.raises(InvalidParameterError, match=next(iter(bad))):
             SessionChange(**bad)
     assert issubclass(InvalidParameterError, FingerlocError)
+
+
+def test_describe_visit_says_what_changed():
+    from fingerloc.sim.sessions import describe_visit
+
+    pairs = make_office_sessions(3, similarity=0.8, random_state=7, world="paper", change=EVERYTHING, change_random_state=2)
+    for tr, te in pairs:
+        words = describe_visit(tr, te)
+        assert "seated" in words or "standing" in words
+        assert "closed" in words and "lamps off" in words
+        assert describe_visit(tr, tr) == "nothing changed"
+    same = make_office_sessions(2, similarity=0.8, random_state=5, world="paper", change=NOTHING)
+    assert all(describe_visit(tr, te) == "nothing changed" for tr, te in same)

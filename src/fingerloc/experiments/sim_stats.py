@@ -10,7 +10,9 @@
 
 ``python -m fingerloc.experiments.sim_stats calibrate``: the features the
 extractors find per measurement in each world of the robot experiment
-(:data:`~fingerloc.experiments.robot.WORLD_PROFILES`), beside Table II.
+(:data:`~fingerloc.experiments.robot.WORLD_PROFILES`), beside Table II; for a
+world whose test measurements are taken at a later visit (``"paper"``), the
+training and the test pose's counts apart too (``train_VE``, ``test_VE``, ...).
 """
 
 from __future__ import annotations

@@ -63,10 +63,10 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..validation import check_random_state
-from .offices import _NEW, WORLDS, _build, _check_world, _polygon, _Spec, _spec_list
-from .world import World
+from .offices import _DOOR_TOP, _NEW, _SEAT_Z, WORLDS, _build, _check_world, _polygon, _Spec, _spec_list
+from .world import PARTS, World
 
-__all__ = ["OFFICE_DAY", "SessionChange", "make_office_sessions", "next_visit_spec"]
+__all__ = ["OFFICE_DAY", "SessionChange", "describe_visit", "make_office_sessions", "next_visit_spec"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,3 +234,48 @@ def make_office_sessions(
         later = _build(next_visit_spec(sp, change, crng, w.anchor, world), f"office-{i}")
         out.append((w, replace(later, anchor=w.anchor)))
     return out
+
+
+def describe_visit(before: World, after: World) -> str:
+    """What differs between two visits of one office (:func:`make_office_sessions`), in words.
+
+    Counts from the geometry: chairs moved (or gone), people seated and standing, closed
+    doors, ceiling lamps off, whether the sun patches and the windows' brightness differ.
+    """
+    part_b, part_a = before.part, after.part
+    chair, person, leaf = (PARTS.index(n) for n in ("chair", "person", "door_leaf"))
+    n_chairs = int((part_b == chair).sum() // 8)
+    old = {tuple(v) for v in before.segments[part_b == chair]}
+    kept = sum(tuple(v) in old for v in after.segments[part_a == chair]) // 8
+    z = after.z_range
+    seated = int(((part_a == person) & np.isclose(z[:, 0], _SEAT_Z + 0.05)).sum() // 4)
+    standing = int(((part_a == person) & np.isclose(z[:, 0], 0.85)).sum() // 4)
+    closed = int(((part_a == leaf) & np.isclose(z[:, 1], _DOOR_TOP)).sum()) - int(
+        ((part_b == leaf) & np.isclose(before.z_range[:, 1], _DOOR_TOP)).sum()
+    )
+
+    def lamps(w: World) -> int:
+        return int(np.isclose(w.sun[:, 2], w.height).sum()) if w.sun.size else 0
+
+    out = []
+    if n_chairs > kept:
+        out.append(f"{n_chairs - kept} of {n_chairs} chair{'s' if n_chairs > 1 else ''} moved")
+    for n, what in ((seated, "seated"), (standing, "standing")):
+        if n:
+            out.append(f"{'one person' if n == 1 else f'{n} people'} {what}")
+    if closed > 0:
+        out.append(f"{'a door' if closed == 1 else f'{closed} doors'} closed")
+    off = lamps(before) - lamps(after)
+    if off > 0:
+        out.append(f"{off} of {lamps(before)} ceiling lamps off")
+    sun_b = before.sun[before.sun[:, 2] != before.height] if before.sun.size else before.sun
+    sun_a = after.sun[after.sun[:, 2] != after.height] if after.sun.size else after.sun
+    if sun_b.shape != sun_a.shape or not np.allclose(sun_b, sun_a):
+        out.append("other sun patches")
+    win_b = [m.emission for m in before.materials if m.emission > 0]
+    win_a = [m.emission for m in after.materials if m.emission > 0]
+    if (before.decal_material >= 0).any() and win_b != win_a and any(
+        after.materials[int(m)].emission > 0 for m in after.decal_material[after.decal_material >= 0]
+    ):
+        out.append(f"window brightness {win_b[0]:.1f} -> {win_a[0]:.1f}")
+    return ", ".join(out) if out else "nothing changed"
