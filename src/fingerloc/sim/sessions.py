@@ -274,7 +274,7 @@ def describe_visit(before: World, after: World) -> str:
         out.append("other sun patches")
     win_b = [m.emission for m in before.materials if m.emission > 0]
     win_a = [m.emission for m in after.materials if m.emission > 0]
-    if (before.decal_material >= 0).any() and win_b != win_a and any(
+    if (before.decal_material >= 0).any() and abs(win_b[0] - win_a[0]) >= 0.05 and any(
         after.materials[int(m)].emission > 0 for m in after.decal_material[after.decal_material >= 0]
     ):
         out.append(f"window brightness {win_b[0]:.1f} -> {win_a[0]:.1f}")
