@@ -8,8 +8,12 @@ robot replaced by :mod:`fingerloc.sim`:
   is calibrated so that the extractors find about as many features per
   measurement as the paper's Table II (see :data:`WORLD_PROFILES`: office
   chairs, fewer posters, more beacons, a softer camera image, an edge extractor
-  that keeps only long edges, offices of one corridor at similarity 0.8);
-  ``"alike"`` is the original generator, far richer in edges;
+  that keeps only long edges, offices of one corridor at similarity 0.8), and
+  its test measurements are taken at a later visit of the offices
+  (:func:`fingerloc.sim.make_office_sessions`: chairs moved, doors closed,
+  people in the room, other daylight); ``"paper-static"`` is the same world
+  with nothing changed between the visits; ``"alike"`` is the original
+  generator, far richer in edges;
 * per office, eight **training** measurements on a circle around that point,
   radius drawn in ``train_radius_m`` (40-70 cm), at eight evenly spaced angles
   (the whole ring turned by a random angle), and two **test** measurements

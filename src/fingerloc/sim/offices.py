@@ -950,11 +950,12 @@ def make_offices(
     world : {"alike", "paper"}, default "alike"
         The generator (:data:`WORLDS`). ``"alike"``: the original offices,
         rich in furniture and posters. ``"paper"``: offices furnished as the
-        paper's robot saw them (Table II): two to four posters, five or six
-        retro-reflective beacons, two to four pieces of furniture, and two to
+        paper's robot saw them (Table II): two to four posters, four to six
+        retro-reflective beacons, three or four pieces of furniture, and two to
         four office chairs standing in the room, which hide the lower part of
         whatever is behind them from the camera and, with their column, cut
-        the laser's view.
+        the laser's view. The same offices at a later visit (chairs moved,
+        people, doors, daylight): :func:`fingerloc.sim.make_office_sessions`.
 
     Returns
     -------
