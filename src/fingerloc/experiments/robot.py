@@ -823,7 +823,12 @@ class RobotResult:
         return float(np.median(errs)) if errs.size else None
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON of ``fingerloc reproduce robot --json`` (top1 in [0, 1])."""
+        """The JSON of ``fingerloc reproduce robot --json`` (top1 in [0, 1]).
+
+        ``table2`` counts every training and test measurement; ``table2_by_visit`` the
+        training (``"train"``) and test (``"test"``) measurements apart, whose offices
+        differ in the ``"paper"`` world (``protocol.sensor_profile.session``).
+        """
         cells = self.cell_stats()
         main: dict[str, Any] = {}
         spread: dict[str, Any] = {}
