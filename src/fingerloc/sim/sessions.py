@@ -28,8 +28,9 @@ training and the test visit"):
   away, at a meeting, or on the phone; one visit in five finds an open door
   closed. A door that stays open is pushed to a slightly different angle
   (10 deg standard deviation, clipped to 50-100 deg).
-- **People** (``seated_person`` 0.4, ``standing_person`` 0.25): studies of
-  office desk use report desks occupied about 40-60 % of working hours, so
+- **People** (``seated_person`` 0.4, ``standing_person`` 0.25): surveys of
+  office desk use commonly report desks occupied about 40-60 % of working
+  hours (a figure from memory, not checked against a source), so
   at the test visit an occupant sits on one of the chairs with probability
   0.4 (torso and head up to 1.25-1.45 m, lower legs in front of the chair);
   with probability 0.25 someone stands in the room (a colleague, a visitor
@@ -50,7 +51,9 @@ training and the test visit"):
   cast, a 15 % brightness gradient over bearing).
 
 The robot's operator, who places the robot by hand at each measurement, is
-not simulated: the paper says nothing of where they stood.
+not simulated: the paper says nothing of where they stood. Nothing is added at
+the training visit (it stays the office calibrated to the paper's Table II),
+so people appear at the test visit only: a one-sided simplification.
 """
 
 from __future__ import annotations
