@@ -215,12 +215,48 @@ def test_json_has_confidence_intervals(trial):
 def test_worlds_and_profiles():
     from fingerloc.experiments.robot import WORLD_PROFILES
 
-    assert set(WORLD_PROFILES) == set(sim.WORLDS) == {"paper", "alike"}
+    assert set(WORLD_PROFILES) == {"paper", "paper-static", "alike"}
+    assert {prof["offices"] for prof in WORLD_PROFILES.values()} == set(sim.WORLDS) == {"paper", "alike"}
     assert RobotProtocol().world == "paper" and RobotProtocol().office_similarity == 0.8
+    # the default world measures its test poses at a later visit; the old settings stay reachable
+    assert RobotProtocol().session_change == sim.OFFICE_DAY
+    assert RobotProtocol(world="paper-static").session_change is None
+    assert RobotProtocol(world="alike").session_change is None
+    static = {k: v for k, v in WORLD_PROFILES["paper-static"].items() if k != "session"}
+    assert static == {k: v for k, v in WORLD_PROFILES["paper"].items() if k != "session"}
     assert RobotProtocol(world="alike").office_similarity == 0.5
     assert RobotProtocol(world="alike", similarity=0.95).office_similarity == 0.95
     with pytest.raises(InvalidParameterError, match="world"):
         RobotProtocol(world="zillow")
+
+
+def test_later_visit_changes_only_the_test_measurements():
+    p = small_protocol(n_offices=2, n_train=2, n_test=1, omni_size=(160, 120), panorama_width=180, random_heading=False)
+    later = simulate_trial(p, (5, 0), keep_raw=True)
+    static = simulate_trial(replace(p, world="paper-static"), (5, 0), keep_raw=True)
+    assert [w.name for w in later.test_worlds] == [w.name for w in later.worlds]
+    assert all(a is b for a, b in zip(static.worlds, static.test_worlds, strict=True))
+    assert not any(a is b for a, b in zip(later.worlds, later.test_worlds, strict=True))
+    for a, b in zip(later.measurements, static.measurements, strict=True):
+        assert a.pose == b.pose and a.role == b.role
+        same_image = np.array_equal(a.omni.image, b.omni.image)
+        # the same offices, poses and sensor noise at the training visit; another office at the test visit
+        assert same_image if a.role == "train" else not same_image
+        if a.role == "train":
+            assert a.observation == b.observation
+
+
+def test_table2_per_visit(trial):
+    p, data, ev = trial
+    assert set(ev.features_by_visit) == {"train", "test"}
+    out = RobotResult(protocol=p, seed=0, trials=[ev, ev]).to_json()
+    assert set(out["table2_by_visit"]["test"]) >= {"VE", "Ex", "CP", "B"}
+    assert out["protocol"]["sensor_profile"]["session"]["chair_moved"] == sim.OFFICE_DAY.chair_moved
+    n = {r: len(data.observations(r)) for r in ("train", "test")}
+    for t in ("VE", "Ex", "CP", "B"):  # Table II is the mean over both visits' measurements
+        both = sum(n[r] * ev.features_by_visit[r][t] for r in n) / sum(n.values())
+        assert both == pytest.approx(ev.features[t])
+        assert out["table2_by_visit"]["train"][t] == pytest.approx(ev.features_by_visit["train"][t])
 
 
 def test_reproduce_robot_bad_world(capsys):
@@ -234,6 +270,7 @@ def test_explain_query_names_the_terms_that_pulled_wrong(trial):
     _, data, ev = trial
     why = explain_query(data, ev)
     assert why is not None
+    assert f"Between the training and the test visit of {why.truth}: " in why.reason  # the default world's later visit
     answers = np.argmax(ev.posterior, axis=1)
     wrong = np.flatnonzero(answers != ev.truth)
     if wrong.size:  # the full program's first wrong answer is the one explained
@@ -285,16 +322,18 @@ def test_paper_world_counts_near_table_2():
 
     prof = WORLD_PROFILES["paper"]
     got = calibration_counts(
-        world="paper",
+        world=prof["offices"],
         similarity=prof["similarity"],
         templates=2,
         blur=prof["blur"],
         noise=prof["noise"],
         jpeg_quality=prof["jpeg_quality"],
         edge_params=prof["extractor"],
+        session=prof["session"],
     )
     for t, paper in PAPER_TABLE2.items():
-        assert abs(got[t] / paper - 1.0) <= 0.35, (t, got[t], paper)  # two templates: a loose band
+        for visit in ("train_", "test_", ""):  # the training visit, the later test visit, both
+            assert abs(got[visit + t] / paper - 1.0) <= 0.35, (visit, t, got[visit + t], paper)  # a loose band
     # the alike world's extractor finds several times the paper's vertical edges
     alike = calibration_counts(world="alike", similarity=0.5, templates=1, blur=0.7, noise=0.015, jpeg_quality=85)
     assert alike["VE"] > 2.5 * PAPER_TABLE2["VE"]

@@ -170,7 +170,11 @@ def robot_cmd(
     world: str = typer.Option(
         "paper",
         "--world",
-        help="Simulated offices and sensors: 'paper' (calibrated to the paper's Table II) or 'alike' (the original).",
+        help=(
+            "Simulated offices and sensors: 'paper' (calibrated to the paper's Table II; the test measurements at a "
+            "later visit: chairs moved, doors closed, people, daylight), 'paper-static' (the same, nothing changed "
+            "between visits) or 'alike' (the original)."
+        ),
     ),
     workers: int | None = typer.Option(
         None,

@@ -298,8 +298,18 @@ def explain_query(
         fingerprint=fp.letters,
         nearest=nearest,
         counts=counts,
-        reason=_reason(truth, answer, rival, term_ll, nearest, counts),
+        reason=_reason(truth, answer, rival, term_ll, nearest, counts) + _visit_note(data, truth),
     )
+
+
+def _visit_note(data: TrialData, office: str) -> str:
+    """What changed in ``office`` between the training and the test visit, as a sentence ("" if nothing)."""
+    from ..sim.sessions import describe_visit
+
+    for before, after in zip(data.worlds, data.test_worlds or data.worlds, strict=True):
+        if before.name == office and after is not before:
+            return f" Between the training and the test visit of {office}: {describe_visit(before, after)}."
+    return ""
 
 
 _PROGRAM_NAMES = {

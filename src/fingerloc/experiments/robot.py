@@ -8,8 +8,12 @@ robot replaced by :mod:`fingerloc.sim`:
   is calibrated so that the extractors find about as many features per
   measurement as the paper's Table II (see :data:`WORLD_PROFILES`: office
   chairs, fewer posters, more beacons, a softer camera image, an edge extractor
-  that keeps only long edges, offices of one corridor at similarity 0.8);
-  ``"alike"`` is the original generator, far richer in edges;
+  that keeps only long edges, offices of one corridor at similarity 0.8), and
+  its test measurements are taken at a later visit of the offices
+  (:func:`fingerloc.sim.make_office_sessions`: chairs moved, doors closed,
+  people in the room, other daylight); ``"paper-static"`` is the same world
+  with nothing changed between the visits; ``"alike"`` is the original
+  generator, far richer in edges;
 * per office, eight **training** measurements on a circle around that point,
   radius drawn in ``train_radius_m`` (40-70 cm), at eight evenly spaced angles
   (the whole ring turned by a random angle), and two **test** measurements
@@ -149,18 +153,41 @@ TABLE2_TYPES: tuple[str, ...] = ("VE", "Ex", "CP", "B", "c")
 #: 0.8: same room grid and furniture), a softer, noisier camera image (the paper's 640x480
 #: mirror camera: defocus 1.5 px, pixel noise 2.5 %, JPEG 75) and a vertical-edge extractor
 #: that keeps only long, strong edges (a run over 35 % of the elevation range or edge pixels
-#: over half of it, a step of 0.15 in log luminance). ``"alike"``: the original generator and
-#: settings, with the library's default extractor (for comparison with earlier runs).
-WORLD_PROFILES: dict[str, dict[str, Any]] = {
-    "paper": {
+#: over half of it, a step of 0.15 in log luminance); the test measurements are taken at a later
+#: visit of the offices (``"session"``: :class:`fingerloc.sim.sessions.SessionChange` settings,
+#: :data:`~fingerloc.sim.sessions.OFFICE_DAY`: chairs moved, a door closed, people in the room,
+#: other daylight). ``"paper-static"``: the same offices and sensors with nothing changed between
+#: the training and the test measurements (the ``"paper"`` world before the visits were
+#: modelled). ``"alike"``: the original generator and settings, with the library's default
+#: extractor (for comparison with earlier runs). ``"offices"`` names the office generator
+#: (:data:`fingerloc.sim.WORLDS`).
+def _profiles() -> dict[str, dict[str, Any]]:
+    from ..sim.sessions import OFFICE_DAY
+
+    paper: dict[str, Any] = {
+        "offices": "paper",
         "similarity": 0.8,
         "blur": 1.5,
         "noise": 0.025,
         "jpeg_quality": 75,
         "extractor": {"min_extent": 0.35, "min_support": 0.5, "min_contrast": 0.15},
-    },
-    "alike": {"similarity": 0.5, "blur": 0.7, "noise": 0.015, "jpeg_quality": 85, "extractor": {}},
-}
+    }
+    return {
+        "paper": {**paper, "session": OFFICE_DAY.to_dict()},
+        "paper-static": {**paper, "session": None},
+        "alike": {
+            "offices": "alike",
+            "similarity": 0.5,
+            "blur": 0.7,
+            "noise": 0.015,
+            "jpeg_quality": 85,
+            "extractor": {},
+            "session": None,
+        },
+    }
+
+
+WORLD_PROFILES: dict[str, dict[str, Any]] = _profiles()
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,10 +219,14 @@ class RobotProtocol:
     jpeg_quality : int or None, optional
         JPEG round trip of the camera image; default the world's sensor
         profile (:data:`WORLD_PROFILES`: 75 for ``"paper"``, 85 for ``"alike"``).
-    world : {"paper", "alike"}, default "paper"
-        The office generator (:data:`fingerloc.sim.WORLDS`) and the matching
-        sensor profile (:data:`WORLD_PROFILES`). ``"paper"`` is calibrated to
-        the paper's Table II; ``"alike"`` is the original generator.
+    world : {"paper", "paper-static", "alike"}, default "paper"
+        The office generator (:data:`fingerloc.sim.WORLDS`), the matching
+        sensor profile and what changes between the training and the test
+        visit (:data:`WORLD_PROFILES`). ``"paper"`` is calibrated to the
+        paper's Table II, its test measurements taken at a later visit
+        (chairs moved, doors, people, daylight); ``"paper-static"`` the same
+        with nothing changed between visits; ``"alike"`` is the original
+        generator.
     ks : tuple of int, default (3, 4, 5)
         Mixture components to evaluate.
     random_heading : bool, default True
@@ -217,6 +248,19 @@ class RobotProtocol:
     ks: tuple[int, ...] = PAPER_K
     random_heading: bool = True
     world: str = "paper"
+
+    @property
+    def offices(self) -> str:
+        """The office generator of the world (:data:`fingerloc.sim.WORLDS`)."""
+        return str(WORLD_PROFILES[self.world].get("offices", self.world))
+
+    @property
+    def session_change(self) -> Any:
+        """What changes between the training and the test visit (a :class:`~fingerloc.sim.sessions.SessionChange`), or None."""
+        from ..sim.sessions import SessionChange
+
+        d = WORLD_PROFILES[self.world].get("session")
+        return None if d is None else SessionChange(**d)
 
     @property
     def office_similarity(self) -> float:
@@ -351,12 +395,14 @@ def simulate_office(
     protocol: RobotProtocol,
     seed: int | Sequence[int],
     keep_raw: bool = False,
+    test_world: Any = None,
 ) -> list[Measurement]:
     """Every measurement of one office: training, test and (optionally) random-heading test.
 
     Parameters
     ----------
     world : fingerloc.sim.World
+        The office at the training visit (the poses are drawn in it).
     office : int
         Index stored in each :class:`Measurement`.
     protocol : RobotProtocol
@@ -364,8 +410,12 @@ def simulate_office(
         Seed of the poses and the sensor noise.
     keep_raw : bool
         Keep the scan, panorama and donut image of every measurement.
+    test_world : fingerloc.sim.World, optional
+        The office at the test visit (:func:`fingerloc.sim.sessions.make_office_sessions`),
+        where the test and random-heading measurements are taken; default ``world``.
     """
     rng = np.random.default_rng(seed)
+    later = world if test_world is None else test_world
     train, test = measurement_poses(world, protocol, rng)
     jobs = [("train", p) for p in train] + [("test", p) for p in test]
     if protocol.random_heading:
@@ -375,7 +425,7 @@ def simulate_office(
         jobs += [("test-random-heading", (x, y, float(turn.uniform(-math.pi, math.pi)))) for x, y, _ in test]
     out = []
     for role, pose in jobs:
-        obs, scan, pano, im = _measure(world, pose, protocol, rng)
+        obs, scan, pano, im = _measure(world if role == "train" else later, pose, protocol, rng)
         if keep_raw:
             out.append(Measurement(office, role, pose, obs, scan, pano, im))
         else:
@@ -383,16 +433,22 @@ def simulate_office(
     return out
 
 
-def _simulate_office_job(args: tuple[Any, int, RobotProtocol, tuple[int, ...], bool]) -> list[Measurement]:
+def _simulate_office_job(args: tuple[Any, int, RobotProtocol, tuple[int, ...], bool, Any]) -> list[Measurement]:
     return simulate_office(*args)
 
 
 @dataclass(slots=True)
 class TrialData:
-    """One trial's simulated data (and what the demo draws)."""
+    """One trial's simulated data (and what the demo draws).
+
+    ``worlds``: the offices at the training visit; ``test_worlds``: at the test visit (the
+    same objects when nothing changes between visits; empty in data made before visits were
+    modelled, meaning the same).
+    """
 
     worlds: list[Any]
     measurements: list[Measurement]
+    test_worlds: list[Any] = field(default_factory=list)
 
     def observations(self, role: str) -> list[Observation]:
         """Observations of the measurements with this role, in office order."""
@@ -420,21 +476,34 @@ def simulate_trial(
         Simulate the offices in parallel on it (results are identical).
     """
     from .. import sim
+    from ..sim.sessions import make_office_sessions
 
     ss = np.random.SeedSequence(seed)
     office_seq, *meas_seqs = ss.spawn(protocol.n_offices + 1)
-    kwargs: dict[str, Any] = {"random_state": np.random.default_rng(office_seq), "world": protocol.world}
+    # The changes between visits draw from a child of their own (the next one spawned), so that the
+    # offices, poses and sensor noise are those of the same seed without the changes.
+    (visit_seq,) = ss.spawn(1)
+    kwargs: dict[str, Any] = {"random_state": np.random.default_rng(office_seq), "world": protocol.offices}
     kwargs["similarity"] = protocol.office_similarity
-    worlds = sim.make_offices(protocol.n_offices, **kwargs)
+    change = protocol.session_change
+    if change is None:
+        worlds = sim.make_offices(protocol.n_offices, **kwargs)
+        later = list(worlds)
+    else:
+        pairs = make_office_sessions(
+            protocol.n_offices, change=change, change_random_state=np.random.default_rng(visit_seq), **kwargs
+        )
+        worlds, later = [a for a, _ in pairs], [b for _, b in pairs]
     keep = set(range(protocol.n_offices)) if keep_raw is True else set() if keep_raw is False else set(keep_raw)
     jobs = [
-        (w, i, protocol, tuple(int(v) for v in meas_seqs[i].generate_state(4)), i in keep) for i, w in enumerate(worlds)
+        (w, i, protocol, tuple(int(v) for v in meas_seqs[i].generate_state(4)), i in keep, later[i])
+        for i, w in enumerate(worlds)
     ]
     if executor is None:
         per_office = [_simulate_office_job(j) for j in jobs]
     else:
         per_office = list(executor.map(_simulate_office_job, jobs))
-    return TrialData(worlds=worlds, measurements=[m for ms in per_office for m in ms])
+    return TrialData(worlds=worlds, measurements=[m for ms in per_office for m in ms], test_worlds=later)
 
 
 # ---------------------------------------------------------------------------- evaluation
@@ -517,6 +586,8 @@ class TrialEvaluation:
         Path -> rank of the true place for each test query, shape (n_test,) (what ``cells`` averages).
     counts : dict
         Feature type -> count per measurement, shape (n_measurements,) (what ``features`` averages).
+    features_by_visit : dict
+        ``"train"`` / ``"test"`` -> feature type -> mean count per measurement of that visit.
     """
 
     features: dict[str, float]
@@ -529,6 +600,7 @@ class TrialEvaluation:
     heading_error_deg: FArray = field(default_factory=lambda: np.empty(0))
     model: Any = None
     models: dict[int, Any] = field(default_factory=dict)
+    features_by_visit: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: int = 0) -> TrialEvaluation:
@@ -548,6 +620,10 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     all_obs = [m.observation for m in data.measurements if m.role in ("train", "test")]
     counts = {t: np.array([o.bearings(t).size for o in all_obs], dtype=np.int64) for t in TABLE2_TYPES}
     features = {t: float(np.mean(c)) for t, c in counts.items()}
+    by_visit = {
+        role: {t: float(np.mean([o.bearings(t).size for o in data.observations(role)])) for t in TABLE2_TYPES}
+        for role in ("train", "test")
+    }
     train = data.observations("train")
     test = data.observations("test")
     classes = [w.name for w in data.worlds]
@@ -624,6 +700,7 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
                 heading_err = err
     return TrialEvaluation(
         features=features,
+        features_by_visit=by_visit,
         cells=cells,
         ranks=ranks,
         counts=counts,
@@ -681,6 +758,15 @@ class RobotResult:
             out[t] = (float(v.mean()), _std(v))
         return out
 
+    def feature_stats_by_visit(self) -> dict[str, dict[str, float]]:
+        """``"train"`` / ``"test"`` -> feature type -> mean count per measurement over trials (Table II per visit)."""
+        if not all(tr.features_by_visit for tr in self.trials):
+            return {}
+        return {
+            role: {t: float(np.mean([tr.features_by_visit[role][t] for tr in self.trials])) for t in TABLE2_TYPES}
+            for role in ("train", "test")
+        }
+
     def cell_stats(self) -> dict[tuple[str, ...], tuple[float, float, float, float]]:
         """Path -> (top1 mean, top1 std, mean-rank mean, mean-rank std) over trials."""
         out = {}
@@ -737,7 +823,12 @@ class RobotResult:
         return float(np.median(errs)) if errs.size else None
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON of ``fingerloc reproduce robot --json`` (top1 in [0, 1])."""
+        """The JSON of ``fingerloc reproduce robot --json`` (top1 in [0, 1]).
+
+        ``table2`` counts every training and test measurement; ``table2_by_visit`` the
+        training (``"train"``) and test (``"test"``) measurements apart, whose offices
+        differ in the ``"paper"`` world (``protocol.sensor_profile.session``).
+        """
         cells = self.cell_stats()
         main: dict[str, Any] = {}
         spread: dict[str, Any] = {}
@@ -751,6 +842,9 @@ class RobotResult:
         if "random_heading" in main:
             out["random_heading"] = main["random_heading"]
             out["random_heading"]["heading_error_deg"] = self.heading_error_deg()
+        by_visit = self.feature_stats_by_visit()
+        if by_visit:
+            out["table2_by_visit"] = by_visit
         spread["table2"] = {t: s for t, (_, s) in fs.items()}
         out["spread"] = spread
         ci: dict[str, Any] = {"table2": {t: _pair(v) for t, v in self.feature_ci().items()}}

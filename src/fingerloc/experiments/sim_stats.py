@@ -10,7 +10,9 @@
 
 ``python -m fingerloc.experiments.sim_stats calibrate``: the features the
 extractors find per measurement in each world of the robot experiment
-(:data:`~fingerloc.experiments.robot.WORLD_PROFILES`), beside Table II.
+(:data:`~fingerloc.experiments.robot.WORLD_PROFILES`), beside Table II; for a
+world whose test measurements are taken at a later visit (``"paper"``), the
+training and the test pose's counts apart too (``train_VE``, ``test_VE``, ...).
 """
 
 from __future__ import annotations
@@ -107,6 +109,7 @@ def calibration_counts(
     jpeg_quality: int = 75,
     edge_params: dict[str, float] | None = None,
     seed: int = 100,
+    session: dict[str, Any] | None = None,
 ) -> dict[str, float]:
     """Features the extractors find per measurement, for calibrating a world to the paper's Table II.
 
@@ -116,27 +119,37 @@ def calibration_counts(
     robot experiment's 360 deg laser and 640x480 omnidirectional camera with the given
     ``blur`` (pixels), ``noise`` and JPEG quality), then the extractors: laser ``Ex``, ``B``,
     ``c`` with their defaults, colour patches with theirs, vertical edges with
-    ``edge_params`` (fields of :class:`~fingerloc.features.vision.EdgeParams`).
+    ``edge_params`` (fields of :class:`~fingerloc.features.vision.EdgeParams`). With
+    ``session`` (:class:`~fingerloc.sim.sessions.SessionChange` fields), the test pose is
+    measured at the later visit of the office (changes drawn with seed ``seed + 1000 + t``).
 
     Returns
     -------
     dict
         Feature type -> mean count per measurement; ``"truth_VE"`` etc.: the simulator's
-        ground truth (:func:`~fingerloc.sim.true_features`) at the same poses; ``"n"``.
+        ground truth (:func:`~fingerloc.sim.true_features`) at the same poses; ``"train_VE"``,
+        ``"test_VE"`` etc.: the extracted counts of the training and the test pose alone; ``"n"``.
     """
     from ..features.laser import extract_laser_features
     from ..features.vision import colour_patches, unwarp_omni, vertical_edges
     from ..sim import render_omni
+    from ..sim.sessions import SessionChange, make_office_sessions
     from .robot import RobotProtocol, measurement_poses
 
-    p = RobotProtocol(random_heading=False, world=world)
+    p = RobotProtocol(random_heading=False)
     got: dict[str, list[int]] = {k: [] for k in _TYPES}
     truth: dict[str, list[int]] = {k: [] for k in _TYPES}
+    role: list[str] = []
+    change = None if session is None else SessionChange(**session)
     for t in range(templates):
         rng = np.random.default_rng(seed + t)
-        for w in make_offices(10, random_state=rng, world=world, similarity=similarity):
-            train, test = measurement_poses(w, p, rng)
-            for pose in (train[0], test[0]):
+        pairs = make_office_sessions(
+            10, random_state=rng, world=world, similarity=similarity, change=change, change_random_state=seed + 1000 + t
+        )
+        for w0, w1 in pairs:
+            train, test = measurement_poses(w0, p, rng)
+            for w, pose, r in ((w0, train[0], "train"), (w1, test[0], "test")):
+                role.append(r)
                 scan = simulate_scan(w, pose, random_state=rng)
                 im = render_omni(w, pose, jpeg_quality=jpeg_quality, blur=blur, noise=noise, random_state=rng)
                 off = im.forward_angle if im.clockwise else -im.forward_angle
@@ -154,6 +167,9 @@ def calibration_counts(
                     truth[k].append(int(tf[k].size))
     out = {k: float(np.mean(v)) for k, v in got.items()}
     out.update({f"truth_{k}": float(np.mean(v)) for k, v in truth.items()})
+    roles = np.array(role)
+    for r in ("train", "test"):
+        out.update({f"{r}_{k}": float(np.mean(np.array(v)[roles == r])) for k, v in got.items()})
     out["n"] = float(len(got["VE"]))
     return out
 
@@ -167,7 +183,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cal: dict[str, Any] = {}
         for world, prof in WORLD_PROFILES.items():
             cal[world] = calibration_counts(
-                world=world,
+                world=prof["offices"],
+                session=prof["session"],
                 similarity=prof["similarity"],
                 blur=prof["blur"],
                 noise=prof["noise"],

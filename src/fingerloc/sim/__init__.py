@@ -8,6 +8,9 @@
   panorama or as the raw donut image of an equiangular mirror (:class:`OmniImage`).
 - :func:`true_features` / :func:`true_observation`: ground truth bearings for
   evaluation only; feature extractors never see it.
+- :func:`make_office_sessions`: the same offices at a training and at a later
+  test visit, changed as a :class:`SessionChange` says (chairs moved, doors
+  closed, people in the room, other daylight; :data:`OFFICE_DAY`).
 - :func:`protocol_poses`: the paper's measurement poses (8 on a 40-70 cm
   circle around the office's anchor, 2 inside it).
 
@@ -25,6 +28,7 @@ from .camera import CAMERA_HEIGHT, ELEVATION_DEG, OmniImage, render_omni, render
 from .laser import LASER_HEIGHT, simulate_scan
 from .offices import WORLDS, make_office, make_offices
 from .poses import protocol_poses
+from .sessions import OFFICE_DAY, SessionChange, make_office_sessions
 from .truth import true_features, true_observation
 from .world import PARTS, Material, World, cast_rays
 
@@ -32,13 +36,16 @@ __all__ = [
     "CAMERA_HEIGHT",
     "ELEVATION_DEG",
     "LASER_HEIGHT",
+    "OFFICE_DAY",
     "PARTS",
     "WORLDS",
     "Material",
     "OmniImage",
+    "SessionChange",
     "World",
     "cast_rays",
     "make_office",
+    "make_office_sessions",
     "make_offices",
     "protocol_poses",
     "render_omni",

@@ -33,6 +33,7 @@ _DOOR_TOP = 2.05  # metres: height of a door opening
 _FURN_GAP = 0.02  # metres between furniture and the wall it stands against
 _SEAT_Z = 0.45  # metres: height of a chair's seat (below it, only the chair's column)
 _CHAIR_POST = 0.06  # metres: width of a chair's column
+_LEAF_SET_BACK = 0.04  # metres: how far a closed door's leaf sits back from the room-side face of the wall
 
 #: Furniture kinds: (width range, depth range, height range), metres.
 #: Door leaves: albedo (low saturation) and laser reflectivity.
@@ -83,6 +84,12 @@ class _Spec:
     windows: list[dict[str, Any]]
     lamps: list[dict[str, Any]]
     chairs: list[dict[str, Any]] = field(default_factory=list)
+    # A later visit of the office (fingerloc.sim.sessions): people in the room, the daylight through
+    # the windows (camera emission), and a floor-plan box (x0, y0, x1, y1, metres) around the
+    # measurement point kept clear of moved chairs and of people.
+    people: list[dict[str, Any]] = field(default_factory=list)
+    window_emission: float = 1.3
+    keep_out: tuple[float, float, float, float] | None = None
 
 
 def _new_door(rng: np.random.Generator) -> dict[str, Any]:
@@ -231,7 +238,9 @@ def _new_spec(rng: np.random.Generator, world: str = "alike") -> _Spec:
         (float(rng.uniform(0.8, 0.4 * width)), float(rng.uniform(0.8, 0.4 * depth))) if rng.uniform() < 0.35 else None
     )
     counts = WORLDS[world]
-    lists = {k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in counts.items()}
+    lists: dict[str, Any] = {
+        k: [_NEW[k](rng) for _ in range(int(rng.integers(lo, hi + 1)))] for k, (lo, hi) in counts.items()
+    }
     lists.setdefault("chairs", [])
     return _Spec(
         width=width,
@@ -426,6 +435,10 @@ class _Office:
     furniture: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
     pillars: list[tuple[int, float, float, float]] = field(default_factory=list)
     chairs: list[tuple[int, float, float, float, float, int]] = field(default_factory=list)
+    # Closed doors: (wall, lo, hi, leaf material choice); people: boxes (centre x, y, facing in
+    # radians, width, depth, z_lo, z_hi, material), metres.
+    closed: list[tuple[int, float, float, int]] = field(default_factory=list)
+    people: list[tuple[float, float, float, float, float, float, float, int]] = field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -463,7 +476,7 @@ def _add_materials(o: _Office) -> None:
     o.frame_m = b.material(Material(s.frame_rgb, 0.3, gloss=0.2))
     o.corr_m = b.material(Material(s.corridor_rgb, 0.45))
     o.beacon_m = b.material(Material((0.72, 0.72, 0.74), 1.5, beacon=True))
-    o.window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=1.3))  # daylight: overexposed
+    o.window_m = b.material(Material((0.93, 0.95, 1.0), 0.3, emission=s.window_emission))  # daylight: overexposed
     o.leaf_m = [b.material(Material(rgb, refl)) for rgb, refl in _LEAF_MATS]
     o.furn_m = [b.material(Material(rgb, refl, gloss=gl)) for rgb, refl, gl in _FURN_MATS]
 
@@ -519,7 +532,9 @@ def _place_doors(o: _Office) -> None:
         if p is None or any(_overlaps((p[1], p[2]), (a, c), 0.3) for a, c, _ in o.doors[p[0]]):
             continue
         o.doors[p[0]].append((p[1], p[2], dd["corridor"]))
-        if dd.get("leaf", False):
+        if dd.get("closed", False):
+            o.closed.append((p[0], p[1], p[2], int(dd["leaf_mat"])))
+        elif dd.get("leaf", False):
             o.leaves.append((p[0], p[1], p[2], float(dd["leaf_angle"]), int(dd["hinge"]), int(dd["leaf_mat"])))
     o.taken = [_footprint(o, i, a - 0.25, c + 0.25, 0.0, 1.05) for i in range(o.n) for a, c, _ in o.doors[i]]
 
@@ -581,6 +596,8 @@ def _place_chairs(o: _Office) -> None:
 
     Fills ``o.chairs`` with ``(wall, lo, hi, offset from the wall, top of the back, material)`` (metres).
     """
+    if o.spec.keep_out is not None:
+        o.taken.append(o.spec.keep_out)
     for ch in o.spec.chairs:
         size = float(ch["size"])
         found = None
@@ -598,6 +615,48 @@ def _place_chairs(o: _Office) -> None:
         p, off, box = found
         o.taken.append(box)
         o.chairs.append((p[0], p[1], p[2], off, float(ch["back"]), o.furn_m[ch["mat"] % len(o.furn_m)]))
+
+
+def _place_people(o: _Office) -> None:
+    """Put the spec's people in the room (a later visit, :mod:`fingerloc.sim.sessions`).
+
+    A ``"seated"`` person sits on one of the placed chairs (``chair``, modulo their number;
+    skipped when there is none): a torso and head block from the seat up to ``top`` metres, and
+    the lower legs in front of the chair, on the side away from its wall. A ``"standing"``
+    person stands at the first of ``candidates`` (fractions of the room's bounding box) where a
+    0.6 m square around them is inside the room and clear of everything placed (and of the
+    spec's ``keep_out`` box): two legs 0.13 m square up to 0.85 m, and a body 0.44 x 0.26 m up
+    to ``height``, turned by ``facing`` (radians). Fills ``o.people`` with boxes.
+    """
+    lo_xy, hi_xy = o.poly.min(axis=0), o.poly.max(axis=0)
+    for pp in o.spec.people:
+        top_m = o.b.material(Material(tuple(pp["top_rgb"]), 0.35))
+        leg_m = o.b.material(Material(tuple(pp["leg_rgb"]), 0.3))
+        if pp["kind"] == "seated":
+            if not o.chairs:
+                continue
+            wi, lo, hi, off, _, _ = o.chairs[int(pp["chair"]) % len(o.chairs)]
+            w = _wall_frame(o, wi)
+            size = hi - lo
+            facing = float(np.arctan2(w.nin[1], w.nin[0]))
+            c = w.at((lo + hi) / 2, off + size / 2)
+            o.people.append((float(c[0]), float(c[1]), facing, 0.38, 0.24, _SEAT_Z + 0.05, float(pp["top"]), top_m))
+            shin = w.at((lo + hi) / 2, off + size + 0.11)
+            o.people.append((float(shin[0]), float(shin[1]), facing, 0.32, 0.12, 0.0, _SEAT_Z + 0.05, leg_m))
+            continue
+        for u, v in pp["candidates"]:
+            c = lo_xy + np.array([u, v]) * (hi_xy - lo_xy)
+            box = (float(c[0] - 0.3), float(c[1] - 0.3), float(c[0] + 0.3), float(c[1] + 0.3))
+            if _clash(box, o.taken) or not _inside(o, box):
+                continue
+            o.taken.append(box)
+            f = float(pp["facing"])
+            side = np.array([-np.sin(f), np.cos(f)])
+            for sgn in (-1.0, 1.0):
+                leg = c + sgn * 0.1 * side
+                o.people.append((float(leg[0]), float(leg[1]), f, 0.13, 0.13, 0.0, 0.85, leg_m))
+            o.people.append((float(c[0]), float(c[1]), f, 0.44, 0.26, 0.85, float(pp["height"]), top_m))
+            break
 
 
 def _first_fit(
@@ -708,6 +767,14 @@ def _add_door_segments(o: _Office, w: _WallFrame) -> None:
                 break
 
 
+def _add_closed_segments(o: _Office, w: _WallFrame) -> None:
+    """Closed doors of this wall: the leaf fills the opening, set ``_LEAF_SET_BACK`` metres into the frame."""
+    for wi, a, c, lm in o.closed:
+        if wi == w.i:
+            q0, q1 = w.at(a, -_LEAF_SET_BACK), w.at(c, -_LEAF_SET_BACK)
+            o.b.add(q0, q1, (0.0, _DOOR_TOP), o.leaf_m[lm], "door_leaf")
+
+
 def _add_leaf_segments(o: _Office, w: _WallFrame) -> None:
     """Open door leaves on this wall, each swung into the room by its angle (degrees) about its hinge."""
     for wi, a, c, angle, hinge, lm in o.leaves:
@@ -756,16 +823,29 @@ def _add_chair_segments(o: _Office, w: _WallFrame) -> None:
             o.b.add(post[k], post[(k + 1) % 4], (0.0, _SEAT_Z), m, "chair")
 
 
+def _add_person_segments(o: _Office) -> None:
+    """Each person's boxes as four vertical segments (width across ``facing``, depth along it)."""
+    for cx, cy, f, width, depth, z0, z1, m in o.people:
+        fwd = np.array([np.cos(f), np.sin(f)]) * depth / 2
+        side = np.array([-np.sin(f), np.cos(f)]) * width / 2
+        c = np.array([cx, cy])
+        q = [c - fwd - side, c + fwd - side, c + fwd + side, c - fwd + side]
+        for k in range(4):
+            o.b.add(q[k], q[(k + 1) % 4], (z0, z1), m, "person")
+
+
 def _add_segments(o: _Office) -> None:
     """Turn everything placed into vertical segments, wall by wall (the order fixes segment indices)."""
     for i in range(o.n):
         w = _wall_frame(o, i)
         _add_wall_segments(o, w)
         _add_door_segments(o, w)
+        _add_closed_segments(o, w)
         _add_leaf_segments(o, w)
         _add_furniture_segments(o, w)
         _add_pillar_segments(o, w)
         _add_chair_segments(o, w)
+    _add_person_segments(o)
 
 
 def _light_boxes(o: _Office) -> np.ndarray:
@@ -813,6 +893,7 @@ def _build(spec: _Spec, name: str) -> World:
     _place_furniture(o)
     _place_pillars(o)
     _place_chairs(o)
+    _place_people(o)
     _place_decals(o)
     _add_segments(o)
     return _to_world(o, name)
@@ -869,22 +950,28 @@ def make_offices(
     world : {"alike", "paper"}, default "alike"
         The generator (:data:`WORLDS`). ``"alike"``: the original offices,
         rich in furniture and posters. ``"paper"``: offices furnished as the
-        paper's robot saw them (Table II): two to four posters, five or six
-        retro-reflective beacons, two to four pieces of furniture, and two to
+        paper's robot saw them (Table II): two to four posters, four to six
+        retro-reflective beacons, three or four pieces of furniture, and two to
         four office chairs standing in the room, which hide the lower part of
         whatever is behind them from the camera and, with their column, cut
-        the laser's view.
+        the laser's view. The same offices at a later visit (chairs moved,
+        people, doors, daylight): :func:`fingerloc.sim.make_office_sessions`.
 
     Returns
     -------
     list of World
         Named ``office-0`` ... ``office-{n-1}``.
     """
+    specs = _spec_list(n, similarity, random_state, _check_world(world))
+    return [_build(sp, f"office-{i}") for i, sp in enumerate(specs)]
+
+
+def _spec_list(n: int, similarity: float, random_state: int | np.random.Generator | None, world: str) -> list[_Spec]:
+    """The specs of :func:`make_offices` (a template, then ``n`` perturbed copies), checked."""
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
         raise InvalidParameterError(f"n must be a positive integer, got {n!r}")
     if not (isinstance(similarity, int | float) and 0.0 <= float(similarity) <= 1.0):
         raise InvalidParameterError(f"similarity must be in [0, 1], got {similarity!r}")
-    _check_world(world)
     rng = check_random_state(random_state)
     template = _new_spec(rng, world)
-    return [_build(_perturb(template, float(similarity), rng, world), f"office-{i}") for i in range(int(n))]
+    return [_perturb(template, float(similarity), rng, world) for _ in range(int(n))]

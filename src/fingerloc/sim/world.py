@@ -28,7 +28,7 @@ __all__ = ["PARTS", "Material", "World", "cast_rays", "cast_rays_k"]
 
 
 #: Names of the structural parts a segment can belong to (``World.part`` indexes this).
-PARTS: tuple[str, ...] = ("wall", "door_frame", "lintel", "furniture", "pillar", "corridor", "door_leaf", "chair")
+PARTS: tuple[str, ...] = ("wall", "door_frame", "lintel", "furniture", "pillar", "corridor", "door_leaf", "chair", "person")
 
 #: Rays hitting closer than this (metres) are ignored, so a ray does not hit the surface it starts on.
 _MIN_HIT = 1e-6
