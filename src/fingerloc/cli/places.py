@@ -15,7 +15,6 @@ import typer
 from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
 from ._io import JsonRecordStream, atomic_text_file, lit
-from ._localize import LOCALIZE_CHUNK, answer_chunk
 from .app import app, console, err_console
 from .options import (
     BASE_FRAME_OPTION,
@@ -261,6 +260,8 @@ def localize_cmd(
         run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
         obs, names = queries_of_run(run, lm)
         keep = report is not None
+        from ._localize import LOCALIZE_CHUNK, answer_chunk
+
         chunks = (
             answer_chunk(model, obs[s : s + LOCALIZE_CHUNK], names[s:], s, top, table=not quiet, records=records, keep=keep)
             for s in range(0, len(obs), LOCALIZE_CHUNK)
@@ -317,7 +318,7 @@ def _answers_table(rows: list[list[str]], top: int, *, cyclic: bool) -> Table:
 
 def _serial_chunks(data: Path, model: Any, top: int, *, table: bool, records: bool) -> Iterator[Any]:
     """Answers of a JSON Lines file, chunk after chunk, in this process (a stream: bounded memory)."""
-    from ._localize import jsonl_chunks, parse_lines
+    from ._localize import answer_chunk, jsonl_chunks, parse_lines
 
     for start, lines in jsonl_chunks(data):
         obs = parse_lines(data, lines)
@@ -345,8 +346,9 @@ def _cluster_chunks(
         yield res
 
 
-#: Observations per Dask task of ``localize --workers`` (each task answers them in chunks of :data:`LOCALIZE_CHUNK`).
-LOCALIZE_TASK = LOCALIZE_CHUNK
+#: Observations per Dask task of ``localize --workers`` (each task answers them in chunks of
+#: ``_localize.LOCALIZE_CHUNK``, also 256: that module imports numpy, which ``--help`` must not).
+LOCALIZE_TASK = 256
 
 
 def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
