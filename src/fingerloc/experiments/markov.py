@@ -62,6 +62,7 @@ from ..pipeline.tracker import (
     FitScore,
     HeldOut,
     Tracker,
+    challenger_of,
     held_out_calibration,
     run_pose_steps,
     step_distances,
@@ -338,6 +339,14 @@ class PoseFilteredMethod(FilteredMethod):
         The filter's likelihood weight of a pose at no place (default
         ``outlier``); with ``outlier="fit"`` it stays 0.1.
 
+    challenger : bool, default False
+        Run a challenger filter started from the sensor and switch to it when
+        its trajectory's log Bayes factor against the incumbent's exceeds
+        ``challenger_switch_nats``
+        (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
+        during ``tune``).
+    challenger_switch_nats : float, default 3.0
+
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
     same held-out rows as ``beta``).
@@ -369,8 +378,12 @@ class PoseFilteredMethod(FilteredMethod):
         gap_metres: float | None = None,
         off_place: float | None = None,
         tune: bool = True,
+        challenger: bool = False,
+        challenger_switch_nats: float = 3.0,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.challenger = bool(challenger)
+        self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
         if isinstance(outlier, str) and outlier != "fit":
             raise InvalidParameterError(f"outlier must be a probability or 'fit', got {outlier!r}")
@@ -427,6 +440,8 @@ class PoseFilteredMethod(FilteredMethod):
             off_place=off_place,
             start_at_first_observation=self.start_at_first_observation,
             gap_metres=self.gap_metres,
+            challenger=self.challenger,
+            challenger_switch_nats=self.challenger_switch_nats,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
@@ -459,6 +474,7 @@ class PoseFilteredMethod(FilteredMethod):
             start_at_first_observation=self.start_at_first_observation,
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
+            challenger=challenger_of(self.calibration_),
         )
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
@@ -523,6 +539,12 @@ def _fingerprint_odometry_reliability() -> Method:
 def _fingerprint_odometry_eager() -> Method:
     # Ablation: the start prior carried by dead reckoning to the first observation (the former default).
     return PoseFilteredMethod("fingerprint", start_at_first_observation=False)
+
+
+@register_method("fingerprint-odometry-challenger", default=False)
+def _fingerprint_odometry_challenger() -> Method:
+    # A challenger filter started from the sensor, adopted when its trajectory fits the views better (3 nats).
+    return PoseFilteredMethod("fingerprint", challenger=True)
 
 
 @register_method("fingerprint-odometry-reset", default=False)
