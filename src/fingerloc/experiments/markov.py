@@ -58,6 +58,7 @@ from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_
 from ..map.graph import PlaceGraph
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
+    POSE_PARTICLES,
     Calibration,
     FitScore,
     HeldOut,
@@ -306,7 +307,8 @@ class PoseFilteredMethod(FilteredMethod):
     ----------
     base : str
     odometry : {"simulated", "exact"}, default "simulated"
-    n_particles : int, default 3000
+    n_particles : int, default POSE_PARTICLES
+        :data:`fingerloc.pipeline.tracker.POSE_PARTICLES`, as :class:`~fingerloc.pipeline.tracker.Tracker`.
     outlier : float, default 0.1
     seed : int, default 0
         Seeds the simulated odometry and the particle filter.
@@ -364,7 +366,7 @@ class PoseFilteredMethod(FilteredMethod):
         base: str,
         *,
         odometry: str = "simulated",
-        n_particles: int = 3000,
+        n_particles: int = POSE_PARTICLES,
         outlier: float | str = 0.1,
         seed: int = 0,
         calibrate: bool = True,

@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 __all__ = [
     "FILTERS",
     "MIN_CALIBRATION_ROWS",
+    "POSE_PARTICLES",
     "Calibration",
     "FitScore",
     "HeldOut",
@@ -76,6 +77,8 @@ __all__ = [
 
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10
+#: Particles of the pose filter (:class:`Tracker` and the benchmark's pose-filtered methods).
+POSE_PARTICLES = 3000
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -476,7 +479,7 @@ class Tracker:
     graph : PlaceGraph
         The place graph (its places in the same order as ``centres``).
     calibration : Calibration
-    n_particles : int, default 3000
+    n_particles : int, default POSE_PARTICLES
         Pose filter.
     uniform_mix : float, optional
         Uniform mixing per step of the transition model (default
@@ -493,7 +496,7 @@ class Tracker:
         graph: PlaceGraph,
         calibration: Calibration,
         *,
-        n_particles: int = 3000,
+        n_particles: int = POSE_PARTICLES,
         uniform_mix: float | None = None,
     ) -> None:
         self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
