@@ -129,3 +129,25 @@ def test_spawn_and_adopt():
 def test_challenger_settings_are_checked(kw):
     with pytest.raises(InvalidParameterError):
         Challenger(**kw)
+
+
+def test_the_tracker_runs_the_challenger_from_the_calibration():
+    """`Calibration.challenger` is what `track --filter pose` and the benchmark read: the same run as the function."""
+    from fingerloc.map.filter import MarkovFilter
+    from fingerloc.pipeline.tracker import Calibration, Tracker, challenger_of, mapping_graph
+
+    poses = _polyline([(0, 0), (27, 0), (0, 0)], 0.5)
+    truth = _truth(poses, CORRIDOR)
+    ll = _sensor(truth, 10, 3.0, 0)
+    graph, metres = mapping_graph(poses[:, :2], CORRIDOR)
+    cal = Calibration(metres_per_move=metres, kidnap=0.01, challenger=True, challenger_switch_nats=2.0)
+    assert challenger_of(cal) == Challenger(switch_nats=2.0) and challenger_of(Calibration()) is None
+    tracker = Tracker(CORRIDOR, graph, cal, n_particles=200)
+    got = tracker.run(ll, poses, filter="pose", seed=3)
+    f = tracker.pose_filter(3)
+    want = run_challenged_pose_filter(
+        ll, odometry_increments(poses), f, Challenger(switch_nats=2.0), temper=(2.0, math.pi),
+        place_filter=MarkovFilter(tracker.transition_), start_at_first_observation=True,
+    )  # fmt: skip
+    assert np.array_equal(got.log_posterior, want.log_posterior)
+    assert f.challenger_trace_  # challengers were started
