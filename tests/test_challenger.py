@@ -61,12 +61,12 @@ def _kidnapped(seed, challenger):
     return res.best[q] == truth[q], f
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_challenger_recovers_a_kidnapped_filter(seed):
+@pytest.mark.parametrize(("seed", "tempered"), [(0, True), (1, True), (2, True), (0, False)])
+def test_the_challenger_recovers_a_kidnapped_filter(seed, tempered):
     """Without a kidnapping term the filter never leaves its wrong belief; the challenger takes over within 10 observations."""
     right, _ = _kidnapped(seed, None)
     assert right.mean() < 0.2  # the failure, kept visible
-    right, f = _kidnapped(seed, Challenger())
+    right, f = _kidnapped(seed, Challenger(tempered_evidence=tempered))
     assert f.resets_ >= 1 and f.switches_
     first = int(np.flatnonzero(right)[0])
     assert first <= 10 and right[first:].mean() >= 0.9

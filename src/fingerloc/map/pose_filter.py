@@ -847,6 +847,10 @@ class Challenger:
     merged_tv : float, default 0.25
         ... or when its place posterior is within this total variation of
         the incumbent's (it has found the same track: no rival).
+    tempered_evidence : bool, default True
+        Compare the two trajectories with the tempered likelihoods (as the
+        updates weigh them); False: every observation at full weight in the
+        Bayes factor (the updates stay tempered).
     """
 
     n_particles: int = 1000
@@ -855,6 +859,7 @@ class Challenger:
     drop_nats: float = 3.0
     max_observations: int = 10
     merged_tv: float = 0.25
+    tempered_evidence: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, (int, np.integer)) or self.n_particles < 10:
@@ -972,9 +977,10 @@ def run_challenged_pose_filter(
             lost = False
             continue
         w = float(wts[t])
-        mine = pose_filter.log_evidence(row, w)
+        we = w if ch.tempered_evidence else 1.0
+        mine = pose_filter.log_evidence(row, we)
         if rival is not None:
-            factor += rival.log_evidence(row, w) - mine
+            factor += rival.log_evidence(row, we) - mine
             rival.update(row, w, prior)
             age += 1
             trace.append((t, "compare", factor))
@@ -994,7 +1000,7 @@ def run_challenged_pose_filter(
                 rival = None
             continue
         alt = uniform if prior is None else np.asarray(prior, dtype=np.float64) - logsumexp(prior)
-        anywhere = float(logsumexp(alt + w * pose_filter.place_likelihood(row)))
+        anywhere = float(logsumexp(alt + we * pose_filter.place_likelihood(row)))
         if anywhere - mine > ch.spawn_nats:
             rival = pose_filter.spawn(ch.n_particles)
             rival.update(row, 1.0, prior, kidnap=1.0)
