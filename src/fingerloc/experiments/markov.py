@@ -56,6 +56,7 @@ from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
+from ..map.pose_filter import Challenger
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
     POSE_PARTICLES,
@@ -476,8 +477,15 @@ class PoseFilteredMethod(FilteredMethod):
             start_at_first_observation=self.start_at_first_observation,
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
-            challenger=challenger_of(self.calibration_),
+            challenger=self._challenger(),
         )
+
+    def _challenger(self) -> Challenger | None:
+        """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
+        cal = getattr(self, "calibration_", None)
+        if cal is None:
+            cal = Calibration(challenger=self.challenger, challenger_switch_nats=self.challenger_switch_nats)
+        return challenger_of(cal)
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
         """The pose filter over the whole query pass, with the method's odometry increments."""
