@@ -56,12 +56,15 @@ from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
+from ..map.pose_filter import Challenger
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
+    POSE_PARTICLES,
     Calibration,
     FitScore,
     HeldOut,
     Tracker,
+    challenger_of,
     held_out_calibration,
     run_pose_steps,
     step_distances,
@@ -310,7 +313,8 @@ class PoseFilteredMethod(FilteredMethod):
     ----------
     base : str
     odometry : {"simulated", "exact"}, default "simulated"
-    n_particles : int, default 3000
+    n_particles : int, default POSE_PARTICLES
+        :data:`fingerloc.pipeline.tracker.POSE_PARTICLES`, as :class:`~fingerloc.pipeline.tracker.Tracker`.
     outlier : float, default 0.1
     seed : int, default 0
         Seeds the simulated odometry and the particle filter.
@@ -343,6 +347,14 @@ class PoseFilteredMethod(FilteredMethod):
         The filter's likelihood weight of a pose at no place (default
         ``outlier``); with ``outlier="fit"`` it stays 0.1.
 
+    challenger : bool, default False
+        Run a challenger filter started from the sensor and switch to it when
+        its trajectory's log Bayes factor against the incumbent's exceeds
+        ``challenger_switch_nats``
+        (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
+        during ``tune``).
+    challenger_switch_nats : float, default 3.0
+
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
     same held-out rows as ``beta``).
@@ -360,7 +372,7 @@ class PoseFilteredMethod(FilteredMethod):
         base: str,
         *,
         odometry: str = "simulated",
-        n_particles: int = 3000,
+        n_particles: int = POSE_PARTICLES,
         outlier: float | str = 0.1,
         seed: int = 0,
         calibrate: bool = True,
@@ -374,8 +386,12 @@ class PoseFilteredMethod(FilteredMethod):
         gap_metres: float | None = None,
         off_place: float | None = None,
         tune: bool = True,
+        challenger: bool = False,
+        challenger_switch_nats: float = 3.0,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.challenger = bool(challenger)
+        self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
         if isinstance(outlier, str) and outlier != "fit":
             raise InvalidParameterError(f"outlier must be a probability or 'fit', got {outlier!r}")
@@ -432,6 +448,8 @@ class PoseFilteredMethod(FilteredMethod):
             off_place=off_place,
             start_at_first_observation=self.start_at_first_observation,
             gap_metres=self.gap_metres,
+            challenger=self.challenger,
+            challenger_switch_nats=self.challenger_switch_nats,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
@@ -464,7 +482,15 @@ class PoseFilteredMethod(FilteredMethod):
             start_at_first_observation=self.start_at_first_observation,
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
+            challenger=self._challenger(),
         )
+
+    def _challenger(self) -> Challenger | None:
+        """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
+        cal = getattr(self, "calibration_", None)
+        if cal is None:
+            cal = Calibration(challenger=self.challenger, challenger_switch_nats=self.challenger_switch_nats)
+        return challenger_of(cal)
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
         """The pose filter over the whole query pass, with the method's odometry increments."""
@@ -528,6 +554,12 @@ def _fingerprint_odometry_reliability() -> Method:
 def _fingerprint_odometry_eager() -> Method:
     # Ablation: the start prior carried by dead reckoning to the first observation (the former default).
     return PoseFilteredMethod("fingerprint", start_at_first_observation=False)
+
+
+@register_method("fingerprint-odometry-challenger", default=False)
+def _fingerprint_odometry_challenger() -> Method:
+    # A challenger filter started from the sensor, adopted when its trajectory fits the views better (3 nats).
+    return PoseFilteredMethod("fingerprint", challenger=True)
 
 
 @register_method("fingerprint-odometry-reset", default=False)

@@ -61,6 +61,7 @@ from ..validation import check_random_state
 from .filter import FilterResult, MarkovFilter
 
 __all__ = [
+    "Challenger",
     "MotionNoise",
     "OdometryError",
     "PoseFilter",
@@ -68,6 +69,7 @@ __all__ = [
     "observation_weights",
     "odometry_increments",
     "path_start_poses",
+    "run_challenged_pose_filter",
     "run_pose_filter",
     "simulate_odometry",
     "wheel_odometry",
@@ -359,6 +361,8 @@ class PoseFilter:
         self.log_weights_ = np.full(n, -math.log(n))
         self._place_log_posterior = self._particle_places()
         self.resets_ = 0
+        self.switches_: list[int] = []
+        self.challenger_trace_: list[tuple[int, str, float]] = []
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
@@ -532,6 +536,41 @@ class PoseFilter:
             idx = self._rng.choice(n, size=m, replace=False)
             self.particles_[idx] = self._sample_at_places(lp, m)
             self._place_log_posterior = self._particle_places()
+        return self.place_log_posterior()
+
+    def log_evidence(self, log_likelihood: Any, weight: float = 1.0) -> float:
+        """Log predictive likelihood of one observation under the tracked particles (no kidnapping; state unchanged).
+
+        ``log sum_i w_i l_i``: the particles' normalised weights times the
+        tempered robust likelihood each would give the observation (as
+        :meth:`update` weighs them). Two filters' sums over the same
+        observations compare their trajectories' fit (a Bayes factor).
+        """
+        w_obs = _finite("weight", weight)
+        lp = w_obs * self.place_likelihood(log_likelihood)
+        floor = w_obs * math.log(self.off_place / self.n_places) if self.off_place > 0 else -np.inf
+        d, near = self._nearest(self.particles_[:, :2])
+        w = self.log_weights_ + np.where(d <= self.radius, lp[near], floor)
+        return float(logsumexp(w)) if np.any(np.isfinite(w)) else -math.inf
+
+    def spawn(self, n_particles: int | None = None) -> PoseFilter:
+        """A filter with the same map and settings (and the same random generator), ``n_particles`` (default this one's)."""
+        other = PoseFilter.__new__(PoseFilter)
+        for k, v in self.__dict__.items():
+            setattr(other, k, v)
+        if n_particles is not None:
+            if isinstance(n_particles, bool) or not isinstance(n_particles, (int, np.integer)) or n_particles < 10:
+                raise InvalidParameterError(f"n_particles must be an integer >= 10, got {n_particles!r}")
+            other.n_particles = int(n_particles)
+        other.reset()
+        return other
+
+    def adopt(self, other: PoseFilter) -> FArray:
+        """Take over ``other``'s belief (its particles resampled to this filter's count); the place log-posterior."""
+        if other.n_places != self.n_places:
+            raise InvalidParameterError(f"cannot adopt a filter over {other.n_places} places, need {self.n_places}")
+        self._resample(other.particles_, other.log_weights_)
+        self._place_log_posterior = other.place_log_posterior()
         return self.place_log_posterior()
 
     def _resample(self, particles: FArray, log_w: FArray) -> None:
@@ -784,4 +823,194 @@ def run_pose_filter(
             out[t] = pose_filter.reseed(theirs - logsumexp(theirs), frac)
             cusum, resets = 0.0, resets + 1
     pose_filter.resets_ = resets
+    return FilterResult.from_log_posterior(out)
+
+
+@dataclass(frozen=True, slots=True)
+class Challenger:
+    """Settings of the challenger filter of :func:`run_challenged_pose_filter`.
+
+    Attributes
+    ----------
+    n_particles : int, default 1000
+        Particles of the challenger (the incumbent keeps its own count).
+    spawn_nats : float, default 0.0
+        A challenger is started at an observation that the "robot was put
+        anywhere" hypothesis (the place filter's predicted belief times the
+        observation's likelihood) explains better than the incumbent's
+        particles by more than this many nats (tempered).
+    switch_nats : float, default 3.0
+        The challenger replaces the incumbent when the log Bayes factor of
+        its trajectory against the incumbent's (summed log predictive
+        likelihoods since it started, the starting observation included)
+        exceeds this.
+    drop_nats : float, default 3.0
+        The challenger is dropped when that log Bayes factor falls below ``-drop_nats``.
+    max_observations : int, default 10
+        ... or after this many observations without a switch ...
+    merged_tv : float, default 0.25
+        ... or when its place posterior is within this total variation of
+        the incumbent's (it has found the same track: no rival).
+    tempered_evidence : bool, default True
+        Compare the two trajectories with the tempered likelihoods (as the
+        updates weigh them); False: every observation at full weight in the
+        Bayes factor (the updates stay tempered).
+    """
+
+    n_particles: int = 1000
+    spawn_nats: float = 0.0
+    switch_nats: float = 3.0
+    drop_nats: float = 3.0
+    max_observations: int = 10
+    merged_tv: float = 0.25
+    tempered_evidence: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_particles, bool) or not isinstance(self.n_particles, (int, np.integer)) or self.n_particles < 10:
+            raise InvalidParameterError(f"n_particles must be an integer >= 10, got {self.n_particles!r}")
+        _finite("switch_nats", self.switch_nats)
+        _finite("drop_nats", self.drop_nats)
+        if not math.isfinite(float(self.spawn_nats)):
+            raise InvalidParameterError(f"spawn_nats must be finite, got {self.spawn_nats!r}")
+        if isinstance(self.max_observations, bool) or not isinstance(self.max_observations, (int, np.integer)) or self.max_observations < 1:
+            raise InvalidParameterError(f"max_observations must be an integer >= 1, got {self.max_observations!r}")
+
+
+def _total_variation(log_p: FArray, log_q: FArray) -> float:
+    return 0.5 * float(np.abs(np.exp(log_p) - np.exp(log_q)).sum())
+
+
+def run_challenged_pose_filter(
+    log_likelihood: Any,
+    increments: Any,
+    pose_filter: PoseFilter,
+    challenger: Challenger | None = None,
+    *,
+    weights: Any = None,
+    temper: tuple[float, float] | None = None,
+    place_filter: MarkovFilter | None = None,
+    start_at_first_observation: bool = False,
+    gap_metres: float | None = None,
+) -> FilterResult:
+    """:func:`run_pose_filter` with a challenger: a second filter started from the sensor, adopted when its trajectory fits better.
+
+    A kidnapped (or lost) pose filter recovers slowly: its kidnapping term
+    re-draws a few particles with the views' likelihood, and those, with a
+    guessed heading, seldom survive the next moves. Here, when an
+    observation is explained better by "the robot is anywhere" (the place
+    filter's predicted belief, or uniform, times the robust likelihood) than
+    by the incumbent's particles, a whole second filter (the *challenger*) is
+    started from that observation (as :meth:`PoseFilter.update` with
+    ``kidnap=1``: the places' prior times the likelihood, any heading) and
+    moved by the same odometry. At each later observation both filters'
+    log predictive likelihoods (:meth:`PoseFilter.log_evidence`, tempered as
+    the updates) are added to a log Bayes factor, which starts with the
+    starting observation's ratio. A run of confident wrong single-shot
+    answers seldom forms a trajectory consistent with the odometry and the
+    place layout, so a challenger born of them loses and is dropped; after a
+    real kidnapping the incumbent's particles are at the wrong places (or at
+    none) while the challenger's follow the robot, and it wins within a few
+    observations. The incumbent then adopts the challenger's particles
+    (:meth:`PoseFilter.adopt`). Answers are the incumbent's.
+
+    Parameters
+    ----------
+    log_likelihood, increments, pose_filter, weights, temper, place_filter, start_at_first_observation, gap_metres
+        As :func:`run_pose_filter`.
+    challenger : Challenger, optional
+        Default ``Challenger()``.
+
+    Returns
+    -------
+    FilterResult
+        ``pose_filter.resets_`` is set to the number of switches,
+        ``pose_filter.switches_`` to the steps where they happened and
+        ``pose_filter.challenger_trace_`` to ``(step, event, log Bayes
+        factor)`` for every spawn, comparison, switch and drop.
+    """
+    ch = Challenger() if challenger is None else challenger
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    P = pose_filter.n_places
+    if ll.ndim != 2 or ll.shape[1] != P:
+        raise InvalidParameterError(f"log_likelihood must have shape (n_steps, {P}), got {ll.shape}")
+    n = ll.shape[0]
+    inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
+    if inc.shape[0] == n:
+        inc = inc[1:]
+    if n and inc.shape[0] != n - 1:
+        raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
+    if weights is None and temper is not None:
+        weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
+    wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if wts.size != n:
+        raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
+    pose_filter.reset()
+    if place_filter is not None:
+        if place_filter.transition.n_places != P:
+            raise InvalidParameterError(f"the place filter has {place_filter.transition.n_places} places, need {P}")
+        place_filter.reset()
+    gap = math.inf if gap_metres is None else _finite("gap_metres", gap_metres)
+    out = np.empty_like(ll)
+    lost = bool(start_at_first_observation)
+    uniform = np.full(P, -math.log(P))
+    rival: PoseFilter | None = None
+    factor, age = 0.0, 0
+    switches: list[int] = []
+    trace: list[tuple[int, str, float]] = []
+    for t in range(n):
+        row = ll[t]
+        observed = not np.all(np.isnan(row))
+        prior = None
+        if place_filter is not None:
+            prior = (
+                place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
+            )
+            if observed:
+                place_filter.update(np.where(np.isnan(row), -np.inf, row))
+        if t > 0:
+            pose_filter.predict(inc[t - 1])
+            if rival is not None:
+                rival.predict(inc[t - 1])
+            if math.hypot(inc[t - 1, 0], inc[t - 1, 1]) > gap:
+                lost, rival = True, None
+        if not observed:
+            out[t] = pose_filter.place_log_posterior()
+            continue
+        if lost:
+            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0)
+            lost = False
+            continue
+        w = float(wts[t])
+        we = w if ch.tempered_evidence else 1.0
+        mine = pose_filter.log_evidence(row, we)
+        if rival is not None:
+            factor += rival.log_evidence(row, we) - mine
+            rival.update(row, w, prior)
+            age += 1
+            trace.append((t, "compare", factor))
+        out[t] = pose_filter.update(row, w, prior)
+        if rival is not None:
+            if factor > ch.switch_nats:
+                out[t] = pose_filter.adopt(rival)
+                switches.append(t)
+                trace.append((t, "switch", factor))
+                rival = None
+            elif (
+                factor < -ch.drop_nats
+                or age >= ch.max_observations
+                or _total_variation(rival.place_log_posterior(), out[t]) < ch.merged_tv
+            ):
+                trace.append((t, "drop", factor))
+                rival = None
+            continue
+        alt = uniform if prior is None else np.asarray(prior, dtype=np.float64) - logsumexp(prior)
+        anywhere = float(logsumexp(alt + we * pose_filter.place_likelihood(row)))
+        if anywhere - mine > ch.spawn_nats:
+            rival = pose_filter.spawn(ch.n_particles)
+            rival.update(row, 1.0, prior, kidnap=1.0)
+            factor, age = anywhere - mine, 0
+            trace.append((t, "spawn", factor))
+    pose_filter.resets_ = len(switches)
+    pose_filter.switches_ = switches
+    pose_filter.challenger_trace_ = trace
     return FilterResult.from_log_posterior(out)

@@ -48,17 +48,19 @@ from ..map.graph import PlaceGraph, nearest_place_sequence
 from .places import visit_folds
 
 if TYPE_CHECKING:
-    from ..map.pose_filter import PoseFilter
+    from ..map.pose_filter import Challenger, PoseFilter
     from ..observation import Observation
 
 __all__ = [
     "FILTERS",
     "MIN_CALIBRATION_ROWS",
+    "POSE_PARTICLES",
     "Calibration",
     "FitScore",
     "HeldOut",
     "Tracker",
     "calibrate_labelled",
+    "challenger_of",
     "fit_scale",
     "held_out_calibration",
     "held_out_rows",
@@ -75,6 +77,8 @@ __all__ = [
 
 #: Held-out rows needed to fit the likelihood scale from visits; fewer -> alternate scans.
 MIN_CALIBRATION_ROWS = 10
+#: Particles of the pose filter (:class:`Tracker` and the benchmark's pose-filtered methods).
+POSE_PARTICLES = 3000
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -118,6 +122,12 @@ class Calibration:
     gap_metres : float or None
         Pose filter: an odometry step longer than this (a gap in the run)
         re-draws the particles at the next observation.
+    challenger : bool
+        Pose filter: run a challenger filter started from the sensor and
+        switch to it when its trajectory fits the views better
+        (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`).
+    challenger_switch_nats : float
+        The challenger's log Bayes factor that makes the switch.
     """
 
     beta: float = 1.0
@@ -134,6 +144,8 @@ class Calibration:
     off_place: float = 0.1
     start_at_first_observation: bool = True
     gap_metres: float | None = None
+    challenger: bool = False
+    challenger_switch_nats: float = 3.0
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -324,6 +336,7 @@ def run_pose_steps(
     start_at_first_observation: bool = False,
     gap_metres: float | None = None,
     reset_threshold: float | None = None,
+    challenger: Challenger | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -341,8 +354,23 @@ def run_pose_steps(
     relocalize : bool, default True
     start_at_first_observation, gap_metres, reset_threshold
         :func:`~fingerloc.map.pose_filter.run_pose_filter`.
+    challenger : Challenger, optional
+        Run :func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`
+        instead (``reset_threshold`` is then not used).
     """
-    from ..map.pose_filter import run_pose_filter
+    from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
+
+    if challenger is not None:
+        return run_challenged_pose_filter(
+            log_likelihood,
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            pose_filter,
+            challenger,
+            temper=temper,
+            place_filter=MarkovFilter(transition) if relocalize else None,
+            start_at_first_observation=start_at_first_observation,
+            gap_metres=gap_metres,
+        )
 
     return run_pose_filter(
         log_likelihood,
@@ -354,6 +382,15 @@ def run_pose_steps(
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
     )
+
+
+def challenger_of(calibration: Calibration) -> Challenger | None:
+    """The calibration's challenger settings (None: no challenger)."""
+    from ..map.pose_filter import Challenger
+
+    if not calibration.challenger:
+        return None
+    return Challenger(switch_nats=calibration.challenger_switch_nats)
 
 
 def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
@@ -442,7 +479,7 @@ class Tracker:
     graph : PlaceGraph
         The place graph (its places in the same order as ``centres``).
     calibration : Calibration
-    n_particles : int, default 3000
+    n_particles : int, default POSE_PARTICLES
         Pose filter.
     uniform_mix : float, optional
         Uniform mixing per step of the transition model (default
@@ -459,7 +496,7 @@ class Tracker:
         graph: PlaceGraph,
         calibration: Calibration,
         *,
-        n_particles: int = 3000,
+        n_particles: int = POSE_PARTICLES,
         uniform_mix: float | None = None,
     ) -> None:
         self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
@@ -520,6 +557,7 @@ class Tracker:
             start_at_first_observation=c.start_at_first_observation,
             gap_metres=c.gap_metres,
             reset_threshold=reset_threshold,
+            challenger=challenger_of(c),
         )
 
     def run(

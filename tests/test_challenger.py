@@ -1,0 +1,153 @@
+"""The challenger filter (issue 15): a second pose filter started from the sensor, adopted when its trajectory fits better."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from fingerloc.errors import InvalidParameterError
+from fingerloc.map.pose_filter import (
+    Challenger,
+    PoseFilter,
+    odometry_increments,
+    run_challenged_pose_filter,
+    run_pose_filter,
+)
+
+CORRIDOR = np.column_stack([np.arange(10) * 3.0, np.zeros(10)])
+
+
+def _polyline(points, step):
+    out = []
+    for a, b in itertools.pairwise(points):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        n = max(round(float(np.hypot(*(b - a))) / step), 1)
+        th = math.atan2(b[1] - a[1], b[0] - a[0])
+        out += [(*(a + (b - a) * k / n), th) for k in range(n)]
+    out.append((*points[-1], out[-1][2]))
+    return np.array(out)
+
+
+def _truth(poses, centres, radius=1.0):
+    d = np.hypot(poses[:, None, 0] - centres[None, :, 0], poses[:, None, 1] - centres[None, :, 1])
+    t = np.argmin(d, axis=1)
+    t[d[np.arange(t.size), t] > radius] = -1
+    return t
+
+
+def _sensor(truth, n_places, separation, seed):
+    rng = np.random.default_rng(seed)
+    ll = np.full((truth.size, n_places), np.nan)
+    q = np.flatnonzero(truth >= 0)
+    ll[q] = rng.normal(size=(q.size, n_places))
+    ll[q, truth[q]] += separation
+    return ll
+
+
+def _kidnapped(seed, challenger):
+    """The particles are sure the robot is at place 0 (no kidnapping term); it is at place 5 and the sensor says so."""
+    poses = _polyline([(15, 0), (27, 0)], 0.5)
+    truth = _truth(poses, CORRIDOR)
+    ll = _sensor(truth, 10, 3.0, seed)
+    f = PoseFilter(CORRIDOR, 1.0, kidnap=0.0, start=np.array([[0.0, 0.0, 0.0]]), random_state=seed)
+    inc = odometry_increments(poses)
+    if challenger is None:
+        res = run_pose_filter(ll, inc, f, temper=(2.0, math.pi))
+    else:
+        res = run_challenged_pose_filter(ll, inc, f, challenger, temper=(2.0, math.pi))
+    q = truth >= 0
+    return res.best[q] == truth[q], f
+
+
+@pytest.mark.parametrize(("seed", "tempered"), [(0, True), (1, True), (2, True), (0, False)])
+def test_the_challenger_recovers_a_kidnapped_filter(seed, tempered):
+    """Without a kidnapping term the filter never leaves its wrong belief; the challenger takes over within 10 observations."""
+    right, _ = _kidnapped(seed, None)
+    assert right.mean() < 0.2  # the failure, kept visible
+    right, f = _kidnapped(seed, Challenger(tempered_evidence=tempered))
+    assert f.resets_ >= 1 and f.switches_
+    first = int(np.flatnonzero(right)[0])
+    assert first <= 10 and right[first:].mean() >= 0.9
+
+
+def _confident_mistakes(seed, challenger):
+    """A tracked robot on the corridor; for 6 observations the sensor names a random wrong place, confidently."""
+    poses = _polyline([(0, 0), (27, 0)], 0.5)
+    truth = _truth(poses, CORRIDOR)
+    ll = _sensor(truth, 10, 3.0, seed)
+    rng = np.random.default_rng(100 + seed)
+    q = np.flatnonzero(truth >= 0)
+    bad = q[(q > 15) & (q < 50)][:6]
+    for t in bad:
+        wrong = int(rng.choice([j for j in range(10) if j != truth[t]]))
+        ll[t] = rng.normal(size=10)
+        ll[t, wrong] += 6.0
+    f = PoseFilter(CORRIDOR, 1.0, kidnap=0.005, start=np.array([[0.0, 0.0, 0.0]]), random_state=seed)
+    res = run_challenged_pose_filter(ll, odometry_increments(poses), f, challenger, temper=(2.0, math.pi))
+    after = q[q > bad[-1]]
+    return float(np.mean(res.best[after] == truth[after])), f
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_run_of_wrong_answers_inconsistent_with_the_odometry_does_not_switch(seed):
+    top1, f = _confident_mistakes(seed, Challenger())
+    assert top1 >= 0.9
+    assert any(e == "spawn" for _, e, _ in f.challenger_trace_)  # challengers were tried ...
+    assert f.resets_ == 0  # ... and lost
+
+
+def test_log_evidence_by_hand():
+    f = PoseFilter(CORRIDOR, 1.0, n_particles=50, outlier=0.2, off_place=0.1, random_state=0)
+    row = np.random.default_rng(0).normal(size=10)
+    lp = 0.5 * f.place_likelihood(row)
+    d = np.hypot(f.particles_[:, None, 0] - CORRIDOR[None, :, 0], f.particles_[:, None, 1] - CORRIDOR[None, :, 1])
+    near, dist = np.argmin(d, axis=1), np.min(d, axis=1)
+    lik = np.where(dist <= 1.0, lp[near], 0.5 * math.log(0.1 / 10))
+    want = float(logsumexp(f.log_weights_ + lik))
+    before = f.particles_.copy()
+    assert f.log_evidence(row, 0.5) == pytest.approx(want, abs=1e-12)
+    assert np.array_equal(f.particles_, before)  # nothing moved
+
+
+def test_spawn_and_adopt():
+    f = PoseFilter(CORRIDOR, 1.0, n_particles=300, random_state=0)
+    g = f.spawn(100)
+    assert g.n_particles == 100 and g.particles_.shape == (100, 3) and f.particles_.shape == (300, 3)
+    g.update(np.where(np.arange(10) == 7, 5.0, 0.0), 1.0, kidnap=1.0)
+    post = f.adopt(g)
+    assert f.particles_.shape == (300, 3)
+    assert int(np.argmax(post)) == 7 and np.isclose(np.exp(post).sum(), 1.0)
+    with pytest.raises(InvalidParameterError):
+        f.adopt(PoseFilter(CORRIDOR[:3], 1.0, n_particles=20))
+
+
+@pytest.mark.parametrize(
+    "kw", [{"n_particles": 5}, {"switch_nats": -1.0}, {"drop_nats": math.nan}, {"max_observations": 0}, {"spawn_nats": math.inf}]
+)
+def test_challenger_settings_are_checked(kw):
+    with pytest.raises(InvalidParameterError):
+        Challenger(**kw)
+
+
+def test_the_tracker_runs_the_challenger_from_the_calibration():
+    """`Calibration.challenger` is what `track --filter pose` and the benchmark read: the same run as the function."""
+    from fingerloc.map.filter import MarkovFilter
+    from fingerloc.pipeline.tracker import Calibration, Tracker, challenger_of, mapping_graph
+
+    poses = _polyline([(0, 0), (27, 0), (0, 0)], 0.5)
+    truth = _truth(poses, CORRIDOR)
+    ll = _sensor(truth, 10, 3.0, 0)
+    graph, metres = mapping_graph(poses[:, :2], CORRIDOR)
+    cal = Calibration(metres_per_move=metres, kidnap=0.01, challenger=True, challenger_switch_nats=2.0)
+    assert challenger_of(cal) == Challenger(switch_nats=2.0) and challenger_of(Calibration()) is None
+    tracker = Tracker(CORRIDOR, graph, cal, n_particles=200)
+    got = tracker.run(ll, poses, filter="pose", seed=3)
+    f = tracker.pose_filter(3)
+    want = run_challenged_pose_filter(
+        ll, odometry_increments(poses), f, Challenger(switch_nats=2.0), temper=(2.0, math.pi),
+        place_filter=MarkovFilter(tracker.transition_), start_at_first_observation=True,
+    )  # fmt: skip
+    assert np.array_equal(got.log_posterior, want.log_posterior)
+    assert f.challenger_trace_  # challengers were started
