@@ -334,7 +334,8 @@ def _localize_chunk(model: Any, obs: list[Any], names: list[str], start: int, to
     rank_of_true = np.where(truth >= 0, ranks[np.arange(len(obs)), np.maximum(truth, 0)], 0)
     headings = np.full(len(obs), np.nan)
     refs = np.full(len(obs), -1, dtype=np.int64)
-    if model.cyclic and len(obs):
+    with_heading = bool(model.cyclic or "AP" in model.terms_)
+    if with_heading and len(obs):
         # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
         h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
         headings = np.mod(-h, 360.0)
@@ -342,7 +343,7 @@ def _localize_chunk(model: Any, obs: list[Any], names: list[str], start: int, to
     tab = None
     if table:
         tab = Table(show_header=True)
-        for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if model.cyclic else ()):
+        for c in ("#", "true", "best", f"top {top} (posterior)", "rank of true") + (("heading",) if with_heading else ()):
             tab.add_column(c, overflow="fold")  # long place names wrap, never cut
         post = np.exp(logp)
         for i, o in enumerate(obs):
@@ -350,7 +351,7 @@ def _localize_chunk(model: Any, obs: list[Any], names: list[str], start: int, to
             topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
             r = rank_of_true[i]
             row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if model.cyclic:
+            if with_heading:
                 row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
             tab.add_row(*row)
     return _Answers(model, obs, names, start, terms, logp, ranks, best_cols, rank_of_true, headings, refs, unknown, tab)
