@@ -191,3 +191,13 @@ def test_features_learn_localize_report_the_profile_heading(tmp_path, capsys):
     assert rec["best"] == "room1" and "AP" in rec["terms"]
     ref_shift = 0 if rec["heading_ref"].endswith("r1_0.png") else 200
     assert _diff(rec["heading_deg"], (100 - ref_shift) * 0.5) < 3.0
+
+
+def test_profile_hardly_depends_on_resolution_or_exposure():
+    img = _room(2, 0, seed=4, h=120).astype(np.float64) / 255.0
+    big = np.repeat(np.repeat(img, 2, axis=0), 2, axis=1)  # 1440 columns: block-averaged back to 720
+    p = column_profile(Panorama(img))
+    assert np.allclose(column_profile(Panorama(big)), p, atol=1e-6)
+    # a darker exposure: log luminance and chromaticities barely move once standardised
+    dark = column_profile(Panorama(img * 0.5))
+    assert profile_correlation(p, dark)[0] > 0.95

@@ -733,6 +733,10 @@ def appearance_descriptor(pano: Panorama, **params: Any) -> FArray:
 PROFILE_CHANNELS: tuple[str, ...] = ("log_luminance", "red_chromaticity", "green_chromaticity", "column_gradient", "row_gradient")
 
 
+#: Images wider than this are block-averaged to about this many columns first (gradients at one scale).
+_PROFILE_WIDTH = 720
+
+
 def column_profile(pano: Panorama, *, columns: int = 72, strips: int = 4) -> FArray:
     """The view at each bearing: coarse cells of the band, shape ``(columns, strips * 5)``.
 
@@ -743,7 +747,9 @@ def column_profile(pano: Panorama, *, columns: int = 72, strips: int = 4) -> FAr
     over its pixels of :data:`PROFILE_CHANNELS`: log luminance, the red and
     green chromaticities, and the absolute differences of log luminance
     across the columns (vertical structure) and across the rows (horizontal
-    structure). Each of the ``strips * 5`` channels is then standardised over
+    structure), after block means by the largest whole factor that keeps at
+    least 720 columns (so that a 1440 or a 5760 px photo give about the same
+    gradients). Each of the ``strips * 5`` channels is then standardised over
     the rows (mean 0, standard deviation 1; a flat channel stays 0), so that
     exposure, white balance and contrast do not count.
 
@@ -755,8 +761,15 @@ def column_profile(pano: Panorama, *, columns: int = 72, strips: int = 4) -> FAr
         raise InvalidParameterError(f"columns must be an integer >= 4, got {columns!r}")
     if isinstance(strips, bool) or not isinstance(strips, (int, np.integer)) or strips < 1:
         raise InvalidParameterError(f"strips must be an integer >= 1, got {strips!r}")
-    img = np.asarray(pano.image, dtype=np.float64) / 255.0
+    img = np.asarray(pano.image, dtype=np.float64)  # float in [0, 1]
     h, w, _ = img.shape
+    if w > _PROFILE_WIDTH:  # the same cells whatever the image's resolution: block means down to ~720 columns
+        f = w // _PROFILE_WIDTH
+        fh = max(1, min(f, h // max(strips, 1)))
+        w2, h2 = (w // f) * f, (h // fh) * fh
+        img = img[:h2, :w2].reshape(h2 // fh, fh, w2 // f, f, 3).mean(axis=(1, 3))
+        pano = Panorama(img, bearing_offset=pano.bearing_offset, clockwise=pano.clockwise)
+        h, w, _ = img.shape
     if h < strips:
         raise InvalidParameterError(f"the panorama has {h} rows, fewer than the {strips} strips of its profile")
     lum = img @ np.array([0.299, 0.587, 0.114])
