@@ -201,3 +201,23 @@ def test_profile_hardly_depends_on_resolution_or_exposure():
     # a darker exposure: log luminance and chromaticities barely move once standardised
     dark = column_profile(Panorama(img * 0.5))
     assert profile_correlation(p, dark)[0] > 0.95
+
+
+def test_heading_link_errors_scores_the_profile_against_the_arrows(tmp_path):
+    from fingerloc.experiments.panorama import CampusPhoto, TourLink, extract_features, heading_link_errors
+
+    (tmp_path / "x").mkdir()
+    for k, shift in enumerate((0, 40)):
+        full = np.full((180, 360, 3), 200, dtype=np.uint8)
+        full[45:135] = np.asarray(Image.fromarray(_room(1, 2 * shift, seed=k, h=90)).resize((360, 90)))
+        Image.fromarray(full).save(tmp_path / "x" / f"p{k}.png")
+    photos = [CampusPhoto(f"p{k}", f"x/p{k}.png", "area", "x-1", None) for k in range(2)]
+    feats = extract_features(tmp_path, photos, width=360)
+    # p1 is p0 turned: a feature at bearing x in p0 is at x - 40 deg in p1 (columns run clockwise)
+    good = TourLink("x/p0.png", "x/p1.png", 320.0, True)
+    wrong = TourLink("x/p0.png", "x/p1.png", 140.0, False)
+    res = heading_link_errors([good, wrong], photos, feats)
+    assert res["profile, same area"]["pairs"] == 1
+    assert res["profile, same area"]["median_error_deg"] < 3.0
+    assert res["profile, all links"]["pairs"] == 2 and res["profile, all links"]["within_30"] == 0.5
+    assert res["pairs"][0]["truth_deg"] == 320.0
