@@ -2,7 +2,7 @@
 
 Usage::
 
-    python scripts/panorama_presets.py PHOTO_DIR AREAS_DIR CACHE.jsonl [NAME_FILTER]
+    python scripts/panorama_presets.py PHOTO_DIR AREAS_DIR CACHE.jsonl [NAME,NAME,...]
 
 PHOTO_DIR, AREAS_DIR and the cache are those of ``fingerloc bench panorama``
 (the cache holds the extracted features). Each photo whose place has two or
@@ -22,8 +22,14 @@ FEATURE = CostModel.feature_aware()
 CONFIGS = {
     "Fp+A (cyclic, feature, exp)": dict(terms=("Fp", "A"), cyclic=True, costs=FEATURE, fp_likelihood="exp"),
     "A": dict(terms=("A",)),
-    "Fp+A weights=fit (panorama preset)": dict(
+    "Fp+A weights=fit (former preset)": dict(
         terms=("Fp", "A"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
+    ),
+    "AP": dict(terms=("AP",)),
+    "A+AP": dict(terms=("A", "AP")),
+    "A+AP weights=fit": dict(terms=("A", "AP"), weights="fit"),
+    "Fp+A+AP weights=fit (panorama preset)": dict(
+        terms=("Fp", "A", "AP"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
     ),
     "VE+CP+Fp+A rotate, fit": dict(
         terms=("VE", "CP", "Fp", "A"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit",
@@ -45,7 +51,7 @@ def main(photo_dir: str, areas_dir: str, cache: str, only: str = "") -> None:
         lab = [labs[i] for i in idx]
         queries = [k for k in range(len(obs)) if lab.count(lab[k]) >= 2]
         for name, cfg in CONFIGS.items():
-            if only not in name:
+            if only and name not in only.split(","):
                 continue
             t0 = time.time()
             hits = 0

@@ -36,6 +36,7 @@ from .terms import (
     AppearanceTerm,
     FingerprintTerm,
     MixtureTerm,
+    ProfileTerm,
     RangeTerm,
     Term,
     consensus_fingerprint,
@@ -47,8 +48,9 @@ __all__ = ["MOG_TERMS", "PAPER_TERMS", "TERMS", "PlaceData", "PlaceModel", "cons
 
 #: The paper's terms (the default).
 PAPER_TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
-#: Every term a model may use: the paper's, the range term ``R`` and the appearance term ``A`` (our extensions).
-TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A")
+#: Every term a model may use: the paper's, the range term ``R``, the appearance term ``A`` and the
+#: aligned-profile term ``AP`` (our extensions).
+TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A", "AP")
 
 
 FpLikelihood = Literal["paper", "exp"]
@@ -259,6 +261,8 @@ class PlaceModel(ParamsMixin):
                 )
             elif name == "R":
                 out[name] = RangeTerm(bin_m=self.range_bin_m, max_m=self.range_max_m)
+            elif name == "AP":
+                out[name] = ProfileTerm()
             else:
                 out[name] = AppearanceTerm()
         return out
@@ -509,8 +513,15 @@ class PlaceModel(ParamsMixin):
     def headings_with_reference(
         self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
     ) -> tuple[FArray, NDArray[np.int64]]:
-        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none)."""
+        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none).
+
+        With the aligned-profile term ``AP``, an observation that has a
+        profile takes its heading from the best-matching view's profile
+        (:meth:`fingerloc.terms.ProfileTerm.heading_at`); the others, from
+        the fingerprint string's cyclic alignment.
+        """
         self._check_fitted()
+        ap = self.terms_.get("AP")
         fp = self.terms_.get("Fp")
         if not isinstance(fp, FingerprintTerm):  # a model without the string term: its fingerprints, for headings only
             fp = self.__dict__.get("_heading_term")
@@ -527,6 +538,12 @@ class PlaceModel(ParamsMixin):
         out = np.full(len(obs), np.nan)
         ref = np.full(len(obs), -1, dtype=np.int64)
         for i, (o, lab) in enumerate(zip(obs, labs, strict=True)):
+            if isinstance(ap, ProfileTerm) and o.profile is not None:
+                hp, v = ap.heading_at(o, self.column_of(lab))
+                if hp is not None:  # the fingerprint's convention: bearing in the view = bearing in o - heading
+                    out[i] = float(np.mod(-hp, 360.0))
+                    ref[i] = v
+                    continue
             h, v = fp.heading_at(o, self.column_of(lab))
             if h is not None:
                 out[i] = h

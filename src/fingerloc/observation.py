@@ -124,6 +124,12 @@ class Observation:
         A heading-free appearance descriptor of the view (for the camera: the
         colour histograms of :func:`fingerloc.features.vision.appearance_descriptor`),
         finite and ``>= 0``; the appearance term ``A`` compares it between views.
+    profile : array_like of float, shape (columns, channels), optional
+        What the view looks like at each bearing: row ``k`` describes the
+        bearings ``[k, k + 1) * 360 / columns`` degrees counter-clockwise
+        (for the camera: :func:`fingerloc.features.vision.column_profile`),
+        finite. Headings between views and the aligned-profile term ``AP``
+        compare it over every rotation.
     source : str, optional
         The file the observation was extracted from (an image, a log), as the
         user gave it.
@@ -146,6 +152,7 @@ class Observation:
     timestamp: float | None = None
     appearance: FArray | None = None
     source: str | None = None
+    profile: FArray | None = None
 
     def __post_init__(self) -> None:
         for name in ("ve", "ex", "c", "b"):
@@ -201,6 +208,19 @@ class Observation:
             object.__setattr__(self, "appearance", app)
         if self.source is not None and not isinstance(self.source, str):
             raise InvalidParameterError(f"source: must be a string or None, got {self.source!r}")
+        if self.profile is not None:
+            try:
+                prof = np.array(self.profile, dtype=np.float64, copy=True)
+            except (TypeError, ValueError) as err:
+                raise InvalidParameterError("profile: must be a 2-D array of numbers (columns, channels)") from err
+            if prof.ndim != 2 or prof.shape[0] < 4 or prof.shape[1] < 1:
+                raise InvalidParameterError(
+                    f"profile: must be a 2-D array with at least 4 columns and 1 channel, got shape {prof.shape}"
+                )
+            if not np.all(np.isfinite(prof)):
+                raise InvalidParameterError("profile: values must be finite")
+            prof.setflags(write=False)
+            object.__setattr__(self, "profile", prof)
 
     def _init_walls_and_ranges(self) -> None:
         w = wrap(_readonly(self.w, "w"))
@@ -281,6 +301,7 @@ class Observation:
         timestamp: float | None = None,
         appearance: ArrayLike | None = None,
         source: str | None = None,
+        profile: ArrayLike | None = None,
     ) -> Observation:
         """Build an observation from bearings in degrees.
 
@@ -296,7 +317,7 @@ class Observation:
             Counter-clockwise ranges; ``None`` for the full circle.
         pose : (x, y, theta_deg), optional
             Metres and degrees.
-        appearance, source : optional
+        appearance, source, profile : optional
             As in :class:`Observation`.
         """
         features = dict(features or {})
@@ -328,6 +349,7 @@ class Observation:
             timestamp=timestamp,
             appearance=appearance,  # type: ignore[arg-type]  # validated and converted in __post_init__
             source=source,
+            profile=profile,  # type: ignore[arg-type]  # validated and converted in __post_init__
         )
 
     def bearings(self, kind: str) -> FArray:
@@ -357,7 +379,13 @@ class Observation:
         return float(sum(hi - lo for lo, hi in fov_pieces_deg(self.fov)) / 360.0)
 
     def rotated(self, angle: float) -> Observation:
-        """The same view seen by a robot turned by ``-angle``: every bearing and the fov move by ``angle`` radians."""
+        """The same view seen by a robot turned by ``-angle``: every bearing and the fov move by ``angle`` radians.
+
+        The profile's rows roll by the nearest whole number of rows.
+        """
+        prof = self.profile
+        if prof is not None:
+            prof = np.roll(prof, round(float(angle) / TWO_PI * prof.shape[0]), axis=0)
         return Observation(
             ve=self.ve + angle,
             cp=self.cp + angle,
@@ -376,6 +404,7 @@ class Observation:
             timestamp=self.timestamp,
             appearance=self.appearance,
             source=self.source,
+            profile=prof,
         )
 
     def with_label(self, label: str | None) -> Observation:
@@ -395,6 +424,7 @@ class Observation:
             and self.timestamp == other.timestamp
             and _same_optional(self.appearance, other.appearance)
             and self.source == other.source
+            and _same_optional(self.profile, other.profile)
         )
 
     __hash__ = None  # type: ignore[assignment]

@@ -34,6 +34,11 @@ __all__ = ["LOCALIZE_CHUNK", "ChunkAnswers", "LinesTask", "answer_chunk", "answe
 LOCALIZE_CHUNK = 256
 
 
+def shows_heading(model: Any) -> bool:
+    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP``."""
+    return bool(model.cyclic or "AP" in model.terms_)
+
+
 def encode_record(record: Any) -> tuple[str, dict[str, str]]:
     """One record as strict JSON text (non-finite numbers as ``null``) and where those nulls are (paths inside it)."""
     clean, nulls = strict_json(record)
@@ -113,7 +118,8 @@ def answer_chunk(
     rank_of_true = np.where(truth >= 0, rank_all, 0)
     headings = np.full(n, np.nan)
     refs = np.full(n, -1, dtype=np.int64)
-    if model.cyclic and n:
+    with_heading = shows_heading(model)
+    if with_heading and n:
         # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
         h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
         headings = np.mod(-h, 360.0)
@@ -156,7 +162,7 @@ def answer_chunk(
             topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
             r = rank_of_true[i]
             row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if model.cyclic:
+            if with_heading:
                 row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
             out.rows.append(row)
     return out

@@ -314,6 +314,12 @@ def bench_panorama_cmd(
                 f"heading vs image rotation, {key}: {h['pairs']} pairs, median error "
                 f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
             )
+    for key, h in res.get("heading_links", {}).items():
+        if key != "pairs" and h["pairs"]:
+            console.print(
+                f"heading vs the tour's arrows, {key}: {h['pairs']} pairs, median error "
+                f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
+            )
     write_json(json_out, res)
 
 

@@ -247,6 +247,8 @@ def localize_cmd(
         raise InvalidParameterError("--workers/--scheduler: localize runs on Dask for JSON Lines input only")
     if cluster and report is not None:
         raise InvalidParameterError("--report keeps every answer in memory: give it without --workers/--scheduler")
+    from ._localize import shows_heading
+
     lm = load_map(db)
     model = lm.model
     classes = [str(c) for c in model.classes_]
@@ -281,7 +283,7 @@ def localize_cmd(
             rank_list += [r for r in answers.rank_of_true if r > 0]
             pairs += answers.pairs
             if answers.rows:
-                console.print(_answers_table(answers.rows, top, cyclic=bool(model.cyclic)))
+                console.print(_answers_table(answers.rows, top, cyclic=shows_heading(model)))
             if report is not None:
                 kept.append((answers.logp, answers.ranks))
             n += answers.n

@@ -51,21 +51,26 @@ from ..metrics import min_per_place, true_place_ranks
 from ..observation import Observation
 
 __all__ = [
+    "HEADING_ESTIMATORS",
     "PANORAMA_METHODS",
     "CampusPhoto",
     "PhotoFeatures",
+    "TourLink",
     "band_signature",
     "extract_features",
     "feature_heading_deg",
     "fingerprint_heading_deg",
+    "heading_link_errors",
     "hsv_histogram",
     "image_rotation_deg",
     "jeffrey_divergence",
     "load_edge_labels",
     "load_photo_band",
     "load_tour_layout",
+    "load_tour_links",
     "places_by_area",
     "places_by_position",
+    "profile_distances",
     "run_edge_bench",
     "run_panorama_bench",
     "signature_rotation_deg",
@@ -168,6 +173,97 @@ def load_tour_layout(areas_dir: str | Path, minimap: str | Path | None = None) -
     return out
 
 
+#: Bearing of each tour arrow relative to the photo's ``startingAngle`` (the tour's ``DIRECTION_ANGLES``).
+_ARROW_OFFSETS: dict[str, float] = {
+    "forward": 0.0,
+    "forwardRight": 45.0,
+    "right": 90.0,
+    "backRight": 135.0,
+    "back": 180.0,
+    "backLeft": 225.0,
+    "left": 270.0,
+    "forwardLeft": 315.0,
+}
+#: The tour's explicit arrow angles for horizontal moves (its ``ARROW_OVERRIDES``).
+_ARROW_OVERRIDES: dict[tuple[str, str], float] = {
+    ("w-f1-main-entrance", "forwardLeft"): 155.0,
+    ("w-gym-entry", "forward"): 220.0,
+}
+_START = re.compile(r"\bstartingAngle:\s*(-?[0-9.]+)")
+_ARROW = re.compile(
+    r"\b(forward|forwardRight|right|backRight|back|backLeft|left|forwardLeft):\s*\{\s*connection:\s*'([^']+)'\s*\}"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class TourLink:
+    """Two photos the tour links both ways, with the heading between them from the tour's arrows.
+
+    Attributes
+    ----------
+    a, b : str
+        Photo files (relative, as :attr:`CampusPhoto.file`).
+    heading_deg : float
+        A feature at bearing ``x`` in ``a`` is at bearing ``x + heading_deg``
+        in ``b`` (bearings counter-clockwise, the image's columns clockwise).
+    same_area : bool
+    """
+
+    a: str
+    b: str
+    heading_deg: float
+    same_area: bool
+
+
+def load_tour_links(areas_dir: str | Path) -> list[TourLink]:
+    """Ground-truth headings between linked photos, from the tour's navigation arrows.
+
+    The tour shows, in photo ``a``, an arrow towards each linked photo at the
+    viewer angle ``startingAngle + offset(direction)`` (or an explicit
+    override); when ``b`` links back to ``a``, the line from ``a`` to ``b``
+    is seen at viewer angle ``alpha`` in ``a`` and the opposite direction at
+    ``beta`` in ``b``, so the two photos' frames differ by
+    ``beta - 180 - alpha`` viewer degrees. The viewer angle grows with the
+    image column (checked on the photos: the other sign doubles the median
+    disagreement with an image-to-image correlation), i.e. clockwise, so the
+    heading in bearings is ``alpha - beta + 180``. The arrows were placed by
+    hand, at 45 deg steps from one angle per photo: a few degrees of error
+    and sometimes more where a corridor bends.
+    """
+    root = Path(areas_dir)
+    if not root.is_dir():
+        raise DataFormatError("not a folder of area definitions (*.ts)", path=root)
+    photos: dict[str, tuple[str, str, dict[str, float]]] = {}
+    for ts in sorted(root.rglob("*.ts")):
+        text = ts.read_text(encoding="utf-8")
+        starts = [m.end() for m in _AREA.finditer(text)]
+        for k, s0 in enumerate(starts):
+            chunk = text[s0 : starts[k + 1] if k + 1 < len(starts) else len(text)]
+            area = _FIRST_ID.search(chunk)
+            if area is None:
+                continue
+            found = list(_PHOTO.finditer(chunk))
+            for j, m in enumerate(found):
+                body = chunk[m.end() : found[j + 1].start() if j + 1 < len(found) else len(chunk)]
+                st = _START.search(body)
+                start = float(st.group(1)) if st else 0.0
+                arrows = {
+                    target: _ARROW_OVERRIDES.get((m.group(1), d), (start + _ARROW_OFFSETS[d]) % 360.0)
+                    for d, target in _ARROW.findall(body)
+                }
+                rel = m.group(2).split("360_photos_compressed/", 1)[-1].lstrip("/")
+                photos.setdefault(m.group(1), (rel, area.group(1), arrows))
+    links: list[TourLink] = []
+    for pid, (file_a, area_a, arrows) in photos.items():
+        for target, alpha in arrows.items():
+            other = photos.get(target)
+            if other is None or target <= pid or pid not in other[2]:
+                continue
+            beta = other[2][pid]
+            links.append(TourLink(file_a, other[0], float((alpha - beta + 180.0) % 360.0), area_a == other[1]))
+    return links
+
+
 def places_by_area(photos: Sequence[CampusPhoto]) -> list[str | None]:
     """Place label of each photo: its area id."""
     return [p.area for p in photos]
@@ -233,7 +329,7 @@ def load_photo_band(path: str | Path, *, band: tuple[float, float] = DEFAULT_BAN
 def _extract(pano: Any, source: str) -> Observation:
     from ..features.vision import observation_from_views
 
-    return observation_from_views(panorama=pano, appearance=True, source=source, **PHOTO_EDGE_PARAMS)
+    return observation_from_views(panorama=pano, appearance=True, profile=True, source=source, **PHOTO_EDGE_PARAMS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -293,7 +389,7 @@ def extract_features(
     if not root.is_dir():
         raise DataFormatError("not a folder of photos", path=root)
     known: dict[str, PhotoFeatures] = {}
-    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 2}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 3}
     cpath = Path(cache) if cache is not None else None
     if cpath is not None and not cpath.parent.is_dir():
         raise InvalidParameterError(f"--cache: no folder {str(cpath.parent)!r} to write {cpath.name!r} into")
@@ -392,6 +488,11 @@ PANORAMA_METHODS: tuple[str, ...] = (
     "VE+CP+Fp+A",
     "VE+CP+Fp+A weighted",
     "hsv-baseline",
+    "AP",
+    "A+AP",
+    "Fp+A+AP",
+    "A+AP weighted",
+    "Fp+A+AP weighted",
 )
 
 #: Terms whose weights :func:`_loo_weighted_sum` fits.
@@ -460,6 +561,15 @@ def _loo_weighted_sum(terms: Sequence[FArray], truth: NDArray[np.int64]) -> FArr
     return out
 
 
+def profile_distances(obs: Sequence[Observation]) -> FArray:
+    """``1 - rho`` between every two observations' profiles (the ``AP`` term's distance), shape ``(n, n)``."""
+    from ..terms.profile import profile_peaks
+
+    prof = np.stack([o.profile for o in obs])  # type: ignore[misc]
+    ffts = np.fft.rfft(prof, axis=1)
+    return np.stack([1.0 - profile_peaks(p, ffts, prof.shape[1])[0] for p in prof])
+
+
 def _loo_scores(
     obs: list[Observation], labels: list[str], hists: list[FArray], queries: Sequence[int], n_components: int
 ) -> tuple[dict[str, FArray], NDArray[np.int64]]:
@@ -499,10 +609,13 @@ def _loo_scores(
     out["Fp"] = _loo_distance_ll(d_fp, owner, n_places, queries)
     app = np.stack([o.appearance for o in obs])  # type: ignore[misc]
     out["A"] = _loo_distance_ll(cdist(app, app, metric="cityblock"), owner, n_places, queries)
+    out["AP"] = _loo_distance_ll(profile_distances(obs), owner, n_places, queries)
     for combo in PANORAMA_METHODS:
         if "+" in combo and " " not in combo:
             out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
     out["VE+CP+Fp+A weighted"] = _loo_weighted_sum([out[t] for t in WEIGHTED_TERMS], owner[list(queries)])
+    out["A+AP weighted"] = _loo_weighted_sum([out["A"], out["AP"]], owner[list(queries)])
+    out["Fp+A+AP weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP")], owner[list(queries)])
     h = np.stack(hists)
     dj = jeffrey_divergence(h, h)
     np.fill_diagonal(dj, np.inf)
@@ -553,6 +666,7 @@ def run_panorama_bench(
         "places": {},
     }
     res["heading"] = heading_errors(photos, feats)
+    res["heading_links"] = heading_link_errors(load_tour_links(areas_dir), photos, feats)
     for name, labels_all in (
         ("area", places_by_area(photos)),
         ("position", places_by_position(photos, spacing=spacing)),
@@ -835,5 +949,63 @@ def heading_errors(photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures 
     for name, e in (("Fp", np.asarray(errs)), ("features", np.asarray(errs_f))):
         out[f"{name}, all pairs"] = summary(e, np.ones(e.size, dtype=bool))
         out[f"{name}, clear oracle"] = summary(e, pk >= 0.5)
+    out["pairs"] = rows
+    return out
+
+
+#: Heading estimators of :func:`heading_link_errors`.
+HEADING_ESTIMATORS: tuple[str, ...] = ("profile", "Fp", "features", "signature")
+
+
+def heading_link_errors(
+    links: Sequence[TourLink], photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures | None]
+) -> dict[str, Any]:
+    """Heading estimators against the tour's arrows (:func:`load_tour_links`), on the photos linked both ways.
+
+    Estimators: ``profile`` (:func:`fingerloc.features.vision.profile_rotation_deg`
+    on the observations' column profiles, what ``localize`` reports with the
+    ``AP`` term), ``Fp`` (the fingerprint's cyclic alignment), ``features``
+    (:func:`feature_heading_deg`) and ``signature`` (the former oracle,
+    :func:`signature_rotation_deg`). Per estimator, over all linked pairs and
+    over the pairs of one area: the number of pairs, the median absolute
+    error (degrees) and the share within 30 deg; ``pairs`` lists every pair.
+    """
+    from ..features.vision import profile_rotation_deg
+
+    by_file = {p.file: f for p, f in zip(photos, feats, strict=True)}
+    errs: dict[str, list[float]] = {k: [] for k in HEADING_ESTIMATORS}
+    same: list[bool] = []
+    rows: list[dict[str, Any]] = []
+
+    def err(h: float | None, truth: float) -> float:
+        return 180.0 if h is None else abs((h - truth + 180.0) % 360.0 - 180.0)
+
+    for ln in links:
+        fa, fb = by_file.get(ln.a), by_file.get(ln.b)
+        if fa is None or fb is None:
+            continue
+        oa, ob = fa.observation, fb.observation
+        est: dict[str, float | None] = {
+            "profile": None
+            if oa.profile is None or ob.profile is None
+            else profile_rotation_deg(oa.profile, ob.profile)[0],
+            "Fp": fingerprint_heading_deg(oa, ob),
+            "features": feature_heading_deg(oa, ob),
+            "signature": signature_rotation_deg(fa.signature, fb.signature)[0],
+        }
+        for k, h in est.items():
+            errs[k].append(err(h, ln.heading_deg))
+        same.append(ln.same_area)
+        rows.append({"a": ln.a, "b": ln.b, "truth_deg": ln.heading_deg, "same_area": ln.same_area, **est})
+    sel_same = np.asarray(same, dtype=bool)
+    out: dict[str, Any] = {}
+    for k, e in errs.items():
+        arr = np.asarray(e)
+        for name, sel in (("all links", np.ones(arr.size, dtype=bool)), ("same area", sel_same)):
+            out[f"{k}, {name}"] = {
+                "pairs": int(sel.sum()),
+                "median_error_deg": float(np.median(arr[sel])) if sel.any() else None,
+                "within_30": float(np.mean(arr[sel] <= 30.0)) if sel.any() else None,
+            }
     out["pairs"] = rows
     return out

@@ -46,14 +46,18 @@ from ..sensors import Panorama, Scan
 
 __all__ = [
     "PHOTO_EDGE_PARAMS",
+    "PROFILE_CHANNELS",
     "AppearanceParams",
     "EdgeParams",
     "PatchParams",
     "VisionFeatures",
     "appearance_descriptor",
     "colour_patches",
+    "column_profile",
     "extract_vision_features",
     "observation_from_views",
+    "profile_correlation",
+    "profile_rotation_deg",
     "rgb_to_hsv",
     "unwarp_omni",
     "vertical_edges",
@@ -723,6 +727,105 @@ def appearance_descriptor(pano: Panorama, **params: Any) -> FArray:
 
 
 # ---------------------------------------------------------------------------
+# column profile: what the view looks like at each bearing (for headings between views)
+
+#: Channels of :func:`column_profile`, per horizontal strip.
+PROFILE_CHANNELS: tuple[str, ...] = ("log_luminance", "red_chromaticity", "green_chromaticity", "column_gradient", "row_gradient")
+
+
+#: Images wider than this are block-averaged to about this many columns first (gradients at one scale).
+_PROFILE_WIDTH = 720
+
+
+def column_profile(pano: Panorama, *, columns: int = 72, strips: int = 4) -> FArray:
+    """The view at each bearing: coarse cells of the band, shape ``(columns, strips * 5)``.
+
+    Row ``k`` describes the bearings ``[k, k + 1) * 360 / columns`` degrees
+    (counter-clockwise from the robot's bearing 0, whatever the panorama's
+    column order and ``bearing_offset``); the band's rows are cut into
+    ``strips`` horizontal strips (top first), and each cell holds the mean
+    over its pixels of :data:`PROFILE_CHANNELS`: log luminance, the red and
+    green chromaticities, and the absolute differences of log luminance
+    across the columns (vertical structure) and across the rows (horizontal
+    structure), after block means by the largest whole factor that keeps at
+    least 720 columns (so that a 1440 or a 5760 px photo give about the same
+    gradients). Each of the ``strips * 5`` channels is then standardised over
+    the rows (mean 0, standard deviation 1; a flat channel stays 0), so that
+    exposure, white balance and contrast do not count.
+
+    Turning the robot on the spot rolls the rows; two photos taken a few
+    metres apart in one room keep most of the coarse layout (walls, windows,
+    doors, floor), which is what :func:`profile_rotation_deg` matches.
+    """
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 4:
+        raise InvalidParameterError(f"columns must be an integer >= 4, got {columns!r}")
+    if isinstance(strips, bool) or not isinstance(strips, (int, np.integer)) or strips < 1:
+        raise InvalidParameterError(f"strips must be an integer >= 1, got {strips!r}")
+    img = np.asarray(pano.image, dtype=np.float64)  # float in [0, 1]
+    h, w, _ = img.shape
+    if w > _PROFILE_WIDTH:  # the same cells whatever the image's resolution: block means down to ~720 columns
+        f = w // _PROFILE_WIDTH
+        fh = max(1, min(f, h // max(strips, 1)))
+        w2, h2 = (w // f) * f, (h // fh) * fh
+        img = img[:h2, :w2].reshape(h2 // fh, fh, w2 // f, f, 3).mean(axis=(1, 3))
+        pano = Panorama(img, bearing_offset=pano.bearing_offset, clockwise=pano.clockwise)
+        h, w, _ = img.shape
+    if h < strips:
+        raise InvalidParameterError(f"the panorama has {h} rows, fewer than the {strips} strips of its profile")
+    lum = img @ np.array([0.299, 0.587, 0.114])
+    tot = img.sum(axis=2) + 0.02
+    ll = np.log(lum + 0.02)
+    gcol = np.abs(np.roll(ll, -1, axis=1) - np.roll(ll, 1, axis=1)) * 0.5
+    grow = np.abs(np.diff(ll, axis=0, append=ll[-1:]))
+    chans = np.stack([ll, img[:, :, 0] / tot, img[:, :, 1] / tot, gcol, grow], axis=2)  # (h, w, 5)
+    rb = np.linspace(0, h, strips + 1).round().astype(np.int64)
+    per_col = np.stack([chans[rb[i] : rb[i + 1]].mean(axis=0) for i in range(strips)], axis=1)  # (w, strips, 5)
+    per_col = per_col.reshape(w, -1)
+    # resample on bearings: `sub` samples per cell, each the image column at that bearing
+    sub = max(1, math.ceil(w / columns))
+    fine = (np.arange(columns * sub) + 0.5) * TWO_PI / (columns * sub)
+    col = np.minimum(np.floor(pano.bearing_column(fine)).astype(np.int64), w - 1)
+    prof = per_col[col].reshape(columns, sub, -1).mean(axis=1)
+    prof -= prof.mean(axis=0)
+    sd = prof.std(axis=0)
+    prof = np.where(sd > 1e-9, prof / np.where(sd > 1e-9, sd, 1.0), 0.0)
+    return np.asarray(prof, dtype=np.float64)
+
+
+def profile_correlation(a: FArray, b: FArray) -> FArray:
+    """Circular correlation of two column profiles at every shift, shape ``(columns,)``.
+
+    ``out[s]`` is the mean over rows ``k`` and channels of ``a[k] * b[k + s]``
+    (1 when ``b`` is ``a`` rolled by ``s`` rows, for standardised profiles).
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2:
+        raise InvalidParameterError(f"profiles must share one shape (columns, channels), got {a.shape} and {b.shape}")
+    n = a.shape[0]
+    spec = (np.conj(np.fft.rfft(a, axis=0)) * np.fft.rfft(b, axis=0)).sum(axis=1)
+    return np.asarray(np.fft.irfft(spec, n=n) / a.size, dtype=np.float64)
+
+
+def profile_rotation_deg(a: FArray, b: FArray) -> tuple[float, float]:
+    """Heading between two views from their column profiles: ``(heading_deg, peak)``.
+
+    A feature at bearing ``x`` in view ``a`` is at bearing ``x + heading_deg``
+    in view ``b`` (degrees, ``[0, 360)``); ``peak`` is the correlation at that
+    shift (1: identical up to a rotation). The shift maximises
+    :func:`profile_correlation`, refined between rows by a parabola through
+    the peak and its neighbours.
+    """
+    c = profile_correlation(a, b)
+    n = c.size
+    k = int(np.argmax(c))
+    y0, y1, y2 = c[k - 1], c[k], c[(k + 1) % n]
+    den = y0 - 2.0 * y1 + y2
+    frac = 0.5 * (y0 - y2) / den if den < 0 else 0.0
+    return float(np.mod((k + frac) * 360.0 / n, 360.0)), float(y1)
+
+
+# ---------------------------------------------------------------------------
 # both, and observations
 
 
@@ -796,6 +899,7 @@ def observation_from_views(
     panorama: Panorama | None = None,
     label: str | None = None,
     appearance: bool = False,
+    profile: bool = False,
     source: str | None = None,
     **params: Any,
 ) -> Observation:
@@ -812,6 +916,9 @@ def observation_from_views(
     appearance : bool, default False
         Also compute the panorama's :func:`appearance_descriptor` (with
         default :class:`AppearanceParams`) into ``Observation.appearance``.
+    profile : bool, default False
+        Also compute the panorama's :func:`column_profile` (default size)
+        into ``Observation.profile`` (headings between views, term ``AP``).
     source : str, optional
         The file the views came from, kept in ``Observation.source``.
     **params
@@ -834,10 +941,13 @@ def observation_from_views(
     pose: tuple[float, float, float] | None = None
     timestamp: float | None = None
     desc: FArray | None = None
+    prof: FArray | None = None
     if panorama is not None:
         vf = extract_vision_features(panorama, **e, **c)
         if appearance:
             desc = appearance_descriptor(panorama)
+        if profile:
+            prof = column_profile(panorama)
         ve, cp, cp_hue = vf.edges, vf.patches, vf.patch_hues
         mp = panorama.meta.get("pose")
         if mp is not None:
@@ -863,5 +973,6 @@ def observation_from_views(
         pose=pose,
         timestamp=timestamp,
         appearance=desc,
+        profile=prof,
         source=source,
     )

@@ -14,8 +14,11 @@ and ``"scan": {"bearings": [deg, ...], "ranges": [m or null, ...]}`` holds the
 raw range profile (``null`` where a beam had no return). Two optional camera
 extensions: ``"appearance": [x, ...]`` is the heading-free appearance
 descriptor of the view (numbers >= 0, see
-:func:`fingerloc.features.vision.appearance_descriptor`), and ``"source"`` the
-file an observation was extracted from. ``place``, ``pose`` and ``timestamp`` are
+:func:`fingerloc.features.vision.appearance_descriptor`), ``"source"`` the
+file an observation was extracted from, and ``"profile": [[x, ...], ...]`` the
+view at each bearing (rows: equal sectors counter-clockwise from bearing 0,
+see :func:`fingerloc.features.vision.column_profile`; written with three
+decimals). ``place``, ``pose`` and ``timestamp`` are
 optional; ``features`` is required (it may be empty). Blank lines are skipped.
 Other top-level keys are ignored, so tools may carry their own.
 """
@@ -123,7 +126,7 @@ def _bearing_list(value: Any, key: str) -> list[float]:
 #: Feature keys the fast path reads (plain bearing lists) -> the Observation attribute.
 _FAST_KEYS = {"VE": "ve", "Ex": "ex", "c": "c", "B": "b"}
 #: Top-level keys the fast path understands; a record with another known key takes the validating path.
-_SLOW_KEYS = frozenset({"scan", "appearance"})
+_SLOW_KEYS = frozenset({"scan", "appearance", "profile"})
 
 
 def _fast_numbers(values: Any) -> list[float] | None:
@@ -308,9 +311,27 @@ def observation_from_record(record: Any) -> Observation:
     source = record.get("source")
     if source is not None and not isinstance(source, str):
         raise DataFormatError(f'"source" must be a string or null, got {source!r}')
+    profile = record.get("profile")
+    if profile is not None:
+        if (
+            not isinstance(profile, list)
+            or len(profile) < 4
+            or not all(isinstance(r, list) and r and len(r) == len(profile[0]) for r in profile)
+        ):
+            raise DataFormatError(
+                '"profile" must be a list of at least 4 rows, each a non-empty list of numbers of one length'
+            )
+        profile = [[_number(v, '"profile" value') for v in r] for r in profile]
     try:
         obs = Observation.from_degrees(
-            out, fov=fov, label=place, pose=pose, timestamp=ts, appearance=appearance, source=source
+            out,
+            fov=fov,
+            label=place,
+            pose=pose,
+            timestamp=ts,
+            appearance=appearance,
+            source=source,
+            profile=profile,
         )
         if ranges is not None:
             obs = replace(obs, ranges=ranges, range_bearings=range_bearings)
@@ -361,6 +382,8 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
     rec["features"] = feats
     if obs.appearance is not None:
         rec["appearance"] = [round(float(x), ndigits) for x in obs.appearance]
+    if obs.profile is not None:  # standardised values: three decimals are plenty
+        rec["profile"] = [[round(float(x), min(ndigits, 3)) for x in r] for r in obs.profile]
     if obs.ranges is not None and obs.range_bearings is not None:
         rec["scan"] = {
             "bearings": [round(float(b), ndigits) for b in np.rad2deg(obs.range_bearings)],

@@ -142,7 +142,7 @@ def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Obse
     params = PHOTO_EDGE_PARAMS if pano.meta.get("equirectangular") else {}
     yield (
         str(path),
-        observation_from_views(panorama=pano, label=opts.place, appearance=True, source=str(path), **params),
+        observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path), **params),
     )
 
 
@@ -162,7 +162,7 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
         bearing_offset=opts.bearing_offset,
         mirror=opts.mirror,
     )
-    yield str(path), observation_from_views(panorama=pano, label=opts.place, appearance=True, source=str(path))
+    yield str(path), observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path))
 
 
 def _features(opts: FeatureOptions) -> dict[str, Any]:

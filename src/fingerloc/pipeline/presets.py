@@ -66,8 +66,9 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "panorama": {
         "description": "panoramic camera: the fingerprint string matched over every rotation + the appearance "
-        "term A (both heading-free), per-term weights fit on held-out training views",
-        "model": {"terms": ["Fp", "A"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp", "weights": "fit"},
+        "term A + the aligned-profile term AP (all heading-free; AP also gives the heading), per-term weights "
+        "fit on held-out training views",
+        "model": {"terms": ["Fp", "A", "AP"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp", "weights": "fit"},
         "features": {},
     },
     "multimodal": {

@@ -10,6 +10,7 @@ B      beacons: product of angular mixtures                        MixtureTerm
 Fp     the fingerprint string: alignment to stored fingerprints   FingerprintTerm
 R      range distribution (2D laser, heading-free; ours)           RangeTerm
 A      appearance of the whole view (camera, heading-free; ours)  AppearanceTerm
+AP     the view bearing by bearing, over every rotation (ours)     ProfileTerm
 =====  ==========================================================  ============
 
 :class:`fingerloc.model.PlaceModel` combines them; each term can also be used
@@ -21,6 +22,7 @@ from .base import Term
 from .distance import DistanceTerm, fit_lambda
 from .fingerprint import FingerprintTerm, consensus_fingerprint, crop_fingerprint
 from .mixture import LOG_UNIFORM, MOG_TERMS, MixtureTerm, fit_mixture_terms
+from .profile import ProfileTerm, profile_peaks
 from .range import RangeTerm, range_descriptor
 
 __all__ = [
@@ -30,11 +32,13 @@ __all__ = [
     "DistanceTerm",
     "FingerprintTerm",
     "MixtureTerm",
+    "ProfileTerm",
     "RangeTerm",
     "Term",
     "consensus_fingerprint",
     "crop_fingerprint",
     "fit_lambda",
     "fit_mixture_terms",
+    "profile_peaks",
     "range_descriptor",
 ]
