@@ -54,7 +54,7 @@ def _same_observation(a: Observation, b: Observation, *, scan: bool = True, wall
             x = x.astype(np.float32).astype(np.float64)
         if x.tobytes() != y.tobytes():
             return False
-    for k in ("ranges", "range_bearings", "appearance") if scan else ("appearance",):
+    for k in ("ranges", "range_bearings", "appearance", "profile") if scan else ("appearance", "profile"):
         x, y = getattr(a, k), getattr(b, k)
         if (x is None) != (y is None) or (x is not None and x.tobytes() != y.tobytes()):
             return False
@@ -200,3 +200,44 @@ def test_crafted_range_encoding_is_refused(tmp_path):
         con.execute("UPDATE range_descriptors SET encoding = 'pickle'")
     with pytest.raises(DatabaseError, match="encoding 'pickle'"):
         load_model(tmp_path / "b.sqlite")
+
+
+@pytest.mark.parametrize("decimals", [3, None])
+def test_profiles_are_stored_exactly(decimals):
+    """A column profile (panorama views) survives the binary record bit for bit, in thousandths or in float64."""
+    rng = np.random.default_rng(3)
+    prof = rng.normal(size=(72, 20))
+    if decimals is not None:  # as read from JSON Lines: whole thousandths, stored as int16
+        prof = np.round(prof, decimals)
+    obs = Observation.from_degrees({"VE": [10.0, 200.0]}, profile=prof, appearance=[0.5, 0.25])
+    data = encode_observation(obs)
+    back = decode_observation(data)
+    assert back.profile is not None and np.array_equal(back.profile, obs.profile)
+    assert back == obs
+    assert data[0] == 2 and len(data) < (2 if decimals else 8) * prof.size + 200
+    with pytest.raises(DatabaseError):
+        decode_observation(data[:-1])  # one byte short
+    bad = bytearray(data)
+    bad[2 + 9] = 7  # the profile's encoding byte
+    with pytest.raises(DatabaseError):
+        decode_observation(bytes(bad))
+
+
+def test_panorama_model_with_profiles_loads_with_the_same_answers(tmp_path):
+    rng = np.random.default_rng(0)
+    obs = [
+        Observation.from_degrees(
+            {"VE": list(rng.uniform(0, 360, 6))},
+            label=f"p{p}",
+            profile=np.round(rng.normal(size=(72, 5)), 3),
+            appearance=rng.uniform(0, 1, 10),
+        )
+        for p in range(3)
+        for _ in range(3)
+    ]
+    model = PlaceModel(terms=("Fp", "A", "AP"), cyclic=True).fit(obs, [o.label for o in obs])
+    save_model(model, tmp_path / "p.sqlite")
+    again = load_model(tmp_path / "p.sqlite")
+    assert np.array_equal(model.predict_log_proba(obs), again.predict_log_proba(obs))
+    assert np.array_equal(model.headings_with_reference(obs, [o.label for o in obs])[0],
+                          again.headings_with_reference(obs, [o.label for o in obs])[0])  # fmt: skip

@@ -287,6 +287,7 @@ class Observation:
         put(obs, "timestamp", timestamp)
         put(obs, "appearance", None)
         put(obs, "source", source)
+        put(obs, "profile", None)
         return obs
 
     # -- convenience -----------------------------------------------------

@@ -15,6 +15,13 @@ row's place gives it) or the source (a column of its own)::
                   pose (x, y, theta) if flagged, timestamp if flagged,
                   fov (start, width) pairs, appearance, scan ranges, scan bearings
 
+Codec version 2 is version 1 plus a column profile (``Observation.profile``,
+shape rows x channels): right after the counts, ``uint8 encoding, uint16
+rows, uint16 channels``; the values come last, after everything above, as
+int16 thousandths (encoding 2: used only when every value is a whole number of
+thousandths that decodes bit for bit, as profiles read from JSON Lines are) or
+float64 (encoding 1). An observation without a profile is written as version 1.
+
 Decoding gives back the very observation (every array bit for bit: the
 stored bearings are already wrapped and sorted, and wrapping them again
 changes nothing), so what the place database recomputes from it (the
@@ -37,6 +44,9 @@ from ..observation import FULL_FOV, Observation
 __all__ = ["decode_observation", "encode_observation"]
 
 _VERSION = 1
+_VERSION_PROFILE = 2
+_PROFILE_F64, _PROFILE_MILLI = 1, 2
+_PROFILE_HEAD = "<BHH"
 _POSE, _TIME, _FOV, _APPEARANCE, _SCAN, _WIDE, _DEFAULT_FOV, _WALLS32 = 1, 2, 4, 8, 16, 32, 64, 128
 Fov = tuple[tuple[float, float], ...]
 _N_COUNTS = 9
@@ -87,9 +97,29 @@ def encode_observation(
     wide = max(counts) > 255
     if wide:
         flags |= _WIDE
-    head = struct.pack(f"<BB{_N_COUNTS}{'I' if wide else 'B'}", _VERSION, flags, *counts)
+    version = _VERSION if obs.profile is None else _VERSION_PROFILE
+    head = struct.pack(f"<BB{_N_COUNTS}{'I' if wide else 'B'}", version, flags, *counts)
+    prof_head = prof_data = b""
+    if obs.profile is not None:
+        mode, prof_data = _encode_profile(obs.profile)
+        rows, cols = obs.profile.shape
+        if rows > 0xFFFF or cols > 0xFFFF:
+            raise DatabaseError(f"a view's profile is too large to store ({rows} x {cols})")
+        prof_head = struct.pack(_PROFILE_HEAD, mode, rows, cols)
     arrays = [obs.ve, obs.cp, obs.cp_hue, obs.ex, obs.c, obs.b, obs.w, *walls, *tail]
-    return head + b"".join(np.ascontiguousarray(a, dtype="<f8").tobytes() for a in arrays) + short  # type: ignore[call-overload]
+    body = b"".join(np.ascontiguousarray(a, dtype="<f8").tobytes() for a in arrays)  # type: ignore[call-overload]
+    return head + prof_head + body + short + prof_data
+
+
+def _encode_profile(profile: np.ndarray) -> tuple[int, bytes]:
+    """The profile's values: int16 thousandths when that is exact bit for bit, else float64."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        milli = np.rint(profile * 1000.0)
+    if np.all(np.abs(milli) <= 32767):
+        m16 = milli.astype("<i2")
+        if np.array_equal(m16.astype(np.float64) / 1000.0, profile):
+            return _PROFILE_MILLI, m16.tobytes()
+    return _PROFILE_F64, np.ascontiguousarray(profile, dtype="<f8").tobytes()
 
 
 def decode_observation(
@@ -105,13 +135,22 @@ def decode_observation(
     if not isinstance(data, bytes) or len(data) < 2 + _N_COUNTS:
         raise DatabaseError(f"corrupt observation record in the place database (got {type(data).__name__})")
     version, flags = data[0], data[1]
-    if version != _VERSION or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
+    if version not in (_VERSION, _VERSION_PROFILE) or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
         raise DatabaseError(f"corrupt observation record in the place database (version {version}, flags {flags})")
     fmt = f"<{_N_COUNTS}{'I' if flags & _WIDE else 'B'}"
     start = 2 + struct.calcsize(fmt)
     if len(data) < start:
         raise DatabaseError("corrupt observation record in the place database (truncated)")
     n_ve, n_cp, n_ex, n_c, n_b, n_w, n_fov, n_app, n_scan = struct.unpack_from(fmt, data, 2)
+    prof_mode = prof_rows = prof_cols = prof_bytes = 0
+    if version == _VERSION_PROFILE:
+        if len(data) < start + struct.calcsize(_PROFILE_HEAD):
+            raise DatabaseError("corrupt observation record in the place database (truncated)")
+        prof_mode, prof_rows, prof_cols = struct.unpack_from(_PROFILE_HEAD, data, start)
+        start += struct.calcsize(_PROFILE_HEAD)
+        if prof_mode not in (_PROFILE_F64, _PROFILE_MILLI):
+            raise DatabaseError(f"corrupt observation record in the place database (profile encoding {prof_mode})")
+        prof_bytes = prof_rows * prof_cols * (8 if prof_mode == _PROFILE_F64 else 2)
     w32 = bool(flags & _WALLS32)
     sizes = [n_ve, n_cp, n_cp, n_ex, n_c, n_b, n_w] + ([] if w32 else [n_w, n_w])
     sizes += [3] if flags & _POSE else []
@@ -119,7 +158,7 @@ def decode_observation(
     sizes += [2 * n_fov, n_app, n_scan, n_scan]
     n64 = sum(sizes)
     if (
-        len(data) != start + 8 * n64 + (8 * n_w if w32 else 0)
+        len(data) != start + 8 * n64 + (8 * n_w if w32 else 0) + prof_bytes
         or bool(n_fov) != bool(flags & _FOV)
         or bool(n_app) != bool(flags & _APPEARANCE)
     ):
@@ -129,7 +168,7 @@ def decode_observation(
     ve, cp, hue, ex, c, b, w = parts[:7]
     if w32:
         with np.errstate(invalid="ignore"):  # a NaN pattern: the observation refuses it below
-            short = np.frombuffer(data, dtype="<f4", offset=start + 8 * n64).astype(np.float64)
+            short = np.frombuffer(data, dtype="<f4", offset=start + 8 * n64, count=2 * n_w).astype(np.float64)
         w_len, w_rng = short[:n_w], short[n_w:]
         rest = parts[7:]
     else:
@@ -142,12 +181,20 @@ def decode_observation(
     if flags & _DEFAULT_FOV and default_fov is not None:
         fov = default_fov
     scan = bool(flags & _SCAN)
+    profile = None
+    if version == _VERSION_PROFILE:
+        at = len(data) - prof_bytes
+        if prof_mode == _PROFILE_MILLI:
+            profile = np.frombuffer(data, dtype="<i2", offset=at).astype(np.float64).reshape(prof_rows, prof_cols) / 1000.0
+        else:
+            with np.errstate(invalid="ignore"):  # a NaN pattern: the observation refuses it below
+                profile = np.frombuffer(data, dtype="<f8", offset=at).astype(np.float64).reshape(prof_rows, prof_cols)
     try:
         return Observation(
             ve=ve, cp=cp, cp_hue=hue, ex=ex, c=c, b=b, w=w, w_length=w_len, w_range=w_rng,
             ranges=ranges if scan else None, range_bearings=bearings if scan else None,
             fov=fov, label=label, pose=pose, timestamp=timestamp,  # type: ignore[arg-type]
-            appearance=app if flags & _APPEARANCE else None, source=source,
+            appearance=app if flags & _APPEARANCE else None, source=source, profile=profile,
         )  # fmt: skip
     except FingerlocError as err:
         raise DatabaseError(f"corrupt observation record in the place database ({err})") from err
