@@ -171,7 +171,7 @@ def answer_chunk(
 # -- JSON Lines in chunks ---------------------------------------------------------------------------
 
 
-def jsonl_chunks(path: Path, size: int = LOCALIZE_CHUNK) -> Iterator[tuple[int, list[tuple[int, str]]]]:
+def jsonl_chunks(path: Path, size: int | None = None) -> Iterator[tuple[int, list[tuple[int, str]]]]:
     """The non-blank lines of a JSON Lines file in chunks of ``size``: (index of the chunk's first observation, [(line number, text)]).
 
     Lines are split as :func:`fingerloc.io.jsonl.iter_observations` splits
@@ -184,6 +184,8 @@ def jsonl_chunks(path: Path, size: int = LOCALIZE_CHUNK) -> Iterator[tuple[int, 
     EmptyInputError
         When it holds no non-blank line.
     """
+    if size is None:
+        size = LOCALIZE_CHUNK  # read when called (tests shrink it)
     try:
         fh = path.open("r", encoding="utf-8")
     except OSError as err:
