@@ -41,7 +41,7 @@ from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
 from ._costs import CostModel
 from ._cyclic import cyclic_all_rotations, cyclic_batch_unit
-from ._cyclic_int import LANES8, integer_costs, nw_batch_cyclic_i8
+from ._cyclic_int import ProfileBlocks, cyclic_i8_costs, integer_costs, pack_profiles
 from ._encode import FingerprintBatch, FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._energy import EnergyParams, energy_batch_lanes, energy_pair, pack_energy_lanes
 from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
@@ -271,6 +271,28 @@ def _run(n: int, fn: Callable[..., _T], *args: Any) -> _T:
         return fn(*args)
 
 
+#: Fewest queries for which the int8 cyclic kernel spreads its reference blocks over threads (fewer: one thread).
+_PARALLEL_MIN_QUERIES = 2
+#: Largest packed form (bytes) a :class:`FingerprintBatch` keeps for the int8 cyclic kernel.
+_PACKED_MAX_BYTES = 256 << 20
+
+
+def _profile_blocks(references: Any, rs: list[str], sub8: NDArray[np.int8], indel8: NDArray[np.int8]) -> ProfileBlocks:
+    """The references packed for the int8 cyclic kernel; kept by a :class:`FingerprintBatch` (one cost model at a time)."""
+    key = (sub8.tobytes(), indel8.tobytes())
+    cache = references._packed if isinstance(references, FingerprintBatch) else None
+    if cache is not None:
+        hit = cache.get(key)
+        if isinstance(hit, ProfileBlocks):
+            return hit
+    rcodes, roff = encode_many(rs)
+    pk = pack_profiles(rcodes, roff, sub8, indel8)
+    if cache is not None and pk.nbytes <= _PACKED_MAX_BYTES:
+        cache.clear()
+        cache[key] = pk
+    return pk
+
+
 def alignment_costs(
     queries: Any,
     references: Any,
@@ -330,16 +352,19 @@ def alignment_costs(
         out = np.asarray(res, dtype=np.float64)
         return out if len(first) == nr else out[:, cols]
     qcodes, qoff = encode_many(qs)
-    rcodes, roff = encode_many(rs)
-    if cyclic and cm.is_unit:
-        return _run(nw, cyclic_batch_unit, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
-    if cyclic:
+    if cyclic and not cm.is_unit:
         small = integer_costs(cm.substitution, cm.indel)
         if small is not None:
             sub8, indel8, scale = small
-            blocks, blens, block_len, slot = pack_lanes(rcodes, roff, LANES8)
-            packed_int = _run(nw, nw_batch_cyclic_i8, qcodes, qoff, blocks, blens, block_len, sub8, indel8)
-            return np.ascontiguousarray(packed_int[:, slot], dtype=np.float64) / scale
+            pk = _profile_blocks(references, rs, sub8, indel8)
+            if nw > 1 and nq >= _PARALLEL_MIN_QUERIES:
+                packed_int = _run(nw, cyclic_i8_costs, qcodes, qoff, pk)
+            else:  # a few queries: one thread (no threading layer to wake up)
+                packed_int = cyclic_i8_costs(qcodes, qoff, pk, parallel=False)
+            return np.ascontiguousarray(packed_int[:, pk.slot], dtype=np.float64) / scale
+    rcodes, roff = encode_many(rs)
+    if cyclic and cm.is_unit:
+        return _run(nw, cyclic_batch_unit, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
     blocks, blens, block_len, slot = pack_lanes(rcodes, roff)
     kernel = nw_batch_cyclic if cyclic else nw_batch
     packed = _run(nw, kernel, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)

@@ -64,11 +64,13 @@ References
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 from numpy.typing import NDArray
 
-__all__ = ["LANES8", "integer_costs", "nw_batch_cyclic_i8"]
+__all__ = ["LANES8", "ProfileBlocks", "cyclic_i8_costs", "integer_costs", "nw_batch_cyclic_i8", "pack_profiles"]
 
 #: References aligned side by side in the int8 kernel.
 LANES8 = 256
@@ -112,7 +114,246 @@ def integer_costs(
     return None
 
 
+class ProfileBlocks(NamedTuple):
+    """References packed for the int8 kernel: each block's substitution profile and its sums (:func:`pack_profiles`).
+
+    Built once per set of references and cost model (a
+    :class:`~fingerloc.align.FingerprintBatch` keeps it), so a query against
+    a place database does not encode, pack and profile every reference again.
+    ``prof`` takes ``N_LETTERS x ceil(block_len / 16) x 16 x LANES8`` bytes a
+    block (about 13 KB per reference of 40 letters with 20 letters), ``keep``
+    ``max_len x LANES8`` bytes a block.
+    """
+
+    prof: NDArray[np.int8]  # flat, page-aligned; block b at pstart[b]: (n_letters, prow[b], LANES8)
+    pstart: NDArray[np.int64]
+    prow: NDArray[np.int64]
+    gsum: NDArray[np.int32]  # (n_blocks, LANES8): D[0, m_k], the indels of reference k
+    keep: NDArray[np.int8]  # (n_blocks, max_len, LANES8): -1 where j < m_k, else 0
+    short: NDArray[np.int64]  # (n_blocks,): the shortest reference of the block
+    block_len: NDArray[np.int64]  # (n_blocks,): the longest
+    slot: NDArray[np.int64]  # (n_references,): position of each reference in the packed layout
+    indel: NDArray[np.int8]
+    gmax: int
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the arrays."""
+        return int(self.prof.nbytes + self.keep.nbytes + self.gsum.nbytes + 8 * (3 * self.prow.size + self.slot.size))
+
+
+@njit(cache=True)
+def _profiles(
+    blocks: NDArray[np.uint8],
+    blens: NDArray[np.int64],
+    block_len: NDArray[np.int64],
+    sub: NDArray[np.int8],
+    indel: NDArray[np.int8],
+) -> tuple[NDArray[np.int8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int32], NDArray[np.int8], NDArray[np.int64]]:  # pragma: no cover - compiled
+    nb = blocks.shape[0]
+    maxlen = blocks.shape[1]
+    nl = sub.shape[0]
+    prow = np.empty(nb, dtype=np.int64)
+    pstart = np.empty(nb, dtype=np.int64)
+    total = 0
+    for blk in range(nb):
+        prow[blk] = -(-block_len[blk] // 16) * 16  # nl * prow * LANES8 bytes: a multiple of the page
+        pstart[blk] = total
+        total += nl * prow[blk] * LANES8
+    raw = np.empty(total + _PAGE, dtype=np.int8)
+    p0 = (_PAGE - raw.ctypes.data % _PAGE) % _PAGE
+    prof = raw[p0 : p0 + total]
+    gsum = np.zeros((nb, LANES8), dtype=np.int32)
+    keep = np.zeros((nb, maxlen, LANES8), dtype=np.int8)
+    short = np.empty(nb, dtype=np.int64)
+    for blk in range(nb):
+        bc = blocks[blk]
+        big = block_len[blk]
+        pr = prow[blk]
+        # prof[c, j, k] = s(c, b_j) - g(c) - g(b_j) for letter j of reference k: contiguous in the lanes.
+        pb = prof[pstart[blk] : pstart[blk] + nl * pr * LANES8].reshape((nl, pr, LANES8))
+        for c in range(nl):
+            gc = indel[c]
+            for j in range(big):
+                for k in range(LANES8):
+                    b = bc[j, k]
+                    pb[c, j, k] = sub[c, b] - gc - indel[b]
+        sh = big
+        for k in range(LANES8):
+            m = blens[blk, k]
+            sh = min(sh, m)
+            for j in range(m):
+                gsum[blk, k] += indel[bc[j, k]]
+                keep[blk, j, k] = -1
+        short[blk] = sh
+    return prof, pstart, prow, gsum, keep, short
+
+
+def pack_profiles(
+    codes: NDArray[np.uint8], off: NDArray[np.int64], sub: NDArray[np.int8], indel: NDArray[np.int8]
+) -> ProfileBlocks:
+    """Pack encoded references (:func:`~fingerloc.align._encode.encode_many`) for :func:`cyclic_i8_costs`.
+
+    ``sub`` and ``indel`` come from :func:`integer_costs`.
+    """
+    from ._kernels import pack_lanes
+
+    blocks, blens, block_len, slot = pack_lanes(codes, off, LANES8)
+    prof, pstart, prow, gsum, keep, short = _profiles(blocks, blens, block_len, sub, indel)
+    gmax = int(indel.max(initial=0))
+    return ProfileBlocks(prof, pstart, prow, gsum, keep, short, block_len, slot, indel, gmax)
+
+
+@njit(cache=True)
+def _block_costs(
+    qcodes: NDArray[np.uint8],
+    qoff: NDArray[np.int64],
+    maxq: int,
+    blk: int,
+    prof: NDArray[np.int8],
+    pstart: NDArray[np.int64],
+    prow: NDArray[np.int64],
+    gsum: NDArray[np.int32],
+    keep: NDArray[np.int8],
+    short: NDArray[np.int64],
+    block_len: NDArray[np.int64],
+    indel: NDArray[np.int8],
+    gmax: int,
+    out: NDArray[np.int32],
+) -> None:  # pragma: no cover - compiled
+    """Every query against the ``LANES8`` references of block ``blk``: ``out[q, blk * LANES8 + k]``."""
+    nq = qoff.shape[0] - 1
+    nl = indel.shape[0]
+    big = block_len[blk]
+    pr = prow[blk]
+    pb = prof[pstart[blk] : pstart[blk] + nl * pr * LANES8].reshape((nl, pr, LANES8))
+    kp = keep[blk]
+    gs = gsum[blk]
+    sh = short[blk]
+    # The profile is page-aligned, one letter every multiple of 4096 bytes; hv starts half a page off that:
+    # a store to hv[j] then shares its address bits 0-11 with no load of prof[., j] or of the next seven
+    # columns that follows it. Such "4K aliasing" makes the loads wait for the store: up to 1.9x slower,
+    # depending on where the allocator had put the arrays.
+    raw = np.empty(max(big, 1) * LANES8 + 2 * _PAGE, dtype=np.int8)
+    h0 = (_PAGE // 2 - raw.ctypes.data % _PAGE) % _PAGE
+    hv = raw[h0 : h0 + max(big, 1) * LANES8].reshape((max(big, 1), LANES8))  # H[i, j] = D[i, j+1] - D[i, j] - g(b_j)
+    # The last row's sum fits int16 when every |H| <= 2 gmax over at most ``big`` columns does.
+    narrow = 2 * gmax * big <= 32767
+    u1 = np.empty(LANES8, dtype=np.int8)  # U[i, j] = D[i, j] - D[i-1, j] - g(a_i), left of the cell
+    u2 = np.empty(LANES8, dtype=np.int8)  # the same on the next row
+    s16 = np.empty(LANES8, dtype=np.int16)
+    s32 = np.empty(LANES8, dtype=np.int32)
+    best = np.empty(LANES8, dtype=np.int32)
+    aa = np.empty(2 * maxq, dtype=np.int64)  # the query twice: rotation r reads aa[r : r + n]
+    for q in range(nq):
+        q0 = qoff[q]
+        n = qoff[q + 1] - q0
+        base = 0  # D[n, 0]: every query letter deleted, whatever the rotation
+        for i in range(n):
+            base += indel[qcodes[q0 + i]]
+            aa[i] = qcodes[q0 + i]
+            aa[i + n] = qcodes[q0 + i]
+        for k in range(LANES8):
+            best[k] = 2**30
+        for r in range(max(n, 1)):
+            for j in range(big):
+                for k in range(LANES8):
+                    hv[j, k] = 0  # row 0: D[0, j+1] - D[0, j] = g(b_j)
+            i = 0
+            while i + 1 < n:  # two rows per sweep: H goes through memory once for both
+                p1 = pb[aa[r + i]]
+                p2 = pb[aa[r + i + 1]]
+                for k in range(LANES8):
+                    u1[k] = 0  # column 0: D[i, 0] - D[i-1, 0] = g(a_i)
+                    u2[k] = 0
+                for j in range(big):
+                    for k in range(LANES8):  # vectorised over the references
+                        # z = D[i,j] - D[i-1,j-1] - g(a_i) - g(b_j) = min(s'(a_i, b_j), H[i-1,j], U[i,j-1]);
+                        # every result cast back to int8 so that LLVM keeps 8-bit lanes (exact: no overflow)
+                        h = hv[j, k]
+                        x = u1[k]
+                        z = min(min(p1[j, k], h), x)
+                        u1[k] = np.int8(z - h)
+                        h = np.int8(z - x)
+                        x = u2[k]
+                        z = min(min(p2[j, k], h), x)
+                        u2[k] = np.int8(z - h)
+                        hv[j, k] = np.int8(z - x)
+                i += 2
+            if i < n:  # an odd query: its last row alone
+                p1 = pb[aa[r + i]]
+                for k in range(LANES8):
+                    u1[k] = 0
+                for j in range(big):
+                    for k in range(LANES8):
+                        h = hv[j, k]
+                        x = u1[k]
+                        z = min(min(p1[j, k], h), x)
+                        u1[k] = np.int8(z - h)
+                        hv[j, k] = np.int8(z - x)
+            # D[n, m_k] = D[n, 0] + D[0, m_k] + sum of H[n, j] over j < m_k
+            if narrow:
+                for k in range(LANES8):
+                    s16[k] = 0
+                for j in range(sh):  # columns every lane has
+                    for k in range(LANES8):
+                        s16[k] = np.int16(s16[k] + hv[j, k])
+                for j in range(sh, big):
+                    for k in range(LANES8):
+                        s16[k] = np.int16(s16[k] + (hv[j, k] & kp[j, k]))
+                for k in range(LANES8):
+                    best[k] = min(best[k], base + gs[k] + s16[k])
+            else:
+                for k in range(LANES8):
+                    s32[k] = 0
+                for j in range(big):
+                    for k in range(LANES8):
+                        s32[k] += hv[j, k] & kp[j, k]
+                for k in range(LANES8):
+                    best[k] = min(best[k], base + gs[k] + s32[k])
+        for k in range(LANES8):
+            out[q, blk * LANES8 + k] = best[k]
+
+
+def _max_query(qoff: NDArray[np.int64]) -> int:
+    return int(np.diff(qoff).max(initial=0))
+
+
 @njit(parallel=True, cache=True)
+def _costs_parallel(qcodes, qoff, maxq, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    nb = block_len.shape[0]
+    out = np.empty((qoff.shape[0] - 1, nb * LANES8), dtype=np.int32)
+    for blk in prange(nb):
+        _block_costs(qcodes, qoff, maxq, blk, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax, out)
+    return out
+
+
+@njit(cache=True)
+def _costs_serial(qcodes, qoff, maxq, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    nb = block_len.shape[0]
+    out = np.empty((qoff.shape[0] - 1, nb * LANES8), dtype=np.int32)
+    for blk in range(nb):
+        _block_costs(qcodes, qoff, maxq, blk, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax, out)
+    return out
+
+
+def cyclic_i8_costs(
+    qcodes: NDArray[np.uint8], qoff: NDArray[np.int64], pk: ProfileBlocks, *, parallel: bool = True
+) -> NDArray[np.int32]:
+    """Integer cyclic costs of every query against the packed references, shape ``(n_queries, n_blocks * LANES8)``.
+
+    Entry ``[q, k * LANES8 + l]`` is ``scale`` times the cyclic cost of query
+    ``q`` against reference ``l`` of block ``k`` (minimum over every rotation
+    of the query); ``pk.slot`` maps the references to their entries.
+    ``parallel``: the blocks spread over numba's threads (the caller sets
+    how many), else one thread.
+    """
+    fn = _costs_parallel if parallel else _costs_serial
+    return fn(  # type: ignore[no-any-return]
+        qcodes, qoff, _max_query(qoff), pk.prof, pk.pstart, pk.prow, pk.gsum, pk.keep, pk.short, pk.block_len, pk.indel, pk.gmax
+    )
+
+
 def nw_batch_cyclic_i8(
     qcodes: NDArray[np.uint8],
     qoff: NDArray[np.int64],
@@ -121,7 +362,7 @@ def nw_batch_cyclic_i8(
     block_len: NDArray[np.int64],
     sub: NDArray[np.int8],
     indel: NDArray[np.int8],
-) -> NDArray[np.int32]:  # pragma: no cover - compiled
+) -> NDArray[np.int32]:
     """Integer cyclic costs of every query against every packed reference, shape ``(n_queries, n_blocks * LANES8)``.
 
     ``blocks``, ``blens`` and ``block_len`` come from
@@ -129,123 +370,11 @@ def nw_batch_cyclic_i8(
     ``sub`` and ``indel`` from :func:`integer_costs`. Entry
     ``[q, k * LANES8 + l]`` is ``scale`` times the cyclic cost of query ``q``
     against reference ``l`` of block ``k`` (minimum over every rotation of
-    the query).
+    the query). The profiles are built for this call (:func:`pack_profiles`
+    keeps them for repeated calls).
     """
-    nq = qoff.shape[0] - 1
-    nb = blocks.shape[0]
-    maxlen = blocks.shape[1]
-    nl = sub.shape[0]
-    maxq = 0
-    for q in range(nq):
-        maxq = max(maxq, qoff[q + 1] - qoff[q])
-    gmax = 0
-    for c in range(nl):
-        gmax = max(gmax, int(indel[c]))
-    out = np.empty((nq, nb * LANES8), dtype=np.int32)
-    for blk in prange(nb):
-        bc = blocks[blk]
-        lens = blens[blk]
-        big = block_len[blk]
-        # prof[c, j, k] = s(c, b_j) - g(c) - g(b_j) for letter j of reference k: contiguous in the lanes.
-        # One buffer holds prof (page-aligned, one letter every multiple of 4096 bytes) and hv, half a page
-        # further on: a store to hv[j] then shares its address bits 0-11 with no load of prof[., j] or of
-        # the next seven columns that follows it. Such "4K aliasing" makes the loads wait for the store:
-        # up to 1.9x slower, depending on where the allocator had put separate arrays.
-        prow = -(-maxlen // 16) * 16
-        raw = np.empty(nl * prow * LANES8 + maxlen * LANES8 + 2 * _PAGE, dtype=np.int8)
-        p0 = (_PAGE - raw.ctypes.data % _PAGE) % _PAGE
-        prof = raw[p0 : p0 + nl * prow * LANES8].reshape((nl, prow, LANES8))
-        h0 = p0 + nl * prow * LANES8 + _PAGE // 2
-        hv = raw[h0 : h0 + maxlen * LANES8].reshape((maxlen, LANES8))  # H[i, j] = D[i, j+1] - D[i, j] - g(b_j)
-        for c in range(nl):
-            gc = indel[c]
-            for j in range(big):
-                for k in range(LANES8):
-                    b = bc[j, k]
-                    prof[c, j, k] = sub[c, b] - gc - indel[b]
-        # gsum[k] = D[0, m_k], every letter of reference k inserted; keep[j, k] = -1 where j < m_k, else 0
-        gsum = np.zeros(LANES8, dtype=np.int32)
-        keep = np.zeros((maxlen, LANES8), dtype=np.int8)
-        short = big
-        for k in range(LANES8):
-            short = min(short, lens[k])
-            for j in range(lens[k]):
-                gsum[k] += indel[bc[j, k]]
-                keep[j, k] = -1
-        # The last row's sum fits int16 when every |H| <= 2 gmax over at most ``big`` columns does.
-        narrow = 2 * gmax * big <= 32767
-        u1 = np.empty(LANES8, dtype=np.int8)  # U[i, j] = D[i, j] - D[i-1, j] - g(a_i), left of the cell
-        u2 = np.empty(LANES8, dtype=np.int8)  # the same on the next row
-        s16 = np.empty(LANES8, dtype=np.int16)
-        s32 = np.empty(LANES8, dtype=np.int32)
-        best = np.empty(LANES8, dtype=np.int32)
-        aa = np.empty(2 * maxq, dtype=np.int64)  # the query twice: rotation r reads aa[r : r + n]
-        for q in range(nq):
-            q0 = qoff[q]
-            n = qoff[q + 1] - q0
-            base = 0  # D[n, 0]: every query letter deleted, whatever the rotation
-            for i in range(n):
-                base += indel[qcodes[q0 + i]]
-                aa[i] = qcodes[q0 + i]
-                aa[i + n] = qcodes[q0 + i]
-            for k in range(LANES8):
-                best[k] = 2**30
-            for r in range(max(n, 1)):
-                for j in range(big):
-                    for k in range(LANES8):
-                        hv[j, k] = 0  # row 0: D[0, j+1] - D[0, j] = g(b_j)
-                i = 0
-                while i + 1 < n:  # two rows per sweep: H goes through memory once for both
-                    p1 = prof[aa[r + i]]
-                    p2 = prof[aa[r + i + 1]]
-                    for k in range(LANES8):
-                        u1[k] = 0  # column 0: D[i, 0] - D[i-1, 0] = g(a_i)
-                        u2[k] = 0
-                    for j in range(big):
-                        for k in range(LANES8):  # vectorised over the references
-                            # z = D[i,j] - D[i-1,j-1] - g(a_i) - g(b_j) = min(s'(a_i, b_j), H[i-1,j], U[i,j-1]);
-                            # every result cast back to int8 so that LLVM keeps 8-bit lanes (exact: no overflow)
-                            h = hv[j, k]
-                            x = u1[k]
-                            z = min(min(p1[j, k], h), x)
-                            u1[k] = np.int8(z - h)
-                            h = np.int8(z - x)
-                            x = u2[k]
-                            z = min(min(p2[j, k], h), x)
-                            u2[k] = np.int8(z - h)
-                            hv[j, k] = np.int8(z - x)
-                    i += 2
-                if i < n:  # an odd query: its last row alone
-                    p1 = prof[aa[r + i]]
-                    for k in range(LANES8):
-                        u1[k] = 0
-                    for j in range(big):
-                        for k in range(LANES8):
-                            h = hv[j, k]
-                            x = u1[k]
-                            z = min(min(p1[j, k], h), x)
-                            u1[k] = np.int8(z - h)
-                            hv[j, k] = np.int8(z - x)
-                # D[n, m_k] = D[n, 0] + D[0, m_k] + sum of H[n, j] over j < m_k
-                if narrow:
-                    for k in range(LANES8):
-                        s16[k] = 0
-                    for j in range(short):  # columns every lane has
-                        for k in range(LANES8):
-                            s16[k] = np.int16(s16[k] + hv[j, k])
-                    for j in range(short, big):
-                        for k in range(LANES8):
-                            s16[k] = np.int16(s16[k] + (hv[j, k] & keep[j, k]))
-                    for k in range(LANES8):
-                        best[k] = min(best[k], base + gsum[k] + s16[k])
-                else:
-                    for k in range(LANES8):
-                        s32[k] = 0
-                    for j in range(big):
-                        for k in range(LANES8):
-                            s32[k] += hv[j, k] & keep[j, k]
-                    for k in range(LANES8):
-                        best[k] = min(best[k], base + gsum[k] + s32[k])
-            for k in range(LANES8):
-                out[q, blk * LANES8 + k] = best[k]
-    return out
+    prof, pstart, prow, gsum, keep, short = _profiles(blocks, blens, block_len, sub, indel)
+    gmax = int(indel.max(initial=0))
+    return _costs_parallel(  # type: ignore[no-any-return]
+        qcodes, qoff, _max_query(qoff), prof, pstart, prow, gsum, keep, short, block_len, indel, gmax
+    )

@@ -77,7 +77,7 @@ class FingerprintBatch:
         the minimum-energy matcher.
     """
 
-    __slots__ = ("bearings", "letters")
+    __slots__ = ("_packed", "bearings", "letters")
 
     def __init__(self, items: object) -> None:
         seq = list(items) if isinstance(items, Iterable) and not isinstance(items, (str, Fingerprint)) else [items]
@@ -85,6 +85,10 @@ class FingerprintBatch:
         self.bearings: list[NDArray[np.float64] | None] = [
             x.bearings if isinstance(x, Fingerprint) else None for x in seq
         ]
+        # The references packed for a kernel, by the kernel's cost tables (see fingerloc.align.alignment_costs):
+        # at most one entry, so a batch holds at most one packed copy. A batch is not meant to change; its
+        # owner makes a new one when its references change (FingerprintTerm does when places are added).
+        self._packed: dict[object, object] = {}
 
     def __len__(self) -> int:
         return len(self.letters)
