@@ -67,8 +67,8 @@ def test_one_thread_and_all_threads_agree(n_queries):
     sub8, ind8, scale = small
     qc, qo = encode_many(qs)
     pk = pack_profiles(*encode_many(rs), sub8, ind8)
-    serial = cyclic_i8_costs(qc, qo, pk, parallel=False)[:, pk.slot]
-    par = cyclic_i8_costs(qc, qo, pk, parallel=True)[:, pk.slot]
+    serial = cyclic_i8_costs(qc, qo, pk, workers=1)[:, pk.slot]
+    par = cyclic_i8_costs(qc, qo, pk, workers=2)[:, pk.slot]
     np.testing.assert_array_equal(serial, par)
     np.testing.assert_array_equal(serial / scale, _brute(qs, rs, FEATURE))
     assert pk.prof.ctypes.data % 4096 == 0 and pk.nbytes >= pk.prof.nbytes

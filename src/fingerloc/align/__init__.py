@@ -272,7 +272,7 @@ def _run(n: int, fn: Callable[..., _T], *args: Any) -> _T:
 
 
 #: Fewest queries for which the int8 cyclic kernel spreads its reference blocks over threads (fewer: one thread).
-_PARALLEL_MIN_QUERIES = 2
+_PARALLEL_MIN_QUERIES = 8
 #: Largest packed form (bytes) a :class:`FingerprintBatch` keeps for the int8 cyclic kernel.
 _PACKED_MAX_BYTES = 256 << 20
 
@@ -357,10 +357,8 @@ def alignment_costs(
         if small is not None:
             sub8, indel8, scale = small
             pk = _profile_blocks(references, rs, sub8, indel8)
-            if nw > 1 and nq >= _PARALLEL_MIN_QUERIES:
-                packed_int = _run(nw, cyclic_i8_costs, qcodes, qoff, pk)
-            else:  # a few queries: one thread (no threading layer to wake up)
-                packed_int = cyclic_i8_costs(qcodes, qoff, pk, parallel=False)
+            # a few queries: one thread (threads would cost more than they give on a busy machine)
+            packed_int = cyclic_i8_costs(qcodes, qoff, pk, workers=nw if nq >= _PARALLEL_MIN_QUERIES else 1)
             return np.ascontiguousarray(packed_int[:, pk.slot], dtype=np.float64) / scale
     rcodes, roff = encode_many(rs)
     if cyclic and cm.is_unit:

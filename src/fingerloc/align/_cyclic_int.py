@@ -64,10 +64,13 @@ References
 
 from __future__ import annotations
 
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["LANES8", "ProfileBlocks", "cyclic_i8_costs", "integer_costs", "nw_batch_cyclic_i8", "pack_profiles"]
@@ -149,7 +152,9 @@ def _profiles(
     block_len: NDArray[np.int64],
     sub: NDArray[np.int8],
     indel: NDArray[np.int8],
-) -> tuple[NDArray[np.int8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int32], NDArray[np.int8], NDArray[np.int64]]:  # pragma: no cover - compiled
+) -> tuple[
+    NDArray[np.int8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int32], NDArray[np.int8], NDArray[np.int64]
+]:  # pragma: no cover - compiled
     nb = blocks.shape[0]
     maxlen = blocks.shape[1]
     nl = sub.shape[0]
@@ -319,39 +324,72 @@ def _max_query(qoff: NDArray[np.int64]) -> int:
     return int(np.diff(qoff).max(initial=0))
 
 
-@njit(parallel=True, cache=True)
-def _costs_parallel(qcodes, qoff, maxq, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    nb = block_len.shape[0]
-    out = np.empty((qoff.shape[0] - 1, nb * LANES8), dtype=np.int32)
-    for blk in prange(nb):
+@njit(nogil=True, cache=True)
+def _costs_blocks(qcodes, qoff, maxq, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax, out, first, step):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """Blocks ``first, first + step, ...`` into ``out``, without the GIL (so that threads can share the blocks)."""
+    for blk in range(first, block_len.shape[0], step):
         _block_costs(qcodes, qoff, maxq, blk, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax, out)
-    return out
 
 
-@njit(cache=True)
-def _costs_serial(qcodes, qoff, maxq, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    nb = block_len.shape[0]
-    out = np.empty((qoff.shape[0] - 1, nb * LANES8), dtype=np.int32)
-    for blk in range(nb):
-        _block_costs(qcodes, qoff, maxq, blk, prof, pstart, prow, gsum, keep, short, block_len, indel, gmax, out)
-    return out
+_POOL: list[tuple[int, ThreadPoolExecutor]] = []  # (pid, pool): a pool made before a fork has no threads after it
+_POOL_LOCK = threading.Lock()
+
+
+def _pool() -> ThreadPoolExecutor:
+    with _POOL_LOCK:
+        if not _POOL or _POOL[0][0] != os.getpid():
+            _POOL[:] = [
+                (
+                    os.getpid(),
+                    ThreadPoolExecutor(
+                        max_workers=max(1, (os.cpu_count() or 1) - 1), thread_name_prefix="fingerloc-i8"
+                    ),
+                )
+            ]
+        return _POOL[0][1]
 
 
 def cyclic_i8_costs(
-    qcodes: NDArray[np.uint8], qoff: NDArray[np.int64], pk: ProfileBlocks, *, parallel: bool = True
+    qcodes: NDArray[np.uint8], qoff: NDArray[np.int64], pk: ProfileBlocks, *, workers: int = 1
 ) -> NDArray[np.int32]:
     """Integer cyclic costs of every query against the packed references, shape ``(n_queries, n_blocks * LANES8)``.
 
     Entry ``[q, k * LANES8 + l]`` is ``scale`` times the cyclic cost of query
     ``q`` against reference ``l`` of block ``k`` (minimum over every rotation
     of the query); ``pk.slot`` maps the references to their entries.
-    ``parallel``: the blocks spread over numba's threads (the caller sets
-    how many), else one thread.
+    ``workers`` threads share the blocks (every ``workers``-th block each):
+    the calling thread and ``workers - 1`` threads of a pool, which wait on a
+    queue, not spinning, when idle (numba's own threads spin for a while
+    after each parallel region: on a loaded machine a single query cost
+    several times the CPU of one thread).
     """
-    fn = _costs_parallel if parallel else _costs_serial
-    return fn(  # type: ignore[no-any-return]
-        qcodes, qoff, _max_query(qoff), pk.prof, pk.pstart, pk.prow, pk.gsum, pk.keep, pk.short, pk.block_len, pk.indel, pk.gmax
+    nb = pk.block_len.shape[0]
+    out = np.empty((qoff.shape[0] - 1, nb * LANES8), dtype=np.int32)
+    args = (
+        qcodes,
+        qoff,
+        _max_query(qoff),
+        pk.prof,
+        pk.pstart,
+        pk.prow,
+        pk.gsum,
+        pk.keep,
+        pk.short,
+        pk.block_len,
+        pk.indel,
+        pk.gmax,
+        out,
     )
+    n = max(1, min(int(workers), nb))
+    if n == 1:
+        _costs_blocks(*args, 0, 1)
+        return out
+    pool = _pool()
+    futures = [pool.submit(_costs_blocks, *args, t, n) for t in range(1, n)]
+    _costs_blocks(*args, 0, n)
+    for f in futures:
+        f.result()
+    return out
 
 
 def nw_batch_cyclic_i8(
@@ -374,7 +412,5 @@ def nw_batch_cyclic_i8(
     keeps them for repeated calls).
     """
     prof, pstart, prow, gsum, keep, short = _profiles(blocks, blens, block_len, sub, indel)
-    gmax = int(indel.max(initial=0))
-    return _costs_parallel(  # type: ignore[no-any-return]
-        qcodes, qoff, _max_query(qoff), prof, pstart, prow, gsum, keep, short, block_len, indel, gmax
-    )
+    pk = ProfileBlocks(prof, pstart, prow, gsum, keep, short, block_len, np.arange(0), indel, int(indel.max(initial=0)))
+    return cyclic_i8_costs(qcodes, qoff, pk, workers=os.cpu_count() or 1)
