@@ -106,6 +106,22 @@ def integer_costs(
         the difference recurrence, up to ``scale * (2 max indel + max
         substitution)``, could pass 127.
     """
+    key = (sub.shape, sub.tobytes(), indel.tobytes())
+    if key not in _INTEGER_COSTS:  # a cost model is checked once (65 us), not on every call
+        if len(_INTEGER_COSTS) >= 64:
+            _INTEGER_COSTS.clear()
+        _INTEGER_COSTS[key] = _integer_costs(sub, indel)
+    hit = _INTEGER_COSTS[key]
+    return None if hit is None else (hit[0].copy(), hit[1].copy(), hit[2])
+
+
+#: Answers of :func:`integer_costs` by cost tables (at most 64 models).
+_INTEGER_COSTS: dict[tuple[object, ...], tuple[NDArray[np.int8], NDArray[np.int8], int] | None] = {}
+
+
+def _integer_costs(
+    sub: NDArray[np.float64], indel: NDArray[np.float64]
+) -> tuple[NDArray[np.int8], NDArray[np.int8], int] | None:
     bound = 2.0 * float(indel.max(initial=0.0)) + float(sub.max(initial=0.0))
     for scale in _SCALES:
         s_sub = sub * scale
