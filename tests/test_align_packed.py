@@ -101,3 +101,20 @@ def test_fingerprint_term_repacks_when_places_are_added():
     assert all(isinstance(f, Fingerprint) for f in refs)
     d = _brute([f.letters for f in fps], [f.letters for f in refs], FEATURE)
     np.testing.assert_array_equal(after[:, 5], d[:, 5 * 2 : 5 * 2 + 1].min(axis=1))
+
+
+def test_pickled_batch_leaves_its_packed_form_behind():
+    import pickle
+
+    rng = np.random.default_rng(8)
+    rs = _strings(rng, 40)
+    batch = FingerprintBatch(rs)
+    d = alignment_costs(rs[:2], batch, cyclic=True, costs=FEATURE)
+    assert batch._packed
+    copy = pickle.loads(pickle.dumps(batch))
+    assert copy._packed == {} and copy.letters == batch.letters
+    np.testing.assert_array_equal(alignment_costs(rs[:2], copy, cyclic=True, costs=FEATURE), d)
+    assert copy._packed
+    old = FingerprintBatch.__new__(FingerprintBatch)
+    old.__setstate__((None, {"letters": batch.letters, "bearings": batch.bearings}))  # a pickle of the slots alone
+    np.testing.assert_array_equal(alignment_costs(rs[:2], old, cyclic=True, costs=FEATURE), d)

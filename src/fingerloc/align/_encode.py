@@ -93,6 +93,18 @@ class FingerprintBatch:
     def __len__(self) -> int:
         return len(self.letters)
 
+    def __getstate__(self) -> dict[str, object]:
+        # the packed form is left out of pickles (megabytes, and page alignment does not survive a copy)
+        return {"letters": self.letters, "bearings": self.bearings}
+
+    def __setstate__(self, state: object) -> None:
+        if isinstance(state, tuple):  # pickled before __getstate__ existed: (None, slots)
+            state = state[1]
+        assert isinstance(state, dict)
+        self.letters = state["letters"]
+        self.bearings = state["bearings"]
+        self._packed = {}
+
 
 def letters_many(xs: object, name: str) -> list[str]:
     """Validated letters of a batch: a sequence of strings/fingerprints, or one of them alone."""
