@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -28,3 +29,16 @@ def test_section_quick():
     figs = localize_figures(places=30, queries=300, small=100, repeat=1)
     assert figs["steady_obs_per_cpu_s"] > 0 and figs["fixed_cpu_s"] < figs["small_cpu_s"]
     assert figs["json_bytes_per_record"] > 1000 and figs["peak_rss_mb"] > 10
+
+
+def test_peak_memory_is_the_childs_own(tmp_path):
+    """The bench's peak resident size is the command's, not the bigger parent's (ru_maxrss survives fork + exec)."""
+    import numpy as np
+
+    from fingerloc.experiments.speed_localize import _fingerloc
+
+    if not Path("/proc/self/status").exists():
+        pytest.skip("needs /proc")
+    big = np.ones(40_000_000)  # 320 MB resident in this process
+    _, _, peak_mb = _fingerloc(["--version"], tmp_path)
+    assert big.sum() > 0 and peak_mb < 200

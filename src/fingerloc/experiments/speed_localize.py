@@ -84,7 +84,7 @@ def _env() -> dict[str, str]:
 
 def _fingerloc(args: list[str], cwd: Path) -> tuple[float, float, float]:
     """Run ``fingerloc ARGS`` in a fresh interpreter: (wall s, CPU s, peak resident MB); raises on failure."""
-    cmd = [sys.executable, "-c", "from fingerloc.cli import main; main()", *args]
+    cmd = [sys.executable, "-c", _CHILD, *args]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=cwd, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     assert proc.stderr is not None
@@ -95,7 +95,27 @@ def _fingerloc(args: list[str], cwd: Path) -> tuple[float, float, float]:
     proc.stderr.close()
     if proc.returncode != 0:
         raise RuntimeError(f"fingerloc {' '.join(args)} failed ({proc.returncode}): {err.decode(errors='replace')[-500:]}")
-    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0
+    peak = usage.ru_maxrss / 1024.0  # where /proc is missing; on Linux it keeps the parent's peak across fork + exec
+    for line in err.decode(errors="replace").splitlines():
+        if line.startswith(_HWM):
+            peak = float(line[len(_HWM) :]) / 1024.0
+    return wall, usage.ru_utime + usage.ru_stime, peak
+
+
+#: The child's own peak resident size (VmHWM of /proc/self/status, kB), printed on stderr when it exits.
+_HWM = "fingerloc-speed-vmhwm-kb="
+_CHILD = f"""import atexit, sys
+def _hwm():
+    try:
+        with open("/proc/self/status") as fh:
+            kb = next(line.split()[1] for line in fh if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return
+    sys.stderr.write("{_HWM}" + kb + "\\n")
+atexit.register(_hwm)
+from fingerloc.cli import main
+main()
+"""
 
 
 def localize_figures(
