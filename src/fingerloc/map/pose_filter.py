@@ -283,6 +283,7 @@ class PoseFilter:
     Attributes
     ----------
     particles_ : ndarray, shape (N, 3)
+        Read only: the filter keeps their nearest places until it replaces them.
     log_weights_ : ndarray, shape (N,)
         Normalised (``logsumexp == 0``).
     """
@@ -337,10 +338,12 @@ class PoseFilter:
                 near = np.asarray(j)[np.asarray(d) <= self.radius]
                 pp = pp[np.asarray(d) <= self.radius]
                 self._place_poses = [pp[near == k] for k in range(c.shape[0])]
+        self._any_place_poses = any(k.shape[0] for k in self._place_poses)
         self._rng = (
             check_random_state(random_state)
         )
         self._tree = cKDTree(c)
+        self._near_cache: tuple[FArray, FArray, IArray] | None = None
         self.reset()
 
     @property
@@ -373,9 +376,26 @@ class PoseFilter:
 
         return nearest_centres(xy, self.centres)
 
+    def _particles_nearest(self) -> tuple[FArray, IArray]:
+        """Distance to and index of each particle's nearest centre, kept until the particles change.
+
+        The filter replaces ``particles_`` (a new array) whenever it moves or
+        resamples them, and recomputes after changing them in place
+        (:meth:`reseed`).
+        """
+        cache = self._near_cache
+        if cache is not None and cache[0] is self.particles_:
+            return cache[1], cache[2]
+        d, near = self._nearest(self.particles_[:, :2])
+        self._near_cache = (self.particles_, d, near)
+        return d, near
+
     def _particle_places(self) -> FArray:
-        _, near = self._nearest(self.particles_[:, :2])
-        mass = np.bincount(near, weights=np.exp(self.log_weights_), minlength=self.n_places)
+        from ._pf_kernels import bincount_weights
+
+        self._near_cache = None
+        _, near = self._particles_nearest()
+        mass = bincount_weights(near, np.exp(self.log_weights_), self.n_places)
         with np.errstate(divide="ignore"):
             lp = np.log(mass)
         return lp - logsumexp(lp)
@@ -397,17 +417,24 @@ class PoseFilter:
             )
         dx, dy, dth = (float(v) for v in inc)
         m, rng = self.motion, self._rng
-        n_now = self.particles_.shape[0]
+        n_now = int(self.particles_.shape[0])
         dist = math.hypot(dx, dy)
         st = m.translation_floor + m.translation * dist
-        ex = dx * (1.0 + m.translation * rng.standard_normal(n_now)) + st * rng.standard_normal(n_now)
-        ey = dy * (1.0 + m.translation * rng.standard_normal(n_now)) + st * rng.standard_normal(n_now)
+        # the former NumPy expressions' draws, in their order: ex's two, ey's two, then the turn's
+        z1 = rng.standard_normal(n_now)
+        z2 = rng.standard_normal(n_now)
+        z3 = rng.standard_normal(n_now)
+        z4 = rng.standard_normal(n_now)
         sr = m.rotation_floor + m.rotation_per_metre * dist + m.rotation * abs(dth)
         th = self.particles_[:, 2]
         c, s = np.cos(th), np.sin(th)
-        self.particles_[:, 0] += c * ex - s * ey
-        self.particles_[:, 1] += s * ex + c * ey
-        self.particles_[:, 2] = wrap(th + dth + sr * rng.standard_normal(n_now))
+        z5 = rng.standard_normal(n_now)
+        from ._pf_kernels import move_particles
+
+        moved = np.empty((n_now, 3))
+        move_particles(np.ascontiguousarray(self.particles_), z1, z2, z3, z4, z5, c, s,
+                       dx, dy, dth, m.translation, st, sr, moved)  # fmt: skip
+        self.particles_ = moved
         self._place_log_posterior = self._particle_places()
         return self.place_log_posterior()
 
@@ -451,15 +478,19 @@ class PoseFilter:
         lp = w_obs * self.place_likelihood(log_likelihood)
         P = self.n_places
         floor = w_obs * math.log(self.off_place / P) if self.off_place > 0 else -np.inf
-        d, near = self._nearest(self.particles_[:, :2])
-        lik = np.where(d <= self.radius, lp[near], floor)
-        w = self.log_weights_ + lik
-        tracked = float(logsumexp(w)) if np.any(np.isfinite(w)) else -np.inf
+        from ._pf_kernels import bincount_weights, observation_weights_at
+
+        d, near = self._particles_nearest()
+        w = np.empty(d.shape[0])
+        any_finite = observation_weights_at(d, near, lp, self.radius, float(floor), self.log_weights_, w)
+        tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):
-            mass = np.log(np.bincount(near, weights=np.exp(w - tracked) if math.isfinite(tracked) else None,
-                                      minlength=P))  # fmt: skip
+            if math.isfinite(tracked):
+                mass = np.log(bincount_weights(near, np.exp(w - tracked), P))
+            else:
+                mass = np.log(np.bincount(near, minlength=P))
         if kidnap_prior is None:
             prior = np.full(P, -math.log(P))
         else:
@@ -496,6 +527,8 @@ class PoseFilter:
             [self.centres[j, 0] + rad * np.cos(ang), self.centres[j, 1] + rad * np.sin(ang),
              rng.uniform(-math.pi, math.pi, m)]
         )  # fmt: skip
+        if not self._any_place_poses:
+            return out
         for k in np.unique(j).tolist():
             known = self._place_poses[k]
             if known.shape[0] == 0:
@@ -549,7 +582,7 @@ class PoseFilter:
         w_obs = _finite("weight", weight)
         lp = w_obs * self.place_likelihood(log_likelihood)
         floor = w_obs * math.log(self.off_place / self.n_places) if self.off_place > 0 else -np.inf
-        d, near = self._nearest(self.particles_[:, :2])
+        d, near = self._particles_nearest()
         w = self.log_weights_ + np.where(d <= self.radius, lp[near], floor)
         return float(logsumexp(w)) if np.any(np.isfinite(w)) else -math.inf
 
@@ -575,13 +608,12 @@ class PoseFilter:
 
     def _resample(self, particles: FArray, log_w: FArray) -> None:
         """Systematic resampling of ``N`` particles from weighted ``particles``."""
+        from ._pf_kernels import gather_rows, systematic_indices
+
         n = self.n_particles
         p = np.exp(log_w - logsumexp(log_w))
-        cum = np.cumsum(p)
-        cum[-1] = 1.0
-        u = (self._rng.uniform() + np.arange(n)) / n
-        idx = np.minimum(np.searchsorted(cum, u, side="left"), particles.shape[0] - 1)
-        self.particles_ = particles[idx].copy()
+        idx = systematic_indices(p, float(self._rng.uniform()), n)
+        self.particles_ = gather_rows(np.ascontiguousarray(particles, dtype=np.float64), idx)
         self.log_weights_ = np.full(n, -math.log(n))
 
     def step(
