@@ -239,3 +239,43 @@ def test_kernels_equal_numpy_on_edge_values():
         assert got.tobytes() == ref.tobytes() and fin == bool(np.any(np.isfinite(ref)))
     got = np.empty(n)
     assert not k.observation_weights_at(d, near, np.full(40, -np.inf), 0.5, -np.inf, lw, got)
+
+
+def _calls(g, variant):
+    """A sequence of draws as the filter makes them; ``variant`` changes one call's size midway."""
+    out = [g.integers(0, 7, 50), g.standard_normal((50, 2)), g.uniform(-math.pi, math.pi, 50)]
+    for t in range(6):
+        out += [g.standard_normal(50) for _ in range(5)]
+        out.append(g.choice(9, size=20 + (variant if t == 3 else 0), p=np.full(9, 1 / 9)))
+        out += [g.uniform(0.0, 2 * math.pi, 20), g.uniform(0.0, 1.0, 20), np.asarray(g.uniform())]
+    out.append(g.choice(50, size=10, replace=False))
+    return out
+
+
+def test_shared_draws_are_those_of_a_fresh_generator():
+    shared = pf.SharedDraws(11)
+    for variant in (0, 0, 3, 0, 1):
+        got = _calls(shared.generator(), variant)
+        ref = _calls(np.random.default_rng(11), variant)
+        assert len(got) == len(ref)
+        assert all(a.tobytes() == b.tobytes() and a.dtype == b.dtype for a, b in zip(got, ref, strict=True))
+    g = shared.generator()
+    z = g.standard_normal((50,))  # another size than the record's first call: its own draws
+    assert z.tobytes() == np.random.default_rng(11).standard_normal((50,)).tobytes()
+    rec = shared.generator().integers(0, 7, 50)
+    assert not rec.flags.writeable  # recorded arrays are shared: read only
+
+
+def test_tuning_grid_with_shared_draws_equals_separate_runs():
+    from fingerloc.pipeline.tracker import Calibration, HeldOut, Tracker, tune_pose_filter
+
+    ll, _, q, centres, poses, g = _corridor(8, 6)
+    rows = np.flatnonzero(q)
+    truth = np.argmin(np.linalg.norm(poses[rows, None, :2] - centres[None], axis=2), axis=1)
+    held = HeldOut(beta=1.0, rows=rows.size, scores=ll[rows], labels=truth, index=np.arange(rows.size))
+    cal = Calibration(radius=0.6, kidnap=0.01, start_at_first_observation=True)
+    tr = Tracker(centres, g, cal, n_particles=300)
+    a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3)
+    b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, share_draws=False)
+    assert a == b
+    assert len({x["top1"] for x in a[1]}) > 1  # the grid's runs differ

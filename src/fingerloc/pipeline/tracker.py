@@ -408,6 +408,7 @@ def tune_pose_filter(
     seed: int = 0,
     temper: bool = True,
     relocalize: bool = True,
+    share_draws: bool = True,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -420,6 +421,11 @@ def tune_pose_filter(
     at the training scans wins (ties: the earlier pair). Nothing is taken
     from the queries.
 
+    The runs of the grid draw the same random numbers (one seed, the same
+    steps): with ``share_draws`` (the default) they are drawn once and
+    replayed (:class:`~fingerloc.map.pose_filter.SharedDraws`; a run whose
+    calls differ draws its own from there), which changes no result.
+
     Returns
     -------
     Calibration
@@ -428,7 +434,7 @@ def tune_pose_filter(
     list of dict
         ``{"outlier", "temper_metres", "top1"}`` of every pair tried.
     """
-    from ..map.pose_filter import wheel_odometry
+    from ..map.pose_filter import SharedDraws, wheel_odometry
 
     cal = tracker.calibration
     poses = np.asarray(mapping_poses, dtype=np.float64).reshape(-1, 3)
@@ -442,10 +448,12 @@ def tune_pose_filter(
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
     best = (-1.0, cal)
+    shared = SharedDraws(seed + 2) if share_draws else None
     for rho, metres in tune_grid(fitted):
         trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles)
-        res = t.run_pose(ll, inc, t.pose_filter(seed + 2), temper=temper, relocalize=relocalize)
+        f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
+        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize)
         top1 = float(np.mean(res.best[rows] == truth))
         tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
         if top1 > best[0]:
@@ -510,8 +518,10 @@ class Tracker:
                 graph, alpha=calibration.alpha, uniform_mix=uniform_mix, metres_per_move=calibration.metres_per_move
             )
 
-    def pose_filter(self, seed: int = 0, *, kidnap: float | None = None) -> PoseFilter:
-        """A fresh pose filter over the places (seeded)."""
+    def pose_filter(
+        self, seed: int = 0, *, kidnap: float | None = None, rng: np.random.Generator | None = None
+    ) -> PoseFilter:
+        """A fresh pose filter over the places (seeded; ``rng``: this generator instead of one seeded with ``seed``)."""
         from ..map.pose_filter import PoseFilter
 
         return PoseFilter(
@@ -521,7 +531,7 @@ class Tracker:
             kidnap=self.calibration.kidnap if kidnap is None else kidnap,
             outlier=self.calibration.outlier,
             off_place=self.calibration.off_place,
-            random_state=seed,
+            random_state=seed if rng is None else rng,
         )
 
     def scaled(self, log_posterior: Any) -> FArray:
