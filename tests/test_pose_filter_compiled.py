@@ -279,3 +279,26 @@ def test_tuning_grid_with_shared_draws_equals_separate_runs():
     b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, share_draws=False)
     assert a == b
     assert len({x["top1"] for x in a[1]}) > 1  # the grid's runs differ
+
+
+def test_shared_place_steps_are_the_filter_own_beliefs():
+    from fingerloc.map.filter import SharedPlaceSteps
+
+    ll, inc, q, _, _, g = _corridor(9, 8)
+    tm = TransitionModel.from_graph(g, metres_per_move=2.0)
+    dist = np.hypot(inc[:, 0], inc[:, 1])
+
+    def run(f, change_at=None):
+        f.reset()
+        out = [f.log_belief_.copy()]
+        for t in range(1, ll.shape[0]):
+            out.append(f.predict(dist[t - 1] * (1.5 if t == change_at else 1.0)))
+            if q[t]:
+                out.append(f.update(np.where(np.isnan(ll[t]), -np.inf, ll[t])))
+        return np.array(out).tobytes()
+
+    shared = SharedPlaceSteps()
+    for change_at in (None, None, 30, None):
+        assert run(shared.filter(tm), change_at) == run(MarkovFilter(tm), change_at)
+    other = TransitionModel.from_graph(g, metres_per_move=3.0)  # another model: not replayed
+    assert run(shared.filter(other)) == run(MarkovFilter(other)) != run(MarkovFilter(tm))
