@@ -157,7 +157,7 @@ def test_cli_learn_weights(tmp_path, cli):
 
 
 def test_localize_streams_in_chunks_with_the_same_answers(tmp_path, cli, monkeypatch):
-    import fingerloc.cli.places as places_cli
+    import fingerloc.cli._localize as localize_chunks  # localize imports LOCALIZE_CHUNK from here when it runs
 
     obs, labels = dataset()
     train = tmp_path / "train.jsonl"
@@ -169,7 +169,7 @@ def test_localize_streams_in_chunks_with_the_same_answers(tmp_path, cli, monkeyp
     write_observations(q, [o.with_label(lab) for o, lab in zip(test, tl, strict=True)])
     whole, parts = tmp_path / "whole.json", tmp_path / "parts.json"
     assert cli("localize", str(q), "--db", str(db), "--json", str(whole), "-q").returncode == 0
-    monkeypatch.setattr(places_cli, "LOCALIZE_CHUNK", 2)  # 9 observations in 5 chunks
+    monkeypatch.setattr(localize_chunks, "LOCALIZE_CHUNK", 2)  # 9 observations in 5 chunks
     assert cli("localize", str(q), "--db", str(db), "--json", str(parts), "-q").returncode == 0
     a, b = json.loads(whole.read_text()), json.loads(parts.read_text())
     assert a == b and [r["index"] for r in b["observations"]] == list(range(9))
