@@ -283,7 +283,6 @@ class PoseFilter:
     Attributes
     ----------
     particles_ : ndarray, shape (N, 3)
-        Read only: the filter keeps their nearest places until it replaces them.
     log_weights_ : ndarray, shape (N,)
         Normalised (``logsumexp == 0``).
     """
@@ -343,7 +342,7 @@ class PoseFilter:
             check_random_state(random_state)
         )
         self._tree = cKDTree(c)
-        self._near_cache: tuple[FArray, FArray, IArray] | None = None
+        self._near_cache: tuple[FArray, FArray, IArray, FArray] | None = None
         self.reset()
 
     @property
@@ -381,13 +380,15 @@ class PoseFilter:
 
         The filter replaces ``particles_`` (a new array) whenever it moves or
         resamples them, and recomputes after changing them in place
-        (:meth:`reseed`).
+        (:meth:`reseed`); particles changed in place by a caller differ from
+        the kept copy and are recomputed too.
         """
         cache = self._near_cache
-        if cache is not None and cache[0] is self.particles_:
+        p = self.particles_
+        if cache is not None and cache[0] is p and p.flags.c_contiguous and np.array_equal(cache[3], p):
             return cache[1], cache[2]
-        d, near = self._nearest(self.particles_[:, :2])
-        self._near_cache = (self.particles_, d, near)
+        d, near = self._nearest(p[:, :2])
+        self._near_cache = (p, d, near, p.copy())  # the copy: particles changed in place by a caller are seen
         return d, near
 
     def _particle_places(self) -> FArray:
