@@ -500,27 +500,28 @@ class PoseFilter:
                 raise InvalidParameterError(f"kidnap_prior must be {P} log-probabilities, not all -inf, without NaN")
             prior = prior - logsumexp(prior)
         kid = prior + lp
-        comp_kid = (math.log(eps) if eps > 0 else -np.inf) + float(logsumexp(kid))
+        lse_kid = float(logsumexp(kid))  # used three times below: computed once, the same float
+        comp_kid = (math.log(eps) if eps > 0 else -np.inf) + lse_kid
         comp_trk = (math.log1p(-eps) + tracked) if math.isfinite(tracked) and eps < 1 else -np.inf
         if not math.isfinite(comp_trk) and not math.isfinite(comp_kid):
             # nothing explains the observation (outlier = 0 and every particle away from a place): keep the prior
             return self.place_log_posterior()
-        post = np.logaddexp(comp_trk + mass, comp_kid + (kid - float(logsumexp(kid))))
+        post = np.logaddexp(comp_trk + mass, comp_kid + (kid - lse_kid))
         self._place_log_posterior = post - logsumexp(post)
         # particles for the future: tracked ones plus the kidnapping component's, then resample to N
         parts = [self.particles_]
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
-            fresh = self._sample_at_places(kid, m)
+            fresh = self._sample_at_places(kid, m, lse_kid)
             parts.append(fresh)
             logw.append(np.full(m, comp_kid - math.log(m)))
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
 
-    def _sample_at_places(self, log_p: FArray, m: int) -> FArray:
+    def _sample_at_places(self, log_p: FArray, m: int, log_total: float | None = None) -> FArray:
         rng = self._rng
-        pr = np.exp(log_p - logsumexp(log_p))
+        pr = np.exp(log_p - (logsumexp(log_p) if log_total is None else log_total))
         j = rng.choice(self.n_places, size=m, p=pr / pr.sum())
         ang = rng.uniform(0.0, 2 * math.pi, m)
         rad = self.radius * np.sqrt(rng.uniform(0.0, 1.0, m))
