@@ -532,6 +532,76 @@ class FilterResult:
         )
 
 
+class SharedPlaceSteps:
+    """The beliefs of a :class:`MarkovFilter` along one run, recorded once and replayed (private; issue 17).
+
+    Several pose-filter runs that differ only in the pose filter's settings
+    (:func:`fingerloc.pipeline.tracker.tune_pose_filter`'s grid) run the same
+    place filter alongside on the same steps. :meth:`filter` gives a filter
+    over ``transition`` that records each call's resulting belief on the
+    first run and, on the next runs, takes the recorded belief while its
+    calls are the same (``predict`` with the same distance, ``update`` with
+    the same row, the same transition model); from the first call that
+    differs it computes for itself (its state is its belief). The beliefs
+    are those it would compute: the computation is deterministic.
+    """
+
+    def __init__(self) -> None:
+        self.transition: TransitionModel | None = None
+        self.calls: list[tuple[tuple[Any, ...], FArray]] = []
+
+    def filter(self, transition: TransitionModel) -> MarkovFilter:
+        """A place filter over ``transition`` that uses (and extends) the record."""
+        if self.transition is None:
+            self.transition = transition
+        same = self.transition is transition or (
+            self.transition.metres_per_move == transition.metres_per_move
+            and self.transition.uniform_mix == transition.uniform_mix
+            and self.transition.stay.tobytes() == np.asarray(transition.stay).tobytes()
+            and self.transition.move.tobytes() == np.asarray(transition.move).tobytes()
+        )
+        return _ReplayMarkovFilter(transition, self if same else None)
+
+
+class _ReplayMarkovFilter(MarkovFilter):
+    """A :class:`MarkovFilter` that replays :class:`SharedPlaceSteps` while its calls match."""
+
+    def __init__(self, transition: TransitionModel, record: SharedPlaceSteps | None) -> None:
+        self._record = record
+        self._i = 0
+        self._own = record is None
+        super().__init__(transition)
+
+    def reset(self) -> MarkovFilter:
+        super().reset()
+        self._i, self._own = 0, self._record is None
+        return self
+
+    def _step(self, key: tuple[Any, ...], live: Any) -> FArray:
+        rec, i = self._record, self._i
+        self._i = i + 1
+        if not self._own and rec is not None:
+            if i < len(rec.calls):
+                if rec.calls[i][0] == key:
+                    self.log_belief_ = rec.calls[i][1].copy()
+                    return self.log_belief_.copy()
+                self._own = True
+            else:
+                out = live()
+                rec.calls.append((key, self.log_belief_.copy()))
+                return out
+        return live()  # type: ignore[no-any-return]
+
+    def predict(self, distance: float | None = None) -> FArray:
+        key = ("predict", None if distance is None else float(distance))
+        return self._step(key, lambda: MarkovFilter.predict(self, distance))
+
+    def update(self, log_likelihood: Any) -> FArray:
+        row = None if log_likelihood is None else np.asarray(log_likelihood, dtype=np.float64)
+        key = ("update", None if row is None else (row.shape, row.tobytes()))
+        return self._step(key, lambda: MarkovFilter.update(self, log_likelihood))
+
+
 def run_filter(
     log_likelihood: Any,
     transition: TransitionModel,

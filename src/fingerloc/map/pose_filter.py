@@ -337,10 +337,12 @@ class PoseFilter:
                 near = np.asarray(j)[np.asarray(d) <= self.radius]
                 pp = pp[np.asarray(d) <= self.radius]
                 self._place_poses = [pp[near == k] for k in range(c.shape[0])]
+        self._any_place_poses = any(k.shape[0] for k in self._place_poses)
         self._rng = (
             check_random_state(random_state)
         )
         self._tree = cKDTree(c)
+        self._near_cache: tuple[FArray, FArray, IArray, FArray] | None = None
         self.reset()
 
     @property
@@ -373,9 +375,28 @@ class PoseFilter:
 
         return nearest_centres(xy, self.centres)
 
+    def _particles_nearest(self) -> tuple[FArray, IArray]:
+        """Distance to and index of each particle's nearest centre, kept until the particles change.
+
+        The filter replaces ``particles_`` (a new array) whenever it moves or
+        resamples them, and recomputes after changing them in place
+        (:meth:`reseed`); particles changed in place by a caller differ from
+        the kept copy and are recomputed too.
+        """
+        cache = self._near_cache
+        p = self.particles_
+        if cache is not None and cache[0] is p and p.flags.c_contiguous and np.array_equal(cache[3], p):
+            return cache[1], cache[2]
+        d, near = self._nearest(p[:, :2])
+        self._near_cache = (p, d, near, p.copy())  # the copy: particles changed in place by a caller are seen
+        return d, near
+
     def _particle_places(self) -> FArray:
-        _, near = self._nearest(self.particles_[:, :2])
-        mass = np.bincount(near, weights=np.exp(self.log_weights_), minlength=self.n_places)
+        from ._pf_kernels import bincount_weights
+
+        self._near_cache = None
+        _, near = self._particles_nearest()
+        mass = bincount_weights(near, np.exp(self.log_weights_), self.n_places)
         with np.errstate(divide="ignore"):
             lp = np.log(mass)
         return lp - logsumexp(lp)
@@ -397,17 +418,24 @@ class PoseFilter:
             )
         dx, dy, dth = (float(v) for v in inc)
         m, rng = self.motion, self._rng
-        n_now = self.particles_.shape[0]
+        n_now = int(self.particles_.shape[0])
         dist = math.hypot(dx, dy)
         st = m.translation_floor + m.translation * dist
-        ex = dx * (1.0 + m.translation * rng.standard_normal(n_now)) + st * rng.standard_normal(n_now)
-        ey = dy * (1.0 + m.translation * rng.standard_normal(n_now)) + st * rng.standard_normal(n_now)
+        # the former NumPy expressions' draws, in their order: ex's two, ey's two, then the turn's
+        z1 = rng.standard_normal(n_now)
+        z2 = rng.standard_normal(n_now)
+        z3 = rng.standard_normal(n_now)
+        z4 = rng.standard_normal(n_now)
         sr = m.rotation_floor + m.rotation_per_metre * dist + m.rotation * abs(dth)
         th = self.particles_[:, 2]
         c, s = np.cos(th), np.sin(th)
-        self.particles_[:, 0] += c * ex - s * ey
-        self.particles_[:, 1] += s * ex + c * ey
-        self.particles_[:, 2] = wrap(th + dth + sr * rng.standard_normal(n_now))
+        z5 = rng.standard_normal(n_now)
+        from ._pf_kernels import move_particles
+
+        moved = np.empty((n_now, 3))
+        move_particles(np.ascontiguousarray(self.particles_), z1, z2, z3, z4, z5, c, s,
+                       dx, dy, dth, m.translation, st, sr, moved)  # fmt: skip
+        self.particles_ = moved
         self._place_log_posterior = self._particle_places()
         return self.place_log_posterior()
 
@@ -451,15 +479,19 @@ class PoseFilter:
         lp = w_obs * self.place_likelihood(log_likelihood)
         P = self.n_places
         floor = w_obs * math.log(self.off_place / P) if self.off_place > 0 else -np.inf
-        d, near = self._nearest(self.particles_[:, :2])
-        lik = np.where(d <= self.radius, lp[near], floor)
-        w = self.log_weights_ + lik
-        tracked = float(logsumexp(w)) if np.any(np.isfinite(w)) else -np.inf
+        from ._pf_kernels import bincount_weights, observation_weights_at
+
+        d, near = self._particles_nearest()
+        w = np.empty(d.shape[0])
+        any_finite = observation_weights_at(d, near, lp, self.radius, float(floor), self.log_weights_, w)
+        tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):
-            mass = np.log(np.bincount(near, weights=np.exp(w - tracked) if math.isfinite(tracked) else None,
-                                      minlength=P))  # fmt: skip
+            if math.isfinite(tracked):
+                mass = np.log(bincount_weights(near, np.exp(w - tracked), P))
+            else:
+                mass = np.log(np.bincount(near, minlength=P))
         if kidnap_prior is None:
             prior = np.full(P, -math.log(P))
         else:
@@ -468,27 +500,28 @@ class PoseFilter:
                 raise InvalidParameterError(f"kidnap_prior must be {P} log-probabilities, not all -inf, without NaN")
             prior = prior - logsumexp(prior)
         kid = prior + lp
-        comp_kid = (math.log(eps) if eps > 0 else -np.inf) + float(logsumexp(kid))
+        lse_kid = float(logsumexp(kid))  # used three times below: computed once, the same float
+        comp_kid = (math.log(eps) if eps > 0 else -np.inf) + lse_kid
         comp_trk = (math.log1p(-eps) + tracked) if math.isfinite(tracked) and eps < 1 else -np.inf
         if not math.isfinite(comp_trk) and not math.isfinite(comp_kid):
             # nothing explains the observation (outlier = 0 and every particle away from a place): keep the prior
             return self.place_log_posterior()
-        post = np.logaddexp(comp_trk + mass, comp_kid + (kid - float(logsumexp(kid))))
+        post = np.logaddexp(comp_trk + mass, comp_kid + (kid - lse_kid))
         self._place_log_posterior = post - logsumexp(post)
         # particles for the future: tracked ones plus the kidnapping component's, then resample to N
         parts = [self.particles_]
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
-            fresh = self._sample_at_places(kid, m)
+            fresh = self._sample_at_places(kid, m, lse_kid)
             parts.append(fresh)
             logw.append(np.full(m, comp_kid - math.log(m)))
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
 
-    def _sample_at_places(self, log_p: FArray, m: int) -> FArray:
+    def _sample_at_places(self, log_p: FArray, m: int, log_total: float | None = None) -> FArray:
         rng = self._rng
-        pr = np.exp(log_p - logsumexp(log_p))
+        pr = np.exp(log_p - (logsumexp(log_p) if log_total is None else log_total))
         j = rng.choice(self.n_places, size=m, p=pr / pr.sum())
         ang = rng.uniform(0.0, 2 * math.pi, m)
         rad = self.radius * np.sqrt(rng.uniform(0.0, 1.0, m))
@@ -496,6 +529,8 @@ class PoseFilter:
             [self.centres[j, 0] + rad * np.cos(ang), self.centres[j, 1] + rad * np.sin(ang),
              rng.uniform(-math.pi, math.pi, m)]
         )  # fmt: skip
+        if not self._any_place_poses:
+            return out
         for k in np.unique(j).tolist():
             known = self._place_poses[k]
             if known.shape[0] == 0:
@@ -549,7 +584,7 @@ class PoseFilter:
         w_obs = _finite("weight", weight)
         lp = w_obs * self.place_likelihood(log_likelihood)
         floor = w_obs * math.log(self.off_place / self.n_places) if self.off_place > 0 else -np.inf
-        d, near = self._nearest(self.particles_[:, :2])
+        d, near = self._particles_nearest()
         w = self.log_weights_ + np.where(d <= self.radius, lp[near], floor)
         return float(logsumexp(w)) if np.any(np.isfinite(w)) else -math.inf
 
@@ -575,13 +610,12 @@ class PoseFilter:
 
     def _resample(self, particles: FArray, log_w: FArray) -> None:
         """Systematic resampling of ``N`` particles from weighted ``particles``."""
+        from ._pf_kernels import gather_rows, systematic_indices
+
         n = self.n_particles
         p = np.exp(log_w - logsumexp(log_w))
-        cum = np.cumsum(p)
-        cum[-1] = 1.0
-        u = (self._rng.uniform() + np.arange(n)) / n
-        idx = np.minimum(np.searchsorted(cum, u, side="left"), particles.shape[0] - 1)
-        self.particles_ = particles[idx].copy()
+        idx = systematic_indices(p, float(self._rng.uniform()), n)
+        self.particles_ = gather_rows(np.ascontiguousarray(particles, dtype=np.float64), idx)
         self.log_weights_ = np.full(n, -math.log(n))
 
     def step(
@@ -593,6 +627,100 @@ class PoseFilter:
         if log_likelihood is None:
             return self.place_log_posterior()
         return self.update(log_likelihood, weight, kidnap_prior)
+
+
+class SharedDraws:
+    """The random draws of one seed, recorded by a first run and replayed by the next (private; issue 17).
+
+    Runs of the filter that differ only in settings which do not change the
+    *sequence* of draws (the tuning grid of
+    :func:`fingerloc.pipeline.tracker.tune_pose_filter`: same seed, same
+    steps, other ``outlier`` and tempering) draw the same random numbers.
+    :meth:`generator` gives a :class:`numpy.random.Generator` seeded with
+    ``seed`` that returns, call for call, what a fresh ``default_rng(seed)``
+    would: the first generator draws and records; the next ones return the
+    recorded arrays while their calls are the same (method and arguments),
+    and at the first call that differs they bring their own bit generator to
+    that point (re-drawing the calls so far) and draw for themselves from
+    then on. Recorded arrays are read only. ``choice`` with probabilities
+    is done as NumPy does it (a cumulative sum of ``p``, ``random(size)``,
+    ``searchsorted``) so that its uniform draws are shared.
+    """
+
+    def __init__(self, seed: int) -> None:
+        self.seed = int(seed)
+        self.log: list[tuple[tuple[Any, ...], Any]] = []
+
+    def generator(self) -> np.random.Generator:
+        """A generator equal in its draws to ``numpy.random.default_rng(seed)``."""
+        return _ReplayGenerator(self)
+
+
+def _shareable(x: Any) -> bool:
+    if isinstance(x, tuple):
+        return all(_shareable(v) for v in x)
+    return x is None or isinstance(x, (bool, int, float, str, np.integer, np.floating))
+
+
+class _ReplayGenerator(np.random.Generator):
+    """A generator that replays :class:`SharedDraws` while its calls match (see there)."""
+
+    def __init__(self, shared: SharedDraws) -> None:
+        super().__init__(np.random.PCG64(shared.seed))
+        self._shared = shared
+        self._i = 0  # calls made
+        self._synced = 0  # calls whose draws the own bit generator has made
+        self._own = False  # diverged from the record: every draw is this generator's
+
+    def _draw(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
+        key = (name, args, tuple(sorted(kwargs.items())))
+        log = self._shared.log
+        i = self._i
+        if not self._own:
+            if i < len(log):  # a recorded key holds no array: the comparison is of plain values
+                try:
+                    same = name != "choice" and log[i][0] == key
+                except ValueError:  # an array among the arguments
+                    same = False
+                if same:
+                    self._i = i + 1
+                    return log[i][1]
+                self._own = True
+            elif name == "choice" or not _shareable(key[1:]):
+                self._own = True
+        if self._synced < i:  # bring the own bit generator to call i: the record's calls so far
+            for k in range(self._synced, i):
+                n_k, a_k, kw_k = log[k][0]
+                getattr(np.random.Generator, n_k)(self, *a_k, **dict(kw_k))
+        out = getattr(np.random.Generator, name)(self, *args, **kwargs)
+        self._i = self._synced = i + 1
+        if not self._own:
+            if isinstance(out, np.ndarray):
+                out.flags.writeable = False
+            log.append((key, out))
+        return out
+
+    def standard_normal(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("standard_normal", args, kwargs)
+
+    def uniform(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("uniform", args, kwargs)
+
+    def random(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("random", args, kwargs)
+
+    def integers(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("integers", args, kwargs)
+
+    def choice(self, a: Any, size: Any = None, replace: bool = True, p: Any = None, **kwargs: Any) -> Any:  # type: ignore[override]
+        if p is not None and replace and not kwargs and isinstance(a, (int, np.integer)) and isinstance(size, (int, np.integer)):
+            # numpy.random.Generator.choice with p: cdf = cumsum(p) / its last entry; searchsorted(cdf, random(size), "right")
+            pp = np.asarray(p, dtype=np.float64)
+            if pp.ndim == 1 and pp.size == a and np.all(np.isfinite(pp)) and not np.any(pp < 0) and abs(pp.sum() - 1.0) < 1e-9:
+                cdf = pp.cumsum()
+                cdf /= cdf[-1]
+                return np.asarray(cdf.searchsorted(self.random(int(size)), side="right"), dtype=np.int64)
+        return self._draw("choice", (a, size, replace, p), kwargs)  # never shared
 
 
 def path_start_poses(poses: Any, *, spacing: float = 0.5, both_directions: bool = True) -> FArray:

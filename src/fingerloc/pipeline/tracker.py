@@ -38,6 +38,7 @@ from ..errors import InvalidParameterError
 from ..map.filter import (
     FilterResult,
     MarkovFilter,
+    SharedPlaceSteps,
     TransitionModel,
     fit_likelihood_scale,
     fit_outlier_weight,
@@ -337,6 +338,7 @@ def run_pose_steps(
     gap_metres: float | None = None,
     reset_threshold: float | None = None,
     challenger: Challenger | None = None,
+    place_steps: SharedPlaceSteps | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -357,8 +359,16 @@ def run_pose_steps(
     challenger : Challenger, optional
         Run :func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`
         instead (``reset_threshold`` is then not used).
+    place_steps : SharedPlaceSteps, optional
+        The discrete filter's beliefs shared with other runs on the same
+        steps (:func:`tune_pose_filter`); the same results.
     """
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
+
+    def places() -> MarkovFilter | None:
+        if not relocalize:
+            return None
+        return MarkovFilter(transition) if place_steps is None else place_steps.filter(transition)
 
     if challenger is not None:
         return run_challenged_pose_filter(
@@ -367,7 +377,7 @@ def run_pose_steps(
             pose_filter,
             challenger,
             temper=temper,
-            place_filter=MarkovFilter(transition) if relocalize else None,
+            place_filter=places(),
             start_at_first_observation=start_at_first_observation,
             gap_metres=gap_metres,
         )
@@ -377,7 +387,7 @@ def run_pose_steps(
         np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
         pose_filter,
         temper=temper,
-        place_filter=MarkovFilter(transition) if relocalize else None,
+        place_filter=places(),
         start_at_first_observation=start_at_first_observation,
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
@@ -408,6 +418,7 @@ def tune_pose_filter(
     seed: int = 0,
     temper: bool = True,
     relocalize: bool = True,
+    share_draws: bool = True,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -420,6 +431,13 @@ def tune_pose_filter(
     at the training scans wins (ties: the earlier pair). Nothing is taken
     from the queries.
 
+    The runs of the grid draw the same random numbers (one seed, the same
+    steps) and run the same place filter alongside: with ``share_draws``
+    (the default) both are computed once and replayed
+    (:class:`~fingerloc.map.pose_filter.SharedDraws`,
+    :class:`~fingerloc.map.filter.SharedPlaceSteps`; a run whose calls
+    differ computes its own from there), which changes no result.
+
     Returns
     -------
     Calibration
@@ -428,7 +446,7 @@ def tune_pose_filter(
     list of dict
         ``{"outlier", "temper_metres", "top1"}`` of every pair tried.
     """
-    from ..map.pose_filter import wheel_odometry
+    from ..map.pose_filter import SharedDraws, wheel_odometry
 
     cal = tracker.calibration
     poses = np.asarray(mapping_poses, dtype=np.float64).reshape(-1, 3)
@@ -442,10 +460,13 @@ def tune_pose_filter(
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
     best = (-1.0, cal)
+    shared = SharedDraws(seed + 2) if share_draws else None
+    steps = SharedPlaceSteps() if share_draws else None
     for rho, metres in tune_grid(fitted):
         trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles)
-        res = t.run_pose(ll, inc, t.pose_filter(seed + 2), temper=temper, relocalize=relocalize)
+        f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
+        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps)
         top1 = float(np.mean(res.best[rows] == truth))
         tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
         if top1 > best[0]:
@@ -510,8 +531,10 @@ class Tracker:
                 graph, alpha=calibration.alpha, uniform_mix=uniform_mix, metres_per_move=calibration.metres_per_move
             )
 
-    def pose_filter(self, seed: int = 0, *, kidnap: float | None = None) -> PoseFilter:
-        """A fresh pose filter over the places (seeded)."""
+    def pose_filter(
+        self, seed: int = 0, *, kidnap: float | None = None, rng: np.random.Generator | None = None
+    ) -> PoseFilter:
+        """A fresh pose filter over the places (seeded; ``rng``: this generator instead of one seeded with ``seed``)."""
         from ..map.pose_filter import PoseFilter
 
         return PoseFilter(
@@ -521,7 +544,7 @@ class Tracker:
             kidnap=self.calibration.kidnap if kidnap is None else kidnap,
             outlier=self.calibration.outlier,
             off_place=self.calibration.off_place,
-            random_state=seed,
+            random_state=seed if rng is None else rng,
         )
 
     def scaled(self, log_posterior: Any) -> FArray:
@@ -544,6 +567,7 @@ class Tracker:
         temper: bool = True,
         relocalize: bool = True,
         reset_threshold: float | None = None,
+        place_steps: SharedPlaceSteps | None = None,
     ) -> FilterResult:
         """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused)."""
         c = self.calibration
@@ -558,6 +582,7 @@ class Tracker:
             gap_metres=c.gap_metres,
             reset_threshold=reset_threshold,
             challenger=challenger_of(c),
+            place_steps=place_steps,
         )
 
     def run(
