@@ -186,3 +186,13 @@ def test_generate_format_parse_roundtrip(data):
     assert set(fp.letters) <= set(ALPHABET)
     # every non-n letter accounts for a feature; Ex never appears
     assert len(fp.letters.replace("n", "")) <= sum(len(feats[k]) for k in ("VE", "c", "B", "CP"))
+
+
+def test_equally_close_edges_merge_the_same_way_after_a_rotation():
+    """A corner between two edges 1 deg away on each side: the tie must not be broken by round-off."""
+    obs = Observation.from_degrees({"VE": [193.0, 195.0], "c": [194.0]})
+    a = make_fingerprint(obs)
+    for rot in (1.0, 37.0, 200.0):
+        b = make_fingerprint(obs.rotated(np.deg2rad(rot)))
+        assert _is_rotation(a.letters, b.letters), (rot, a.letters, b.letters)
+        assert np.allclose(np.sort((a.bearings_deg + rot) % 360), np.sort(b.bearings_deg % 360), atol=1e-9)

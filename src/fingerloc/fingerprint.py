@@ -284,7 +284,8 @@ def make_fingerprint(
     1. Vertical edges give ``v``, colour patches their hue letter, corners
        ``c``, beacons ``b``; extremities give nothing.
     2. A corner and a vertical edge within ``merge_tol_deg`` of each other
-       (closest pairs first, each feature used once) become one ``f`` at their
+       (closest pairs first, each feature used once; of two pairs equally
+       close, the one whose edge is counter-clockwise of its corner) become one ``f`` at their
        circular mean bearing.
     3. Letters are listed by increasing bearing in ``[0, 360)`` deg, from the
        first at or after 0. After each letter, ``floor(s / empty_step_deg)``
@@ -321,16 +322,19 @@ def make_fingerprint(
     ve = _degrees(obs.ve)
     cs = _degrees(obs.c)
     # Step 2: merge corner/edge pairs, closest first.
+    # Distances equal within GAP_TOL_DEG are a tie (a rotation of the view moves them by round-off);
+    # a tie goes to the edge counter-clockwise of its corner, an order a rotation keeps.
     pairs = []
     for i, cb in enumerate(cs):
         for j, vb in enumerate(ve):
-            d = abs((vb - cb + 180.0) % 360.0 - 180.0)
+            signed = (vb - cb + 180.0) % 360.0 - 180.0
+            d = abs(signed)
             if d <= merge_tol_deg + GAP_TOL_DEG:
-                pairs.append((d, i, j))
+                pairs.append((round(d / GAP_TOL_DEG), 0 if signed > 0 else 1, i, j))
     pairs.sort()
     used_c: set[int] = set()
     used_v: set[int] = set()
-    for _, i, j in pairs:
+    for _, _, i, j in pairs:
         if i in used_c or j in used_v:
             continue
         used_c.add(i)
