@@ -802,6 +802,32 @@ def observation_weights(increments: Any, observed: Any, *, metres: float, radian
     return out
 
 
+
+def _run_inputs(
+    pose_filter: Any, log_likelihood: Any, increments: Any, weights: Any, temper: Any
+) -> tuple[FArray, FArray, FArray]:
+    """The checked inputs of a filter run: scores (n_steps, P), increments (n_steps - 1, 3), step weights (n_steps,).
+
+    Increments may hold n_steps rows (the first is dropped); without ``weights``,
+    ``temper = (metres, radians)`` gives them (:func:`observation_weights`).
+    """
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    P = pose_filter.n_places
+    if ll.ndim != 2 or ll.shape[1] != P:
+        raise InvalidParameterError(f"log_likelihood must have shape (n_steps, {P}), got {ll.shape}")
+    n = ll.shape[0]
+    inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
+    if inc.shape[0] == n:
+        inc = inc[1:]
+    if n and inc.shape[0] != n - 1:
+        raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
+    if weights is None and temper is not None:
+        weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
+    wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if wts.size != n:
+        raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
+    return ll, inc, wts
+
 def run_pose_filter(
     log_likelihood: Any,
     increments: Any,
@@ -883,26 +909,13 @@ def run_pose_filter(
         Also ``resets`` (number of re-seedings) is set as an attribute of the
         filter: ``pose_filter.resets_``.
     """
-    ll = np.asarray(log_likelihood, dtype=np.float64)
-    P = pose_filter.n_places
-    if ll.ndim != 2 or ll.shape[1] != P:
-        raise InvalidParameterError(f"log_likelihood must have shape (n_steps, {P}), got {ll.shape}")
-    n = ll.shape[0]
-    inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
-    if inc.shape[0] == n:
-        inc = inc[1:]
-    if n and inc.shape[0] != n - 1:
-        raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
-    if weights is None and temper is not None:
-        weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
+    ll, inc, wts = _run_inputs(pose_filter, log_likelihood, increments, weights, temper)
+    P, n = pose_filter.n_places, ll.shape[0]
     if reset_threshold is not None:
         thr = _finite("reset_threshold", reset_threshold)
         frac = _finite("reset_fraction", reset_fraction)
         if not 0 < frac <= 1:
             raise InvalidParameterError(f"reset_fraction must be in (0, 1], got {reset_fraction!r}")
-    wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    if wts.size != n:
-        raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
     pose_filter.reset()
     if place_filter is not None:
         if place_filter.transition.n_places != P:
@@ -1057,21 +1070,8 @@ def run_challenged_pose_filter(
         factor)`` for every spawn, comparison, switch and drop.
     """
     ch = Challenger() if challenger is None else challenger
-    ll = np.asarray(log_likelihood, dtype=np.float64)
-    P = pose_filter.n_places
-    if ll.ndim != 2 or ll.shape[1] != P:
-        raise InvalidParameterError(f"log_likelihood must have shape (n_steps, {P}), got {ll.shape}")
-    n = ll.shape[0]
-    inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
-    if inc.shape[0] == n:
-        inc = inc[1:]
-    if n and inc.shape[0] != n - 1:
-        raise InvalidParameterError(f"increments must have n_steps - 1 ({n - 1}) or n_steps rows, got {inc.shape[0]}")
-    if weights is None and temper is not None:
-        weights = observation_weights(inc, ~np.all(np.isnan(ll), axis=1), metres=temper[0], radians=temper[1])
-    wts = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    if wts.size != n:
-        raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
+    ll, inc, wts = _run_inputs(pose_filter, log_likelihood, increments, weights, temper)
+    P, n = pose_filter.n_places, ll.shape[0]
     pose_filter.reset()
     if place_filter is not None:
         if place_filter.transition.n_places != P:
