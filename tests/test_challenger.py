@@ -1,6 +1,5 @@
 """The challenger filter (issue 15): a second pose filter started from the sensor, adopted when its trajectory fits better."""
 
-import itertools
 import math
 
 import numpy as np
@@ -16,34 +15,13 @@ from fingerloc.map.pose_filter import (
     run_pose_filter,
 )
 
+from ._paths import polyline as _polyline
+from ._paths import sensor_scores as _sensor
+from ._paths import truth_places as _truth
+
 CORRIDOR = np.column_stack([np.arange(10) * 3.0, np.zeros(10)])
 
 
-def _polyline(points, step):
-    out = []
-    for a, b in itertools.pairwise(points):
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        n = max(round(float(np.hypot(*(b - a))) / step), 1)
-        th = math.atan2(b[1] - a[1], b[0] - a[0])
-        out += [(*(a + (b - a) * k / n), th) for k in range(n)]
-    out.append((*points[-1], out[-1][2]))
-    return np.array(out)
-
-
-def _truth(poses, centres, radius=1.0):
-    d = np.hypot(poses[:, None, 0] - centres[None, :, 0], poses[:, None, 1] - centres[None, :, 1])
-    t = np.argmin(d, axis=1)
-    t[d[np.arange(t.size), t] > radius] = -1
-    return t
-
-
-def _sensor(truth, n_places, separation, seed):
-    rng = np.random.default_rng(seed)
-    ll = np.full((truth.size, n_places), np.nan)
-    q = np.flatnonzero(truth >= 0)
-    ll[q] = rng.normal(size=(q.size, n_places))
-    ll[q, truth[q]] += separation
-    return ll
 
 
 def _kidnapped(seed, challenger):

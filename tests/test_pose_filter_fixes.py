@@ -1,6 +1,5 @@
 """Failures of the pose filter found on the logs, each reproduced on a synthetic case, and their fixes (issue 15)."""
 
-import itertools
 import math
 
 import numpy as np
@@ -13,35 +12,9 @@ from fingerloc.experiments.markov import PoseFilteredMethod
 from fingerloc.map.filter import fit_outlier_weight
 from fingerloc.map.pose_filter import PoseFilter, odometry_increments, path_start_poses, run_pose_filter
 
-
-def _polyline(points, step):
-    """Poses every ``step`` metres along straight segments, heading along each segment."""
-    out = []
-    for a, b in itertools.pairwise(points):
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        n = max(round(float(np.hypot(*(b - a))) / step), 1)
-        th = math.atan2(b[1] - a[1], b[0] - a[0])
-        out += [(*(a + (b - a) * k / n), th) for k in range(n)]
-    out.append((*points[-1], out[-1][2]))
-    return np.array(out)
-
-
-def _truth(poses, centres, radius=1.0):
-    d = np.hypot(poses[:, None, 0] - centres[None, :, 0], poses[:, None, 1] - centres[None, :, 1])
-    t = np.argmin(d, axis=1)
-    t[d[np.arange(t.size), t] > radius] = -1
-    return t
-
-
-def _sensor(truth, n_places, separation, seed):
-    """Standard normal scores, the true place raised by ``separation``; NaN rows off the places."""
-    rng = np.random.default_rng(seed)
-    ll = np.full((truth.size, n_places), np.nan)
-    q = np.flatnonzero(truth >= 0)
-    ll[q] = rng.normal(size=(q.size, n_places))
-    ll[q, truth[q]] += separation
-    return ll
-
+from ._paths import polyline as _polyline
+from ._paths import sensor_scores as _sensor
+from ._paths import truth_places as _truth
 
 TINY = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0]])
 
