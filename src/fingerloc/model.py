@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from ._estimator import ParamsMixin
+from ._lse import logsumexp_rows
 from ._types import FArray
 from .errors import InvalidParameterError, NotFittedError
 from .metrics import rank_scores
@@ -641,25 +642,5 @@ def normalise_log(joint: FArray) -> FArray:
         raise NotFittedError("the model has no place")
     dead = np.asarray(~np.isfinite(joint).any(axis=1) | np.isnan(joint).any(axis=1), dtype=bool)
     safe = np.where(dead[:, None], 0.0, np.nan_to_num(joint, nan=-np.inf, posinf=np.finfo(float).max))
-    return safe - _logsumexp_rows(safe)
-
-
-def _logsumexp_rows(a: FArray) -> FArray:
-    """``scipy.special.logsumexp(a, axis=1, keepdims=True)`` for rows each with a finite entry, bit for bit.
-
-    The same operations as scipy's (the row maxima taken out of the sum, the
-    sum divided by their count, ``log1p``), without its array-API dispatch:
-    0.05 ms instead of 0.3 ms a call on one row of 1,000 places. Other inputs
-    go to scipy.
-    """
-    a_max = np.max(a, axis=1, keepdims=True)
-    if not np.isfinite(a_max).all():
-        return np.asarray(logsumexp(a, axis=1, keepdims=True), dtype=np.float64)
-    top = a == a_max
-    m = np.sum(top.astype(np.float64), axis=1, keepdims=True, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        e = np.exp(np.where(top, -np.inf, a) - a_max)
-        s = np.sum(e, axis=1, keepdims=True, dtype=np.float64)
-        s = np.where(s == 0, s, s / m)
-        return np.asarray(np.log1p(s) + np.log(m) + a_max, dtype=np.float64)
+    return safe - logsumexp_rows(safe)
 
