@@ -36,6 +36,7 @@ from .terms import (
     MOG_TERMS,
     AppearanceTerm,
     FingerprintTerm,
+    KeypointTerm,
     MixtureTerm,
     ProfileTerm,
     RangeTerm,
@@ -49,9 +50,9 @@ __all__ = ["MOG_TERMS", "PAPER_TERMS", "TERMS", "PlaceData", "PlaceModel", "cons
 
 #: The paper's terms (the default).
 PAPER_TERMS: tuple[str, ...] = (*MOG_TERMS, "Fp")
-#: Every term a model may use: the paper's, the range term ``R``, the appearance term ``A`` and the
-#: aligned-profile term ``AP`` (our extensions).
-TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A", "AP")
+#: Every term a model may use: the paper's, the range term ``R``, the appearance term ``A``, the
+#: aligned-profile term ``AP`` and the local-feature term ``K`` (our extensions).
+TERMS: tuple[str, ...] = (*PAPER_TERMS, "R", "A", "AP", "K")
 
 
 FpLikelihood = Literal["paper", "exp"]
@@ -264,6 +265,8 @@ class PlaceModel(ParamsMixin):
                 out[name] = RangeTerm(bin_m=self.range_bin_m, max_m=self.range_max_m)
             elif name == "AP":
                 out[name] = ProfileTerm()
+            elif name == "K":
+                out[name] = KeypointTerm()
             else:
                 out[name] = AppearanceTerm()
         return out

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -36,6 +36,9 @@ from numpy.typing import ArrayLike
 from ._types import FArray
 from .angles import TWO_PI, deg_to_rad, wrap
 from .errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from .features.keypoints import Keypoints
 
 __all__ = ["FEATURE_TYPES", "FULL_FOV", "Observation", "fov_from_degrees"]
 
@@ -133,6 +136,11 @@ class Observation:
     source : str, optional
         The file the observation was extracted from (an image, a log), as the
         user gave it.
+    keypoints : Keypoints, optional
+        Local features of the view (for the camera:
+        :func:`fingerloc.features.keypoints.extract_keypoints`: bearings,
+        elevations and upright descriptors); the local-feature term ``K``
+        counts the keypoints two views share.
     """
 
     ve: FArray = field(default_factory=lambda: np.empty(0))
@@ -153,6 +161,7 @@ class Observation:
     appearance: FArray | None = None
     source: str | None = None
     profile: FArray | None = None
+    keypoints: Keypoints | None = None
 
     def __post_init__(self) -> None:
         for name in ("ve", "ex", "c", "b"):
@@ -221,6 +230,13 @@ class Observation:
                 raise InvalidParameterError("profile: values must be finite")
             prof.setflags(write=False)
             object.__setattr__(self, "profile", prof)
+        if self.keypoints is not None:
+            from .features.keypoints import Keypoints
+
+            if not isinstance(self.keypoints, Keypoints):
+                raise InvalidParameterError(
+                    f"keypoints: must be a fingerloc.features.keypoints.Keypoints or None, got {type(self.keypoints).__name__}"
+                )
 
     def _init_walls_and_ranges(self) -> None:
         w = wrap(_readonly(self.w, "w"))
@@ -288,6 +304,7 @@ class Observation:
         put(obs, "appearance", None)
         put(obs, "source", source)
         put(obs, "profile", None)
+        put(obs, "keypoints", None)
         return obs
 
     # -- convenience -----------------------------------------------------
@@ -382,11 +399,14 @@ class Observation:
     def rotated(self, angle: float) -> Observation:
         """The same view seen by a robot turned by ``-angle``: every bearing and the fov move by ``angle`` radians.
 
-        The profile's rows roll by the nearest whole number of rows.
+        The profile's rows roll by the nearest whole number of rows; the keypoints' bearings turn.
         """
         prof = self.profile
         if prof is not None:
             prof = np.roll(prof, round(float(angle) / TWO_PI * prof.shape[0]), axis=0)
+        kps = self.keypoints
+        if kps is not None:
+            kps = replace(kps, bearing=wrap(kps.bearing + angle))
         return Observation(
             ve=self.ve + angle,
             cp=self.cp + angle,
@@ -406,6 +426,7 @@ class Observation:
             appearance=self.appearance,
             source=self.source,
             profile=prof,
+            keypoints=kps,
         )
 
     def with_label(self, label: str | None) -> Observation:
@@ -426,6 +447,7 @@ class Observation:
             and _same_optional(self.appearance, other.appearance)
             and self.source == other.source
             and _same_optional(self.profile, other.profile)
+            and self.keypoints == other.keypoints
         )
 
     __hash__ = None  # type: ignore[assignment]

@@ -18,7 +18,8 @@ descriptor of the view (numbers >= 0, see
 file an observation was extracted from, and ``"profile": [[x, ...], ...]`` the
 view at each bearing (rows: equal sectors counter-clockwise from bearing 0,
 see :func:`fingerloc.features.vision.column_profile`; written with three
-decimals). ``place``, ``pose`` and ``timestamp`` are
+decimals), and ``"keypoints": {"n", "dim", "pos", "desc"}`` the view's local
+features (base64 arrays, see :func:`fingerloc.features.keypoints.encode_keypoints`). ``place``, ``pose`` and ``timestamp`` are
 optional; ``features`` is required (it may be empty). Blank lines are skipped.
 Other top-level keys are ignored, so tools may carry their own.
 """
@@ -126,7 +127,7 @@ def _bearing_list(value: Any, key: str) -> list[float]:
 #: Feature keys the fast path reads (plain bearing lists) -> the Observation attribute.
 _FAST_KEYS = {"VE": "ve", "Ex": "ex", "c": "c", "B": "b"}
 #: Top-level keys the fast path understands; a record with another known key takes the validating path.
-_SLOW_KEYS = frozenset({"scan", "appearance", "profile"})
+_SLOW_KEYS = frozenset({"scan", "appearance", "profile", "keypoints"})
 
 
 def _fast_numbers(values: Any) -> list[float] | None:
@@ -322,6 +323,18 @@ def observation_from_record(record: Any) -> Observation:
                 '"profile" must be a list of at least 4 rows, each a non-empty list of numbers of one length'
             )
         profile = [[_number(v, '"profile" value') for v in r] for r in profile]
+    keypoints = record.get("keypoints")
+    if keypoints is not None:
+        from ..features.keypoints import decode_keypoints
+
+        if not isinstance(keypoints, Mapping):
+            raise DataFormatError('"keypoints" must be {"n", "dim", "pos", "desc"} (see docs/FORMATS.md)')
+        try:
+            keypoints = decode_keypoints(keypoints)
+        except DataFormatError:
+            raise
+        except FingerlocError as err:
+            raise DataFormatError(f'"keypoints": {err}') from err
     try:
         obs = Observation.from_degrees(
             out,
@@ -335,6 +348,8 @@ def observation_from_record(record: Any) -> Observation:
         )
         if ranges is not None:
             obs = replace(obs, ranges=ranges, range_bearings=range_bearings)
+        if keypoints is not None:
+            obs = replace(obs, keypoints=keypoints)
         return obs
     except DataFormatError:
         raise
@@ -384,6 +399,10 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
         rec["appearance"] = [round(float(x), ndigits) for x in obs.appearance]
     if obs.profile is not None:  # standardised values: three decimals are plenty
         rec["profile"] = [[round(float(x), min(ndigits, 3)) for x in r] for r in obs.profile]
+    if obs.keypoints is not None:
+        from ..features.keypoints import encode_keypoints
+
+        rec["keypoints"] = encode_keypoints(obs.keypoints)
     if obs.ranges is not None and obs.range_bearings is not None:
         rec["scan"] = {
             "bearings": [round(float(b), ndigits) for b in np.rad2deg(obs.range_bearings)],

@@ -22,6 +22,15 @@ int16 thousandths (encoding 2: used only when every value is a whole number of
 thousandths that decodes bit for bit, as profiles read from JSON Lines are) or
 float64 (encoding 1). An observation without a profile is written as version 1.
 
+Codec version 3 is version 2 plus keypoints (``Observation.keypoints``):
+the profile header is always there (encoding 0, 0 rows, 0 channels: no
+profile), followed by ``uint32 n, uint16 dim``; the keypoints come last,
+after the profile's values: ``3 n`` little-endian uint16 positions then
+``n x dim`` uint8 descriptors, exactly the arrays of
+:func:`fingerloc.features.keypoints.encode_keypoints` (bit for bit: the
+extractor puts positions on that grid). An observation without keypoints is
+written as version 1 or 2, so databases of older versions read as before.
+
 Decoding gives back the very observation (every array bit for bit: the
 stored bearings are already wrapped and sorted, and wrapping them again
 changes nothing), so what the place database recomputes from it (the
@@ -45,8 +54,10 @@ __all__ = ["decode_observation", "encode_observation"]
 
 _VERSION = 1
 _VERSION_PROFILE = 2
-_PROFILE_F64, _PROFILE_MILLI = 1, 2
+_VERSION_KEYPOINTS = 3
+_PROFILE_NONE, _PROFILE_F64, _PROFILE_MILLI = 0, 1, 2
 _PROFILE_HEAD = "<BHH"
+_KEYPOINT_HEAD = "<IH"
 _POSE, _TIME, _FOV, _APPEARANCE, _SCAN, _WIDE, _DEFAULT_FOV, _WALLS32 = 1, 2, 4, 8, 16, 32, 64, 128
 Fov = tuple[tuple[float, float], ...]
 _N_COUNTS = 9
@@ -97,18 +108,32 @@ def encode_observation(
     wide = max(counts) > 255
     if wide:
         flags |= _WIDE
-    version = _VERSION if obs.profile is None else _VERSION_PROFILE
+    kps = obs.keypoints
+    if kps is not None:
+        version = _VERSION_KEYPOINTS
+    else:
+        version = _VERSION if obs.profile is None else _VERSION_PROFILE
     head = struct.pack(f"<BB{_N_COUNTS}{'I' if wide else 'B'}", version, flags, *counts)
-    prof_head = prof_data = b""
+    prof_head = prof_data = kp_head = kp_data = b""
     if obs.profile is not None:
         mode, prof_data = _encode_profile(obs.profile)
         rows, cols = obs.profile.shape
         if rows > 0xFFFF or cols > 0xFFFF:
             raise DatabaseError(f"a view's profile is too large to store ({rows} x {cols})")
         prof_head = struct.pack(_PROFILE_HEAD, mode, rows, cols)
+    elif kps is not None:
+        prof_head = struct.pack(_PROFILE_HEAD, _PROFILE_NONE, 0, 0)
+    if kps is not None:
+        from ..features.keypoints import keypoint_arrays
+
+        pos, desc = keypoint_arrays(kps)
+        if len(kps) > 0xFFFFFFFF or kps.dim > 0xFFFF:
+            raise DatabaseError(f"a view's keypoints are too many to store ({len(kps)} x {kps.dim})")
+        kp_head = struct.pack(_KEYPOINT_HEAD, len(kps), kps.dim)
+        kp_data = pos.tobytes() + desc.tobytes()
     arrays = [obs.ve, obs.cp, obs.cp_hue, obs.ex, obs.c, obs.b, obs.w, *walls, *tail]
     body = b"".join(np.ascontiguousarray(a, dtype="<f8").tobytes() for a in arrays)  # type: ignore[call-overload]
-    return head + prof_head + body + short + prof_data
+    return head + prof_head + kp_head + body + short + prof_data + kp_data
 
 
 def _encode_profile(profile: np.ndarray) -> tuple[int, bytes]:
@@ -135,22 +160,29 @@ def decode_observation(
     if not isinstance(data, bytes) or len(data) < 2 + _N_COUNTS:
         raise DatabaseError(f"corrupt observation record in the place database (got {type(data).__name__})")
     version, flags = data[0], data[1]
-    if version not in (_VERSION, _VERSION_PROFILE) or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
+    if version not in (_VERSION, _VERSION_PROFILE, _VERSION_KEYPOINTS) or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
         raise DatabaseError(f"corrupt observation record in the place database (version {version}, flags {flags})")
     fmt = f"<{_N_COUNTS}{'I' if flags & _WIDE else 'B'}"
     start = 2 + struct.calcsize(fmt)
     if len(data) < start:
         raise DatabaseError("corrupt observation record in the place database (truncated)")
     n_ve, n_cp, n_ex, n_c, n_b, n_w, n_fov, n_app, n_scan = struct.unpack_from(fmt, data, 2)
-    prof_mode = prof_rows = prof_cols = prof_bytes = 0
-    if version == _VERSION_PROFILE:
+    prof_mode = prof_rows = prof_cols = prof_bytes = kp_n = kp_dim = kp_bytes = 0
+    if version in (_VERSION_PROFILE, _VERSION_KEYPOINTS):
         if len(data) < start + struct.calcsize(_PROFILE_HEAD):
             raise DatabaseError("corrupt observation record in the place database (truncated)")
         prof_mode, prof_rows, prof_cols = struct.unpack_from(_PROFILE_HEAD, data, start)
         start += struct.calcsize(_PROFILE_HEAD)
-        if prof_mode not in (_PROFILE_F64, _PROFILE_MILLI):
+        modes = (_PROFILE_F64, _PROFILE_MILLI) + ((_PROFILE_NONE,) if version == _VERSION_KEYPOINTS else ())
+        if prof_mode not in modes or (prof_mode == _PROFILE_NONE and (prof_rows or prof_cols)):
             raise DatabaseError(f"corrupt observation record in the place database (profile encoding {prof_mode})")
         prof_bytes = prof_rows * prof_cols * (8 if prof_mode == _PROFILE_F64 else 2)
+    if version == _VERSION_KEYPOINTS:
+        if len(data) < start + struct.calcsize(_KEYPOINT_HEAD):
+            raise DatabaseError("corrupt observation record in the place database (truncated)")
+        kp_n, kp_dim = struct.unpack_from(_KEYPOINT_HEAD, data, start)
+        start += struct.calcsize(_KEYPOINT_HEAD)
+        kp_bytes = 6 * kp_n + kp_n * kp_dim
     w32 = bool(flags & _WALLS32)
     sizes = [n_ve, n_cp, n_cp, n_ex, n_c, n_b, n_w] + ([] if w32 else [n_w, n_w])
     sizes += [3] if flags & _POSE else []
@@ -158,7 +190,7 @@ def decode_observation(
     sizes += [2 * n_fov, n_app, n_scan, n_scan]
     n64 = sum(sizes)
     if (
-        len(data) != start + 8 * n64 + (8 * n_w if w32 else 0) + prof_bytes
+        len(data) != start + 8 * n64 + (8 * n_w if w32 else 0) + prof_bytes + kp_bytes
         or bool(n_fov) != bool(flags & _FOV)
         or bool(n_app) != bool(flags & _APPEARANCE)
     ):
@@ -182,19 +214,31 @@ def decode_observation(
         fov = default_fov
     scan = bool(flags & _SCAN)
     profile = None
-    if version == _VERSION_PROFILE:
-        at = len(data) - prof_bytes
+    keypoints = None
+    if version == _VERSION_KEYPOINTS:
+        from ..features.keypoints import keypoints_from_arrays
+
+        at = len(data) - kp_bytes
+        pos = np.frombuffer(data, dtype="<u2", offset=at, count=3 * kp_n)
+        desc = np.frombuffer(data, dtype=np.uint8, offset=at + 6 * kp_n, count=kp_n * kp_dim)
+        try:
+            keypoints = keypoints_from_arrays(pos, desc, kp_n, kp_dim)
+        except FingerlocError as err:
+            raise DatabaseError(f"corrupt observation record in the place database ({err})") from err
+    if prof_mode != _PROFILE_NONE:
+        at = len(data) - kp_bytes - prof_bytes
         if prof_mode == _PROFILE_MILLI:
-            profile = np.frombuffer(data, dtype="<i2", offset=at).astype(np.float64).reshape(prof_rows, prof_cols) / 1000.0
+            profile = np.frombuffer(data, dtype="<i2", offset=at, count=prof_rows * prof_cols).astype(np.float64).reshape(prof_rows, prof_cols) / 1000.0
         else:
             with np.errstate(invalid="ignore"):  # a NaN pattern: the observation refuses it below
-                profile = np.frombuffer(data, dtype="<f8", offset=at).astype(np.float64).reshape(prof_rows, prof_cols)
+                profile = np.frombuffer(data, dtype="<f8", offset=at, count=prof_rows * prof_cols).astype(np.float64).reshape(prof_rows, prof_cols)
     try:
         return Observation(
             ve=ve, cp=cp, cp_hue=hue, ex=ex, c=c, b=b, w=w, w_length=w_len, w_range=w_rng,
             ranges=ranges if scan else None, range_bearings=bearings if scan else None,
             fov=fov, label=label, pose=pose, timestamp=timestamp,  # type: ignore[arg-type]
             appearance=app if flags & _APPEARANCE else None, source=source, profile=profile,
+            keypoints=keypoints,
         )  # fmt: skip
     except FingerlocError as err:
         raise DatabaseError(f"corrupt observation record in the place database ({err})") from err

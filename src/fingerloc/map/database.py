@@ -706,7 +706,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
             raise DatabaseError(f"{path}: the stored label types do not match the places")
         labels = typed_labels
     terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
-    for name in ("Fp", "R", "A", "AP"):
+    for name in ("Fp", "R", "A", "AP", "K"):
         terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if descriptors is not None:  # else (older databases) the range term describes the stored scans again

@@ -11,6 +11,7 @@ Fp     the fingerprint string: alignment to stored fingerprints   FingerprintTer
 R      range distribution (2D laser, heading-free; ours)           RangeTerm
 A      appearance of the whole view (camera, heading-free; ours)  AppearanceTerm
 AP     the view bearing by bearing, over every rotation (ours)     ProfileTerm
+K      local features: keypoints matched to the best view (ours)    KeypointTerm
 =====  ==========================================================  ============
 
 :class:`fingerloc.model.PlaceModel` combines them; each term can also be used
@@ -21,6 +22,7 @@ from .appearance import AppearanceTerm
 from .base import Term
 from .distance import DistanceTerm, fit_lambda
 from .fingerprint import FingerprintTerm, consensus_fingerprint, crop_fingerprint
+from .keypoints import KeypointTerm
 from .mixture import LOG_UNIFORM, MOG_TERMS, MixtureTerm, fit_mixture_terms
 from .profile import ProfileTerm, profile_peaks
 from .range import RangeTerm, range_descriptor
@@ -31,6 +33,7 @@ __all__ = [
     "AppearanceTerm",
     "DistanceTerm",
     "FingerprintTerm",
+    "KeypointTerm",
     "MixtureTerm",
     "ProfileTerm",
     "RangeTerm",
