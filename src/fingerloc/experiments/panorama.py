@@ -64,6 +64,7 @@ __all__ = [
     "hsv_histogram",
     "image_rotation_deg",
     "jeffrey_divergence",
+    "keypoint_distances",
     "load_edge_labels",
     "load_photo_band",
     "load_tour_layout",
@@ -327,9 +328,13 @@ def load_photo_band(path: str | Path, *, band: tuple[float, float] = DEFAULT_BAN
 
 
 def _extract(pano: Any, source: str) -> Observation:
+    from dataclasses import replace
+
+    from ..features.keypoints import extract_keypoints
     from ..features.vision import observation_from_views
 
-    return observation_from_views(panorama=pano, appearance=True, profile=True, source=source, **PHOTO_EDGE_PARAMS)
+    obs = observation_from_views(panorama=pano, appearance=True, profile=True, source=source, **PHOTO_EDGE_PARAMS)
+    return replace(obs, keypoints=extract_keypoints(pano))
 
 
 @dataclass(frozen=True, slots=True)
@@ -389,7 +394,7 @@ def extract_features(
     if not root.is_dir():
         raise DataFormatError("not a folder of photos", path=root)
     known: dict[str, PhotoFeatures] = {}
-    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 3}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 4}
     cpath = Path(cache) if cache is not None else None
     if cpath is not None and not cpath.parent.is_dir():
         raise InvalidParameterError(f"--cache: no folder {str(cpath.parent)!r} to write {cpath.name!r} into")
@@ -493,6 +498,10 @@ PANORAMA_METHODS: tuple[str, ...] = (
     "Fp+A+AP",
     "A+AP weighted",
     "Fp+A+AP weighted",
+    "K",
+    "A+K",
+    "A+K weighted",
+    "Fp+A+AP+K weighted",
 )
 
 #: Terms whose weights :func:`_loo_weighted_sum` fits.
@@ -570,6 +579,23 @@ def profile_distances(obs: Sequence[Observation]) -> FArray:
     return np.stack([1.0 - profile_peaks(p, ffts, prof.shape[1])[0] for p in prof])
 
 
+def keypoint_distances(obs: Sequence[Observation]) -> FArray:
+    """The ``K`` term's distance from every observation (row) to every other (column), shape ``(n, n)``.
+
+    :func:`fingerloc.terms.keypoints.match_counts` of each view against all
+    (query -> reference, as the term matches), turned into
+    :func:`fingerloc.terms.keypoints.keypoint_distance`; inf where a view has
+    no keypoints.
+    """
+    from ..features.keypoints import Keypoints
+    from ..terms.keypoints import _Refs, keypoint_distance, match_counts
+
+    empty = Keypoints(np.empty(0), np.empty(0), np.empty(0), np.zeros((0, 1), dtype=np.uint8))
+    kps = [o.keypoints if o.keypoints is not None else empty for o in obs]
+    refs = _Refs(kps)
+    return np.stack([keypoint_distance(match_counts(k, refs), len(k), refs.sizes) for k in kps])
+
+
 def _loo_scores(
     obs: list[Observation], labels: list[str], hists: list[FArray], queries: Sequence[int], n_components: int
 ) -> tuple[dict[str, FArray], NDArray[np.int64]]:
@@ -610,12 +636,15 @@ def _loo_scores(
     app = np.stack([o.appearance for o in obs])  # type: ignore[misc]
     out["A"] = _loo_distance_ll(cdist(app, app, metric="cityblock"), owner, n_places, queries)
     out["AP"] = _loo_distance_ll(profile_distances(obs), owner, n_places, queries)
+    out["K"] = _loo_distance_ll(keypoint_distances(obs), owner, n_places, queries)
     for combo in PANORAMA_METHODS:
         if "+" in combo and " " not in combo:
             out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
     out["VE+CP+Fp+A weighted"] = _loo_weighted_sum([out[t] for t in WEIGHTED_TERMS], owner[list(queries)])
     out["A+AP weighted"] = _loo_weighted_sum([out["A"], out["AP"]], owner[list(queries)])
     out["Fp+A+AP weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP")], owner[list(queries)])
+    out["A+K weighted"] = _loo_weighted_sum([out["A"], out["K"]], owner[list(queries)])
+    out["Fp+A+AP+K weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP", "K")], owner[list(queries)])
     h = np.stack(hists)
     dj = jeffrey_divergence(h, h)
     np.fill_diagonal(dj, np.inf)

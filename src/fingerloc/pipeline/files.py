@@ -140,10 +140,17 @@ def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Obse
     pano = panorama_from_file(path, opts)
     # a full 2:1 photo: only the strongest edges (real photos show many weak ones)
     params = PHOTO_EDGE_PARAMS if pano.meta.get("equirectangular") else {}
-    yield (
-        str(path),
-        observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path), **params),
-    )
+    obs = observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path), **params)
+    yield str(path), _with_keypoints(obs, pano)
+
+
+def _with_keypoints(obs: Observation, pano: Panorama) -> Observation:
+    """The observation with the panorama's keypoints (term ``K``)."""
+    from dataclasses import replace
+
+    from ..features.keypoints import extract_keypoints
+
+    return replace(obs, keypoints=extract_keypoints(pano))
 
 
 def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:
@@ -162,7 +169,8 @@ def _read_omni(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observat
         bearing_offset=opts.bearing_offset,
         mirror=opts.mirror,
     )
-    yield str(path), observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path))
+    obs = observation_from_views(panorama=pano, label=opts.place, appearance=True, profile=True, source=str(path))
+    yield str(path), _with_keypoints(obs, pano)
 
 
 def _features(opts: FeatureOptions) -> dict[str, Any]:

@@ -66,9 +66,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "panorama": {
         "description": "panoramic camera: the fingerprint string matched over every rotation + the appearance "
-        "term A + the aligned-profile term AP (all heading-free; AP also gives the heading), per-term weights "
-        "fit on held-out training views",
-        "model": {"terms": ["Fp", "A", "AP"], "cyclic": True, "costs": "feature", "fp_likelihood": "exp", "weights": "fit"},
+        "term A + the aligned-profile term AP + the local-feature term K (all heading-free; AP also gives the "
+        "heading), per-term weights fit on held-out training views",
+        "model": {
+            "terms": ["Fp", "A", "AP", "K"],
+            "cyclic": True,
+            "costs": "feature",
+            "fp_likelihood": "exp",
+            "weights": "fit",
+        },
         "features": {},
     },
     "multimodal": {
@@ -154,7 +160,11 @@ def _laser_and_image(observations: Sequence[Observation]) -> tuple[int, int]:
     laser = sum(
         1 for o in observations if o.c.size or o.ex.size or o.w.size or o.ranges is not None
     )
-    image = sum(1 for o in observations if o.ve.size or o.cp.size)
+    image = sum(
+        1
+        for o in observations
+        if o.ve.size or o.cp.size or o.appearance is not None or o.profile is not None or o.keypoints is not None
+    )
     return laser, image
 
 
@@ -163,7 +173,9 @@ def choose_preset(observations: Sequence[Observation]) -> tuple[str, str]:
 
     Laser features only (corners, extremities, wall segments or a range
     profile, no vertical edge or colour patch) -> ``laser2d``; image features
-    only -> ``panorama``; both -> ``multimodal``; neither -> ``paper``.
+    only (vertical edges, colour patches, or a camera's appearance
+    descriptor, column profile or keypoints) -> ``panorama``; both ->
+    ``multimodal``; neither -> ``paper``.
     """
     n = len(observations)
     laser, image = _laser_and_image(observations)
