@@ -28,8 +28,13 @@ CONFIGS = {
     "AP": dict(terms=("AP",)),
     "A+AP": dict(terms=("A", "AP")),
     "A+AP weights=fit": dict(terms=("A", "AP"), weights="fit"),
-    "Fp+A+AP weights=fit (panorama preset)": dict(
+    "Fp+A+AP weights=fit (former preset)": dict(
         terms=("Fp", "A", "AP"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
+    ),
+    "K": dict(terms=("K",)),
+    "A+K weights=fit": dict(terms=("A", "K"), weights="fit"),
+    "Fp+A+AP+K weights=fit (panorama preset)": dict(
+        terms=("Fp", "A", "AP", "K"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
     ),
     "VE+CP+Fp+A rotate, fit": dict(
         terms=("VE", "CP", "Fp", "A"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit",
