@@ -75,7 +75,7 @@ class KeypointParams:
     ----------
     width : int, default 1440
         Columns the band is resampled to before detection (4 px per degree).
-    n_keypoints : int, default 300
+    n_keypoints : int, default 500
         Keep at most this many keypoints.
     sigmas : tuple of float
         Blur levels (pixels at ``width``); extrema are searched at the
@@ -95,7 +95,7 @@ class KeypointParams:
     """
 
     width: int = 1440
-    n_keypoints: int = 300
+    n_keypoints: int = 500
     sigmas: tuple[float, ...] = (1.6, 2.26, 3.2, 4.53, 6.4, 9.05)
     edge_ratio: float = 10.0
     min_contrast: float = 0.004

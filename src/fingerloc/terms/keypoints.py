@@ -9,7 +9,9 @@ training view and keeps the place's best view:
 
     m(o, v)           = matches between o and v: mutual nearest neighbours of the root-normalised
                         descriptors, nearest distance below ``ratio`` x the second nearest, and
-                        elevations (fractions of the band) at most ``max_elevation`` apart
+                        elevations (fractions of the band) at most ``max_elevation`` apart; the
+                        ratio test is made from o's side and from v's, and m is the larger count
+                        (so m(o, v) = m(v, o))
     d(o, v)           = -log((m + 1) / (sqrt(n_o n_v) + 1))          (n: keypoints of each view)
     d(o, place)       = min over the place's training views v of d(o, v)
     log P(K | place)  = -lambda * d(o, place)          (up to a constant shared by the places)
@@ -93,7 +95,10 @@ class _Refs:
 def match_counts(
     query: Keypoints, refs: Sequence[Keypoints] | _Refs, *, ratio: float = 0.8, max_elevation: float = 0.1
 ) -> IArray:
-    """Number of matches (module docstring) between ``query`` and each reference view, shape ``(n_refs,)``."""
+    """Number of matches (module docstring) between ``query`` and each reference view, shape ``(n_refs,)``.
+
+    ``max(len(match_keypoints(query, ref)), len(match_keypoints(ref, query)))`` for each reference.
+    """
     r = refs if isinstance(refs, _Refs) else _Refs(refs)
     out = np.zeros(r.n, dtype=np.int64)
     nq = len(query)
@@ -117,12 +122,28 @@ def match_counts(
         np.put_along_axis(s, j[:, :, None], best[:, :, None], axis=2)
         back = np.argmax(s, axis=0)  # (nb, width): nearest query keypoint of each reference keypoint
         mutual = back[np.arange(nb)[None, :], j] == rows[:, None]
-        d1 = np.sqrt(np.maximum(2.0 - 2.0 * best, 0.0))
-        d2 = np.where(second > _NONE, np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0)), np.inf)
         elev = np.take_along_axis(np.broadcast_to(r.elev[None, b0:b1], s.shape), j[:, :, None], axis=2)[:, :, 0]
-        ok = mutual & (best > _NONE) & (d1 < ratio * d2) & (np.abs(qe[:, None] - elev) <= max_elevation)
-        out[b0:b1] = ok.sum(axis=0)
+        ok = mutual & (best > _NONE) & _ratio_ok(best, second, ratio) & (np.abs(qe[:, None] - elev) <= max_elevation)
+        # the other way: each reference keypoint against the query's (its own ratio test)
+        best_r = np.take_along_axis(s, back[None], axis=0)[0]  # (nb, width)
+        np.put_along_axis(s, back[None], np.float32(_NONE), axis=0)
+        second_r = s.max(axis=0) if nq > 1 else np.full_like(best_r, _NONE)
+        mutual_r = j[back, np.arange(nb)[:, None]] == np.arange(width)[None, :]
+        ok_r = (
+            mutual_r
+            & (best_r > _NONE)
+            & _ratio_ok(best_r, second_r, ratio)
+            & (np.abs(qe[back] - r.elev[b0:b1]) <= max_elevation)
+        )
+        out[b0:b1] = np.maximum(ok.sum(axis=0), ok_r.sum(axis=1))
     return out
+
+
+def _ratio_ok(best: Any, second: Any, ratio: float) -> Any:
+    """Nearest distance below ``ratio`` x the second nearest (any distance when there is no second)."""
+    d1 = np.sqrt(np.maximum(2.0 - 2.0 * best, 0.0))
+    d2 = np.where(second > _NONE, np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0)), np.inf)
+    return d1 < ratio * d2
 
 
 def keypoint_distance(m: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
