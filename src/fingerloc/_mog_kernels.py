@@ -18,6 +18,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ._seed_kernels import default_rng_random
+
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -126,18 +128,21 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath={"contract"})
-def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
-    """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
+def _e_terms(k, w, sg, d, r, mx, ssum, bits):  # pragma: no cover
+    """The E-step up to the normalisation, from the distances ``d`` = distAS(mu_j, x_i) (K, n).
 
-    ``mx``, ``ssum`` (float64) and ``bits`` (int64) are (n,) scratch. Every
-    loop runs component-major and branch-free, so the compiler vectorises all
-    of them but the log-likelihood product. The exponentials are those of
-    :func:`_exp_neg` (its polynomial on fused multiply-adds: ``fastmath`` is
-    ``contract`` only), the factor 2^k built from its bits. A term below
-    ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
-    the sum in double precision); the largest one is exactly 1.
+    Leaves in ``r`` the unnormalised terms (the largest of each point exactly
+    1), in ``ssum`` the reciprocals of their sums, and returns the mean
+    log-likelihood; rows of dead components (weight 0) are set to 0 in ``r``
+    and ``d``. ``mx``, ``ssum`` (float64) and ``bits`` (int64) are (n,)
+    scratch. Every loop runs component-major and branch-free, so the compiler
+    vectorises all of them but the log-likelihood product. The exponentials
+    are those of :func:`_exp_neg` (its polynomial on fused multiply-adds:
+    ``fastmath`` is ``contract`` only), the factor 2^k built from its bits. A
+    term below ``exp(-_SKIP)`` times the largest one is taken as 0 (it could
+    not change the sum in double precision).
     """
-    n = x.shape[0]
+    n = d.shape[1]
     for i in range(n):
         mx[i] = -np.inf
         ssum[i] = 0.0
@@ -145,12 +150,8 @@ def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
         if w[j] > 0.0:
             cj = math.log(w[j]) + _log_norm(sg[j])
             invj = 0.5 / (sg[j] * sg[j])
-            muj = mu[j]
             for i in range(n):
-                dj = x[i] - muj
-                dj = dj - _TWO_PI if dj > _PI else dj
-                dj = dj + _TWO_PI if dj <= -_PI else dj
-                d[j, i] = dj
+                dj = d[j, i]
                 a = cj - dj * dj * invj
                 r[j, i] = a
                 mx[i] = a if a > mx[i] else mx[i]
@@ -183,11 +184,59 @@ def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
             prod = 1.0
     for i in range(n):
         ssum[i] = 1.0 / ssum[i]
+    return (total + math.log(prod)) / n
+
+
+@njit(cache=True)
+def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
+    """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
+
+    :func:`_e_terms` after the distances, then each term times the
+    reciprocal of its point's sum (``ssum`` ends as those reciprocals).
+    """
+    n = x.shape[0]
+    for j in range(k):
+        if w[j] > 0.0:
+            _dists(x, mu[j], d[j])
+    ll = _e_terms(k, w, sg, d, r, mx, ssum, bits)
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 r[j, i] *= ssum[i]
-    return (total + math.log(prod)) / n
+    return ll
+
+
+@njit(cache=True)
+def _dists(x, m, dj):  # pragma: no cover
+    """dj_i = distAS(m, x_i) (vectorised, branch-free)."""
+    for i in range(x.shape[0]):
+        e = x[i] - m
+        dj[i] = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _dists_sq_sum(rj, x, m, dj):  # pragma: no cover
+    """dj_i = distAS(m, x_i) as :func:`_dists`, and returns sum_i rj_i dj_i^2 in any order (vectorised)."""
+    a = 0.0
+    for i in range(x.shape[0]):
+        e = x[i] - m
+        e = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)
+        dj[i] = e
+        a += rj[i] * e * e
+    return a
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _normalise_sums(rj, inv, dj):  # pragma: no cover
+    """rj_i *= inv_i (the responsibilities), and returns (sum_i rj_i, sum_i rj_i dj_i) in any order (vectorised)."""
+    a = 0.0
+    b = 0.0
+    for i in range(rj.shape[0]):
+        e = rj[i] * inv[i]
+        rj[i] = e
+        a += e
+        b += e * dj[i]
+    return a, b
 
 
 @njit(cache=True, fastmath={"reassoc"})
@@ -322,25 +371,59 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     the truncation at +-pi matters, which the paper's sigma update ignores) is
     undone: the parameters returned are never worse than any earlier iterate.
     ``trace`` (length max_iter + 1, or empty) receives the raw log-likelihoods.
+
+    Each iteration is :func:`_m_step` then :func:`_e_step`, with their passes
+    over the points fused: the E-step's normalisation also sums the
+    responsibilities and their weighted distances (the next M-step's weights
+    and means), and the distances to the new means are computed once, for the
+    sigma update and for the next E-step.
     """
+    n = x.shape[0]
     wb = np.empty(k)
     mub = np.empty(k)
     sgb = np.empty(k)
-    bits = np.empty(x.shape[0], dtype=np.int64)
-    ll = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
+    nk = np.empty(k)
+    sd = np.empty(k)
+    bits = np.empty(n, dtype=np.int64)
+    for j in range(k):
+        if w[j] > 0.0:
+            _dists(x, mu[j], d[j])
+    ll = _e_terms(k, w, sg, d, r, mx, ssum, bits)
     rec = trace.shape[0] > 0
     if rec:
         trace[0] = ll
     converged = False
     it = 0
     while it < max_iter:
+        # the E-step's normalisation, with the sums of the M-step
+        for j in range(k):
+            if w[j] > 0.0:
+                nk[j], sd[j] = _normalise_sums(r[j], ssum, d[j])
         for j in range(k):
             wb[j] = w[j]
             mub[j] = mu[j]
             sgb[j] = sg[j]
-        _m_step(x, k, w, mu, sg, d, r, min_sigma)
+        # M-step (docs/METHOD.md §3, paper eqs. 9-11), as _m_step
+        wsum = 0.0
+        for j in range(k):
+            if w[j] <= 0.0:
+                continue
+            if nk[j] < DEAD_MASS:
+                w[j] = 0.0
+                continue
+            m = _wrap1(mu[j] + sd[j] / nk[j])
+            # distances to the new mean: for sigma here, and for the next E-step
+            s = math.sqrt(_dists_sq_sum(r[j], x, m, d[j]) / nk[j])
+            if s < min_sigma:
+                s = min_sigma
+            w[j] = nk[j] / n
+            mu[j] = m
+            sg[j] = s
+            wsum += w[j]
+        for j in range(k):
+            w[j] /= wsum
         it += 1
-        ll_new = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
+        ll_new = _e_terms(k, w, sg, d, r, mx, ssum, bits)
         if rec:
             trace[it] = ll_new
         gain = ll_new - ll
@@ -419,33 +502,58 @@ def fit_batch(
 
 
 @njit(cache=True)
-def fit_single(x, kmax, u_m, tol, max_iter, min_sigma, params):  # pragma: no cover
-    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[x]``: same code, same results, fewer arguments.
+def _wrap_as_numpy(a: float) -> float:  # pragma: no cover - compiled
+    """:func:`fingerloc.angles.wrap` of one finite value, bit for bit: ``mod(a + pi, 2 pi) - pi``, pi folded to -pi.
 
-    ``x`` (n,) holds ``mod(bearings + pi, 2 pi) - pi``, folded here in place
-    to ``[-pi, pi)`` as :func:`fingerloc.angles.wrap` does (so already wrapped
-    bearings pass unchanged). ``u_m`` (n_init, kmax) drives the seeding; ``params`` (3, kmax) receives
-    the weights, means and sigmas. Returns (converged, n_iter, mean log-lik,
-    components with weight > 0).
-    One call from Python costs a few microseconds less per argument than
-    :func:`fit_batch`, which matters for :meth:`fingerloc.mog.AngularMixture.fit`.
+    numpy's float ``mod`` is ``fmod`` (exact) moved into ``[0, 2 pi)`` by one
+    addition of 2 pi when negative, +0.0 when zero; for ``a + pi`` already in
+    ``[0, 2 pi)`` (every wrapped bearing) it is ``a + pi`` itself.
     """
-    for i in range(x.shape[0]):  # the last step of fingerloc.angles.wrap (a no-op on wrapped bearings)
-        x[i] = x[i] - _TWO_PI if x[i] >= _PI else x[i]
-    conv, it, ll = _fit_one(x, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
+    y = a + _PI
+    if not (0.0 <= y < _TWO_PI):
+        m = np.fmod(y, _TWO_PI)
+        if m < 0.0:
+            m += _TWO_PI
+        elif m == 0.0:
+            m = 0.0
+        y = m
+    z = y - _PI
+    return z - _TWO_PI if z >= _PI else z
+
+
+@njit(cache=True)
+def fit_single(x, kmax, u_m, seed, tol, max_iter, min_sigma, params):  # pragma: no cover
+    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[wrap(x)]``: same code, same results, fewer arguments.
+
+    ``x`` (n,), n >= 1, holds the bearings as given (radians, any real
+    value); it is left unchanged: a non-finite one returns ``used = -1`` at
+    once, the others are wrapped into a new array exactly as
+    :func:`fingerloc.angles.wrap` does. ``u_m`` (n_init, kmax) holds the
+    uniforms that drive the seeding; with ``seed >= 0`` (below 2**63) they are
+    first drawn here as ``numpy.random.default_rng(seed).random(u_m.shape)``
+    (:func:`fingerloc._seed_kernels.default_rng_random`). ``params`` (3, kmax)
+    receives the weights, means and sigmas. Returns (converged, n_iter, mean
+    log-lik, components with weight > 0).
+
+    Everything :meth:`fingerloc.mog.AngularMixture.fit` needs after its
+    parameter checks happens in this one compiled call.
+    """
+    n = x.shape[0]
+    finite = True
+    for i in range(n):
+        finite &= math.isfinite(x[i])
+    if not finite:
+        return False, 0, np.nan, -1
+    xs = np.empty(n)
+    for i in range(n):
+        xs[i] = _wrap_as_numpy(x[i])
+    if seed >= 0:
+        default_rng_random(seed, u_m)
+    conv, it, ll = _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
     used = 0
     for j in range(kmax):
         used += params[0, j] > 0.0
     return conv, it, ll, used
-
-
-@njit(cache=True)
-def all_finite(y):  # pragma: no cover
-    """Whether the 1-D array ``y`` holds neither nan nor inf."""
-    ok = True
-    for i in range(y.shape[0]):
-        ok &= math.isfinite(y[i])
-    return ok
 
 
 @njit(cache=True, parallel=True)
