@@ -537,9 +537,15 @@ class AngularMixture(ParamsMixin):
         else:
             u[...] = check_random_state(rs).random((ni, k))
             seed = -1
-        fl = X.flags if type(X) is np.ndarray and X.dtype == np.float64 and X.ndim == 1 else None
-        if fl is not None and fl.c_contiguous and fl.writeable:  # read, never written: writeable only to share
-            xa = X  # one compiled specialisation with every other call
+        xa: Float64Array
+        if (
+            isinstance(X, np.ndarray)
+            and X.dtype == np.float64
+            and X.ndim == 1
+            and X.flags.c_contiguous
+            and X.flags.writeable  # read, never written: writeable so all calls share one compiled specialisation
+        ):
+            xa = X
         else:
             xa = _as_vector(X, "X")
             if not xa.flags.writeable:
