@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 from ._seed_kernels import default_rng_random
 
@@ -71,7 +72,9 @@ def _wrap1(a: float) -> float:  # pragma: no cover - compiled
 @njit(cache=True)
 def _log_norm(s: float) -> float:  # pragma: no cover - compiled
     """log eta = -log( sqrt(2 pi) s erf(pi / (sqrt(2) s)) )."""
-    return -(_LOG_SQRT_2PI + math.log(s) + math.log(math.erf(_PI / (_SQRT2 * s))))
+    z = _PI / (_SQRT2 * s)
+    # erf(z) rounds to exactly 1.0 from z = 6 on (1 - erf(6) = 2e-17 < 2^-54), and log(1.0) is +0.0: skip both calls
+    return -(_LOG_SQRT_2PI + math.log(s) + (0.0 if z >= 6.0 else math.log(math.erf(z))))
 
 
 @njit(cache=True, inline="always")
@@ -127,20 +130,32 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
     return p * (0.5 if m >= 1.0 else 1.0)
 
 
+@intrinsic
+def _bits_to_float(typingctx, b):  # pragma: no cover - compiled
+    """The float64 whose IEEE bits are the int64 ``b`` (a register bitcast: free, and vectorisable)."""
+    if b != types.int64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return types.float64(types.int64), codegen
+
+
 @njit(cache=True, fastmath={"contract"})
-def _e_terms(k, w, sg, d, r, mx, ssum, bits):  # pragma: no cover
-    """The E-step up to the normalisation, from the distances ``d`` = distAS(mu_j, x_i) (K, n).
+def _e_terms(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
+    """The E-step up to the normalisation: distances ``d`` = distAS(mu_j, x_i) (K, n) and terms ``r`` (K, n).
 
     Leaves in ``r`` the unnormalised terms (the largest of each point exactly
     1), in ``ssum`` the reciprocals of their sums, and returns the mean
     log-likelihood; rows of dead components (weight 0) are set to 0 in ``r``
-    and ``d``. ``mx``, ``ssum`` (float64) and ``bits`` (int64) are (n,)
-    scratch. Every loop runs component-major and branch-free, so the compiler
-    vectorises all of them but the log-likelihood product. The exponentials
-    are those of :func:`_exp_neg` (its polynomial on fused multiply-adds:
-    ``fastmath`` is ``contract`` only), the factor 2^k built from its bits. A
-    term below ``exp(-_SKIP)`` times the largest one is taken as 0 (it could
-    not change the sum in double precision).
+    and ``d``. ``mx`` and ``ssum`` are (n,) scratch. Every loop runs
+    component-major and branch-free, so the compiler vectorises all of them
+    but the log-likelihood product. The exponentials are those of
+    :func:`_exp_neg` (its polynomial on fused multiply-adds: ``fastmath`` is
+    ``contract`` only), the factor 2^k made from its bits. A term below
+    ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
+    the sum in double precision).
     """
     n = d.shape[1]
     for i in range(n):
@@ -150,23 +165,24 @@ def _e_terms(k, w, sg, d, r, mx, ssum, bits):  # pragma: no cover
         if w[j] > 0.0:
             cj = math.log(w[j]) + _log_norm(sg[j])
             invj = 0.5 / (sg[j] * sg[j])
+            muj = mu[j]
             for i in range(n):
-                dj = d[j, i]
+                dj = x[i] - muj
+                dj = dj - _TWO_PI if dj > _PI else dj
+                dj = dj + _TWO_PI if dj <= -_PI else dj
+                d[j, i] = dj
                 a = cj - dj * dj * invj
                 r[j, i] = a
                 mx[i] = a if a > mx[i] else mx[i]
-    # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) built from its bits, in a second loop:
-    # an exact power of two either way, so the same values, in fewer instructions
-    scale = bits.view(np.float64)
+    # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) made from its bits: an exact power of
+    # two either way, so the same values in fewer instructions. At t = 0 (the largest term) p = 1 and k = 0.
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 t = r[j, i] - mx[i]
                 p, kf = _exp_poly(t if t > -_SKIP else -_SKIP)
-                bits[i] = (np.int64(kf) + 1023) << 52
-                r[j, i] = 1.0 if t == 0.0 else (p if t > -_SKIP else 0.0)  # k = 0 where t = 0
-            for i in range(n):
-                e = r[j, i] * scale[i]
+                e = p * _bits_to_float((np.int64(kf) + 1023) << 52)
+                e = e if t > -_SKIP else 0.0
                 r[j, i] = e
                 ssum[i] += e
         else:
@@ -191,39 +207,17 @@ def _e_terms(k, w, sg, d, r, mx, ssum, bits):  # pragma: no cover
 def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
     """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
 
-    :func:`_e_terms` after the distances, then each term times the
-    reciprocal of its point's sum (``ssum`` ends as those reciprocals).
+    :func:`_e_terms`, then each term times the reciprocal of its point's sum (``ssum`` ends as those reciprocals).
+    ``bits`` (n,) int64 is no longer used (the factors 2^k are made in
+    registers); it stays in the signature for existing callers.
     """
     n = x.shape[0]
-    for j in range(k):
-        if w[j] > 0.0:
-            _dists(x, mu[j], d[j])
-    ll = _e_terms(k, w, sg, d, r, mx, ssum, bits)
+    ll = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 r[j, i] *= ssum[i]
     return ll
-
-
-@njit(cache=True)
-def _dists(x, m, dj):  # pragma: no cover
-    """dj_i = distAS(m, x_i) (vectorised, branch-free)."""
-    for i in range(x.shape[0]):
-        e = x[i] - m
-        dj[i] = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)
-
-
-@njit(cache=True, fastmath={"reassoc"})
-def _dists_sq_sum(rj, x, m, dj):  # pragma: no cover
-    """dj_i = distAS(m, x_i) as :func:`_dists`, and returns sum_i rj_i dj_i^2 in any order (vectorised)."""
-    a = 0.0
-    for i in range(x.shape[0]):
-        e = x[i] - m
-        e = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)
-        dj[i] = e
-        a += rj[i] * e * e
-    return a
 
 
 @njit(cache=True, fastmath={"reassoc"})
@@ -372,11 +366,11 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     undone: the parameters returned are never worse than any earlier iterate.
     ``trace`` (length max_iter + 1, or empty) receives the raw log-likelihoods.
 
-    Each iteration is :func:`_m_step` then :func:`_e_step`, with their passes
-    over the points fused: the E-step's normalisation also sums the
+    Each iteration is :func:`_m_step` then :func:`_e_step`, with one pass over
+    the points fewer: the E-step's normalisation also sums the
     responsibilities and their weighted distances (the next M-step's weights
-    and means), and the distances to the new means are computed once, for the
-    sigma update and for the next E-step.
+    and means). (Storing the distances to the new means in the sigma pass,
+    for the next E-step to read, was slower than computing them twice.)
     """
     n = x.shape[0]
     wb = np.empty(k)
@@ -384,11 +378,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     sgb = np.empty(k)
     nk = np.empty(k)
     sd = np.empty(k)
-    bits = np.empty(n, dtype=np.int64)
-    for j in range(k):
-        if w[j] > 0.0:
-            _dists(x, mu[j], d[j])
-    ll = _e_terms(k, w, sg, d, r, mx, ssum, bits)
+    ll = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
     rec = trace.shape[0] > 0
     if rec:
         trace[0] = ll
@@ -413,7 +403,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
                 continue
             m = _wrap1(mu[j] + sd[j] / nk[j])
             # distances to the new mean: for sigma here, and for the next E-step
-            s = math.sqrt(_dists_sq_sum(r[j], x, m, d[j]) / nk[j])
+            s = math.sqrt(_sum_sq_dist(r[j], x, m) / nk[j])
             if s < min_sigma:
                 s = min_sigma
             w[j] = nk[j] / n
@@ -423,7 +413,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
         for j in range(k):
             w[j] /= wsum
         it += 1
-        ll_new = _e_terms(k, w, sg, d, r, mx, ssum, bits)
+        ll_new = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
         if rec:
             trace[it] = ll_new
         gain = ll_new - ll
