@@ -181,7 +181,7 @@ def _e_terms(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
             for i in range(n):
                 t = r[j, i] - mx[i]
                 p, kf = _exp_poly(t if t > -_SKIP else -_SKIP)
-                e = p * _bits_to_float((np.int64(kf) + 1023) << 52)
+                e = p * _bits_to_float((np.int64(kf) + 1023) << 52)  # type: ignore[call-arg]  # numba intrinsic
                 e = e if t > -_SKIP else 0.0
                 r[j, i] = e
                 ssum[i] += e
