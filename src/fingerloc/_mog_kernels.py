@@ -158,24 +158,34 @@ def _e_terms(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
     the sum in double precision).
     """
     n = d.shape[1]
-    for i in range(n):
-        mx[i] = -np.inf
-        ssum[i] = 0.0
+    first = True  # the first live component sets mx and ssum (the same values as max / sum from -inf / 0)
     for j in range(k):
         if w[j] > 0.0:
             cj = math.log(w[j]) + _log_norm(sg[j])
             invj = 0.5 / (sg[j] * sg[j])
             muj = mu[j]
-            for i in range(n):
-                dj = x[i] - muj
-                dj = dj - _TWO_PI if dj > _PI else dj
-                dj = dj + _TWO_PI if dj <= -_PI else dj
-                d[j, i] = dj
-                a = cj - dj * dj * invj
-                r[j, i] = a
-                mx[i] = a if a > mx[i] else mx[i]
+            if first:
+                for i in range(n):
+                    dj = x[i] - muj
+                    dj = dj - _TWO_PI if dj > _PI else dj
+                    dj = dj + _TWO_PI if dj <= -_PI else dj
+                    d[j, i] = dj
+                    a = cj - dj * dj * invj
+                    r[j, i] = a
+                    mx[i] = a
+            else:
+                for i in range(n):
+                    dj = x[i] - muj
+                    dj = dj - _TWO_PI if dj > _PI else dj
+                    dj = dj + _TWO_PI if dj <= -_PI else dj
+                    d[j, i] = dj
+                    a = cj - dj * dj * invj
+                    r[j, i] = a
+                    mx[i] = a if a > mx[i] else mx[i]
+            first = False
     # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) made from its bits: an exact power of
     # two either way, so the same values in fewer instructions. At t = 0 (the largest term) p = 1 and k = 0.
+    first = True
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
@@ -184,7 +194,8 @@ def _e_terms(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
                 e = p * _bits_to_float((np.int64(kf) + 1023) << 52)  # type: ignore[call-arg]  # numba intrinsic
                 e = e if t > -_SKIP else 0.0
                 r[j, i] = e
-                ssum[i] += e
+                ssum[i] = e if first else ssum[i] + e
+            first = False
         else:
             for i in range(n):
                 r[j, i] = 0.0
