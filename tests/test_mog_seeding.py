@@ -106,3 +106,33 @@ def test_fit_read_only_input():
     x.flags.writeable = False
     gm = AngularMixture(2, random_state=1).fit(x)
     np.testing.assert_array_equal(gm.sigmas_, ref.sigmas_)
+
+
+def _economised_exp_coefficients() -> list[float]:
+    """exp's Taylor polynomial of degree 14 on |r| <= 0.347, economised to degree 11, in exact rationals."""
+    from fractions import Fraction
+
+    def cheb(n: int) -> list[int]:  # integer coefficients of the Chebyshev polynomial T_n, ascending powers
+        t0, t1 = [1], [0, 1]
+        for _ in range(n - 1):
+            t2 = [0] + [2 * c for c in t1]
+            for i, c in enumerate(t0):
+                t2[i] -= c
+            t0, t1 = t1, t2
+        return t1
+
+    h = Fraction(347, 1000)
+    a = [Fraction(1, math.factorial(i)) * h**i for i in range(15)]  # in x = r / h, |x| <= 1
+    for n in (14, 13, 12):
+        tn = cheb(n)
+        c = a[n] / tn[n]
+        for i, tc in enumerate(tn):
+            a[i] -= c * tc
+    return [float(a[i] / h**i) for i in range(12)]
+
+
+def test_exp_polynomial_constants_are_the_economised_taylor_polynomial():
+    coef = _economised_exp_coefficients()
+    assert coef[0] == 1.0 and coef[1] == 1.0
+    assert coef[2:] == [getattr(_k, f"_E{i}") for i in range(2, 12)]
+    assert 0.347 > math.log(2) / 2
