@@ -263,16 +263,35 @@ def _sum(a):  # pragma: no cover
 
 
 @njit(cache=True, fastmath={"reassoc"})
-def _normalise_sums(rj, inv, dj):  # pragma: no cover
-    """rj_i *= inv_i (the responsibilities), and returns (sum_i rj_i, sum_i rj_i dj_i) in any order (vectorised)."""
-    a = 0.0
-    b = 0.0
-    for i in range(rj.shape[0]):
-        e = rj[i] * inv[i]
-        rj[i] = e
-        a += e
-        b += e * dj[i]
-    return a, b
+def _resp_sums(k, w, r, inv, d, nk, sd):  # pragma: no cover
+    """For each live component: r_j *= inv (the responsibilities), nk_j = sum_i r_ji, sd_j = sum_i r_ji d_ji (vectorised)."""
+    n = inv.shape[0]
+    for j in range(k):
+        if w[j] > 0.0:
+            a = 0.0
+            b = 0.0
+            for i in range(n):
+                e = r[j, i] * inv[i]
+                r[j, i] = e
+                a += e
+                b += e * d[j, i]
+            nk[j] = a
+            sd[j] = b
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _sq_dist_sums(k, w, r, x, m, s2):  # pragma: no cover
+    """For each live component: s2_j = sum_i r_ji distAS(m_j, x_i)^2 in any order (vectorised; distAS branch-free)."""
+    n = x.shape[0]
+    for j in range(k):
+        if w[j] > 0.0:
+            a = 0.0
+            mj = m[j]
+            for i in range(n):
+                e = x[i] - mj
+                e = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)
+                a += r[j, i] * e * e
+            s2[j] = a
 
 
 @njit(cache=True, fastmath={"reassoc"})
@@ -411,8 +430,10 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     Each iteration is :func:`_m_step` then :func:`_e_step`, with one pass over
     the points fewer: the E-step's normalisation also sums the
     responsibilities and their weighted distances (the next M-step's weights
-    and means). (Storing the distances to the new means in the sigma pass,
-    for the next E-step to read, was slower than computing them twice.)
+    and means, :func:`_resp_sums`), and each sum over the points runs for all
+    components in one call. (Storing the distances to the new means in the
+    sigma pass, for the next E-step to read, was slower than computing them
+    twice.)
     """
     n = x.shape[0]
     wb = np.empty(k)
@@ -420,6 +441,7 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     sgb = np.empty(k)
     nk = np.empty(k)
     sd = np.empty(k)
+    s2 = np.empty(k)
     ll = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
     rec = trace.shape[0] > 0
     if rec:
@@ -428,30 +450,28 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     it = 0
     while it < max_iter:
         # the E-step's normalisation, with the sums of the M-step
-        for j in range(k):
-            if w[j] > 0.0:
-                nk[j], sd[j] = _normalise_sums(r[j], ssum, d[j])
+        _resp_sums(k, w, r, ssum, d, nk, sd)
         for j in range(k):
             wb[j] = w[j]
             mub[j] = mu[j]
             sgb[j] = sg[j]
         # M-step (docs/METHOD.md §3, paper eqs. 9-11), as _m_step
+        for j in range(k):
+            if w[j] > 0.0:
+                if nk[j] < DEAD_MASS:
+                    w[j] = 0.0
+                else:
+                    mu[j] = _wrap1(mu[j] + sd[j] / nk[j])
+        _sq_dist_sums(k, w, r, x, mu, s2)
         wsum = 0.0
         for j in range(k):
-            if w[j] <= 0.0:
-                continue
-            if nk[j] < DEAD_MASS:
-                w[j] = 0.0
-                continue
-            m = _wrap1(mu[j] + sd[j] / nk[j])
-            # distances to the new mean: for sigma here, and for the next E-step
-            s = math.sqrt(_sum_sq_dist(r[j], x, m) / nk[j])
-            if s < min_sigma:
-                s = min_sigma
-            w[j] = nk[j] / n
-            mu[j] = m
-            sg[j] = s
-            wsum += w[j]
+            if w[j] > 0.0:
+                s = math.sqrt(s2[j] / nk[j])
+                if s < min_sigma:
+                    s = min_sigma
+                w[j] = nk[j] / n
+                sg[j] = s
+                wsum += w[j]
         for j in range(k):
             w[j] /= wsum
         it += 1
