@@ -574,17 +574,18 @@ def _wrap_as_numpy(a: float) -> float:  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def fit_single(x, kmax, u_m, seed, tol, max_iter, min_sigma, params):  # pragma: no cover
+def fit_single(x, kmax, buf, seed, tol, max_iter, min_sigma):  # pragma: no cover
     """One mixture, as :func:`fit_batch` fits mixture 0 of ``[wrap(x)]``: same code, same results, fewer arguments.
 
     ``x`` (n,), n >= 1, holds the bearings as given (radians, any real
     value); it is left unchanged: a non-finite one returns ``used = -1`` at
     once, the others are wrapped into a new array exactly as
-    :func:`fingerloc.angles.wrap` does. ``u_m`` (n_init, kmax) holds the
-    uniforms that drive the seeding; with ``seed >= 0`` (below 2**63) they are
-    first drawn here as ``numpy.random.default_rng(seed).random(u_m.shape)``
-    (:func:`fingerloc._seed_kernels.default_rng_random`). ``params`` (3, kmax)
-    receives the weights, means and sigmas. Returns (converged, n_iter, mean
+    :func:`fingerloc.angles.wrap` does. ``buf`` (3 + n_init, kmax): rows 3:
+    hold the uniforms that drive the seeding; with ``seed >= 0`` (below
+    2**63) they are first drawn here as
+    ``numpy.random.default_rng(seed).random((n_init, kmax))``
+    (:func:`fingerloc._seed_kernels.default_rng_random`). Rows 0, 1, 2
+    receive the weights, means and sigmas. Returns (converged, n_iter, mean
     log-lik, components with weight > 0).
 
     Everything :meth:`fingerloc.mog.AngularMixture.fit` needs after its
@@ -599,12 +600,13 @@ def fit_single(x, kmax, u_m, seed, tol, max_iter, min_sigma, params):  # pragma:
     xs = np.empty(n)
     for i in range(n):
         xs[i] = _wrap_as_numpy(x[i])
+    u_m = buf[3:]
     if seed >= 0:
         default_rng_random(seed, u_m)
-    conv, it, ll = _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
+    conv, it, ll = _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, buf[0], buf[1], buf[2], np.empty((0, 0)))
     used = 0
     for j in range(kmax):
-        used += params[0, j] > 0.0
+        used += buf[0, j] > 0.0
     return conv, it, ll, used
 
 

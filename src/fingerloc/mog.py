@@ -531,33 +531,31 @@ class AngularMixture(ParamsMixin):
             self.n_components, self.tol, self.max_iter, self.n_init, self.min_sigma_deg
         )
         rs = self.random_state
-        u = np.empty((ni, k))  # the draws fit_mixtures makes for one sample (its u[m], shape (n_init, k))
-        if type(rs) is int and 0 <= rs < 2**63 and _compiled_seeding_ok():
-            seed = rs  # default_rng(rs).random(u.shape), drawn in the compiled call
+        # rows 0-2 receive the weights, means and sigmas; rows 3: hold the uniforms of the seeding, the draws
+        # fit_mixtures makes for one sample (its u[m], shape (n_init, k))
+        buf = np.empty((3 + ni, k))
+        if type(rs) is int and 0 <= rs < 2**63 and (_seeding_matches_numpy or _compiled_seeding_ok()):
+            seed = rs  # default_rng(rs).random((n_init, k)), drawn in the compiled call
         else:
-            u[...] = check_random_state(rs).random((ni, k))
+            buf[3:] = check_random_state(rs).random((ni, k))
             seed = -1
         xa: Float64Array
-        if (
-            isinstance(X, np.ndarray)
-            and X.dtype == np.float64
-            and X.ndim == 1
-            and X.flags.c_contiguous
-            and X.flags.writeable  # read, never written: writeable so all calls share one compiled specialisation
-        ):
-            xa = X
+        if isinstance(X, np.ndarray) and X.dtype == np.float64 and X.ndim == 1:
+            fl = X.flags  # read, never written: writeable so that all calls share one compiled specialisation
+            xa = X if fl.c_contiguous and fl.writeable else np.array(X)
         else:
             xa = _as_vector(X, "X")
             if not xa.flags.writeable:
                 xa = xa.copy()
         if xa.size == 0:
             raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
-        params = np.empty((3, k))
         # one compiled call: the check for nan and inf, wrap(X) into a new array, the draws, the fit
-        conv, n_iter, ll, used = _k.fit_single(xa, k, u, seed, tol_f, it, math.radians(msd), params)
+        conv, n_iter, ll, used = _k.fit_single(xa, k, buf, seed, tol_f, it, math.radians(msd))
         if used < 0:
             raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
-        self.weights_, self.means_, self.sigmas_ = params
+        self.weights_ = buf[0]
+        self.means_ = buf[1]
+        self.sigmas_ = buf[2]
         self.converged_ = bool(conv)
         self.n_iter_ = int(n_iter)
         self.lower_bound_ = float(ll)
