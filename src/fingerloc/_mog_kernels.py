@@ -402,17 +402,22 @@ def _init_params(x, kmax, u, min_sigma, w, mu, sg, d, r, dmin):  # pragma: no co
             w[j] = 0.0
             mu[j] = 0.0
             sg[j] = 1.0
-    for i in range(n):
-        best = 0
-        bestd = np.inf
-        for j in range(k):
-            e = _dist(centers[j], x[i])
+    # each point to its nearest centre (the first one on ties), component by component so the loops vectorise
+    best = np.zeros(n, dtype=np.int64)
+    for j in range(k):
+        cj = centers[j]
+        for i in range(n):
+            e = x[i] - cj  # _dist(cj, x_i)
+            e = e - _TWO_PI if e > _PI else e
+            e = e + _TWO_PI if e <= -_PI else e
             d[j, i] = e
-            if abs(e) < bestd:
-                bestd = abs(e)
-                best = j
-        for j in range(k):
-            r[j, i] = 1.0 if j == best else 0.0
+            ae = abs(e)
+            closer = j == 0 or ae < dmin[i]
+            dmin[i] = ae if closer else dmin[i]
+            best[i] = j if closer else best[i]
+    for j in range(k):
+        for i in range(n):
+            r[j, i] = 1.0 if best[i] == j else 0.0
     _m_step(x, k, w, mu, sg, d, r, min_sigma)
     return k
 
