@@ -136,3 +136,11 @@ def test_exp_polynomial_constants_are_the_economised_taylor_polynomial():
     assert coef[0] == 1.0 and coef[1] == 1.0
     assert coef[2:] == [getattr(_k, f"_E{i}") for i in range(2, 12)]
     assert 0.347 > math.log(2) / 2
+
+
+def test_bad_x_leaves_a_generator_untouched():
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    with pytest.raises(mog.InvalidParameterError, match="non-finite"):
+        AngularMixture(2, random_state=rng).fit(np.array([0.1, np.nan]))
+    assert rng.bit_generator.state == state

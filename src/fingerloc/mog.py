@@ -534,10 +534,11 @@ class AngularMixture(ParamsMixin):
         # rows 0-2 receive the weights, means and sigmas; rows 3: hold the uniforms of the seeding, the draws
         # fit_mixtures makes for one sample (its u[m], shape (n_init, k))
         buf = np.empty((3 + ni, k))
+        rng = None
         if type(rs) is int and 0 <= rs < 2**63 and (_seeding_matches_numpy or _compiled_seeding_ok()):
             seed = rs  # default_rng(rs).random((n_init, k)), drawn in the compiled call
         else:
-            buf[3:] = check_random_state(rs).random((ni, k))
+            rng = check_random_state(rs)
             seed = -1
         xa: Float64Array
         if isinstance(X, np.ndarray) and X.dtype == np.float64 and X.ndim == 1:
@@ -549,6 +550,10 @@ class AngularMixture(ParamsMixin):
                 xa = xa.copy()
         if xa.size == 0:
             raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
+        if rng is not None:  # a Generator (or None): draw from it only for a valid X, as before
+            if not np.all(np.isfinite(xa)):
+                raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
+            buf[3:] = rng.random((ni, k))
         # one compiled call: the check for nan and inf, wrap(X) into a new array, the draws, the fit
         conv, n_iter, ll, used = _k.fit_single(xa, k, buf, seed, tol_f, it, math.radians(msd))
         if used < 0:
