@@ -49,7 +49,7 @@ from ..map.graph import PlaceGraph, nearest_place_sequence
 from .places import visit_folds
 
 if TYPE_CHECKING:
-    from ..map.pose_filter import Challenger, PoseFilter
+    from ..map.pose_filter import Challenger, HeadingModel, PoseFilter
     from ..observation import Observation
 
 __all__ = [
@@ -63,6 +63,7 @@ __all__ = [
     "calibrate_labelled",
     "challenger_of",
     "fit_scale",
+    "heading_of",
     "held_out_calibration",
     "held_out_rows",
     "held_out_scores",
@@ -129,6 +130,10 @@ class Calibration:
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`).
     challenger_switch_nats : float
         The challenger's log Bayes factor that makes the switch.
+    heading_kappa, heading_intercept, heading_slope, heading_reverse, heading_cap : float
+        Pose filter: the :class:`~fingerloc.map.pose_filter.HeadingModel`
+        of the headings the observations imply (fitted on the mapping part);
+        ``heading_kappa == 0`` (the default): headings are not used.
     """
 
     beta: float = 1.0
@@ -147,6 +152,11 @@ class Calibration:
     gap_metres: float | None = None
     challenger: bool = False
     challenger_switch_nats: float = 3.0
+    heading_kappa: float = 0.0
+    heading_intercept: float = 0.0
+    heading_slope: float = 0.0
+    heading_reverse: float = 0.0
+    heading_cap: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -247,6 +257,8 @@ class HeldOut:
     labels : ndarray of int, shape (n,)
     index : ndarray of int, shape (n,)
         Position of each row among the training rows.
+    fold : ndarray of int, shape (n_train,), optional
+        The fold (0 / 1) of every training row the scores were computed with.
     """
 
     beta: float
@@ -254,6 +266,7 @@ class HeldOut:
     scores: FArray
     labels: IArray
     index: IArray
+    fold: IArray | None = None
 
 
 def held_out_calibration(
@@ -269,7 +282,7 @@ def held_out_calibration(
         s, yy = held_out_scores(fit_score, y, fold, n_places)
         usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
     beta = fit_likelihood_scale(s, yy) if usable else 1.0
-    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64))
+    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64), fold)
 
 
 def fit_scale(
@@ -339,6 +352,7 @@ def run_pose_steps(
     reset_threshold: float | None = None,
     challenger: Challenger | None = None,
     place_steps: SharedPlaceSteps | None = None,
+    headings: Any = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -362,6 +376,9 @@ def run_pose_steps(
     place_steps : SharedPlaceSteps, optional
         The discrete filter's beliefs shared with other runs on the same
         steps (:func:`tune_pose_filter`); the same results.
+    headings : array_like, shape (n_steps, P), optional
+        The heading each observation implies at each place (radians, NaN =
+        none), used when the pose filter has a heading model.
     """
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
 
@@ -380,6 +397,7 @@ def run_pose_steps(
             place_filter=places(),
             start_at_first_observation=start_at_first_observation,
             gap_metres=gap_metres,
+            headings=headings,
         )
 
     return run_pose_filter(
@@ -391,6 +409,7 @@ def run_pose_steps(
         start_at_first_observation=start_at_first_observation,
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
+        headings=headings,
     )
 
 
@@ -401,6 +420,16 @@ def challenger_of(calibration: Calibration) -> Challenger | None:
     if not calibration.challenger:
         return None
     return Challenger(switch_nats=calibration.challenger_switch_nats)
+
+
+def heading_of(calibration: Calibration) -> HeadingModel | None:
+    """The calibration's heading model (None: headings not used)."""
+    from ..map.pose_filter import HeadingModel
+
+    c = calibration
+    if c.heading_kappa <= 0 or c.heading_cap <= 0:
+        return None
+    return HeadingModel(c.heading_kappa, c.heading_intercept, c.heading_slope, c.heading_reverse, c.heading_cap)
 
 
 def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
@@ -419,6 +448,7 @@ def tune_pose_filter(
     temper: bool = True,
     relocalize: bool = True,
     share_draws: bool = True,
+    headings: Any = None,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -438,6 +468,10 @@ def tune_pose_filter(
     :class:`~fingerloc.map.filter.SharedPlaceSteps`; a run whose calls
     differ computes its own from there), which changes no result.
 
+    ``headings`` (shape (n_held, P), radians, NaN = none): the heading each
+    held-out row implies at each place (rows as ``held.scores``); with the
+    calibration's heading model, the runs use them.
+
     Returns
     -------
     Calibration
@@ -456,6 +490,10 @@ def tune_pose_filter(
     ll = np.full((poses.shape[0], tracker.centres.shape[0]), np.nan)
     ll[rows] = cal.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
     truth = held.labels
+    hd = None
+    if headings is not None and heading_of(cal) is not None:
+        hd = np.full(ll.shape, np.nan)
+        hd[rows] = np.asarray(headings, dtype=np.float64).reshape(rows.size, -1)
     inc = np.vstack([np.zeros((1, 3)), wheel_odometry(poses, odometry_error, random_state=seed + 2)])
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
@@ -466,7 +504,7 @@ def tune_pose_filter(
         trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles)
         f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
-        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps)
+        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps, headings=hd)
         top1 = float(np.mean(res.best[rows] == truth))
         tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
         if top1 > best[0]:
@@ -544,6 +582,7 @@ class Tracker:
             kidnap=self.calibration.kidnap if kidnap is None else kidnap,
             outlier=self.calibration.outlier,
             off_place=self.calibration.off_place,
+            heading=heading_of(self.calibration),
             random_state=seed if rng is None else rng,
         )
 
@@ -568,8 +607,9 @@ class Tracker:
         relocalize: bool = True,
         reset_threshold: float | None = None,
         place_steps: SharedPlaceSteps | None = None,
+        headings: Any = None,
     ) -> FilterResult:
-        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused)."""
+        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused); ``headings``: :func:`run_pose_steps`."""
         c = self.calibration
         return run_pose_steps(
             log_likelihood,
@@ -583,6 +623,7 @@ class Tracker:
             reset_threshold=reset_threshold,
             challenger=challenger_of(c),
             place_steps=place_steps,
+            headings=headings,
         )
 
     def run(
@@ -595,6 +636,7 @@ class Tracker:
         seed: int = 0,
         temper: bool = True,
         relocalize: bool = True,
+        headings: Any = None,
     ) -> FilterResult:
         """Track along a run.
 
@@ -612,6 +654,10 @@ class Tracker:
             increments, times this factor (0 = the poses' own increments).
         seed : int, default 0
             Seeds the particles (``seed``) and the simulated odometry (``seed + 1``).
+        headings : array_like, shape (n_steps, P), optional
+            Pose filter: the heading (radians, the poses' frame) each
+            observation implies at each place (NaN = none); used when the
+            calibration has a heading model (:func:`heading_of`).
 
         Returns
         -------
@@ -631,5 +677,6 @@ class Tracker:
 
         inc = wheel_odometry(p, odometry_error, random_state=seed + 1)
         return self.run_pose(
-            ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize
-        )
+            ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize,
+            headings=headings,
+        )  # fmt: skip
