@@ -75,7 +75,8 @@ if __name__ == "__main__":
             q = data.truth >= 0
             top1 = float(np.mean(full.best[q] == data.truth[q]))
             hm = data.method.heading_model_
-            r = {"n": int(q.sum()), "top1": top1, "outlier": data.method.outlier_, "temper": data.method.temper_metres_,
+            tun = data.method.tuning_
+            r = {"n": int(q.sum()), "top1": top1, "mapping_top1": max((t["top1"] for t in tun), default=None), "outlier": data.method.outlier_, "temper": data.method.temper_metres_,
                  "heading": None if hm is None else [round(hm.kappa, 2), round(hm.intercept, 2), round(hm.slope, 2), round(hm.reverse, 3), round(float(hm.peak_share(0.0)), 3), round(float(hm.peak_share(-3.0)), 3)]}
             if kid:
                 k = kidnap_experiment(data, name=log, random_state=seed)
