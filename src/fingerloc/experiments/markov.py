@@ -519,10 +519,9 @@ class PoseFilteredMethod(FilteredMethod):
         same scans and labels: shared within a benchmark run).
         """
         held = self.held_out_
-        all_scans, split = self._need_context()
+        _, split = self._need_context()
         if held is None or held.fold is None:
             return None
-        poses = _full_poses(all_scans)[split.train_idx]
         factory = self._factory()
         P = split.n_places
         parts: list[FArray] = []
@@ -535,7 +534,7 @@ class PoseFilteredMethod(FilteredMethod):
             remap[present] = np.arange(present.size)
             m = factory()
             m.fit([scans[i] for i in tr.tolist()], remap[labels[tr]])
-            h = implied_headings(m, [scans[i] for i in te.tolist()], poses[tr], remap[labels[tr]])
+            h = implied_headings(m, [scans[i] for i in te.tolist()], present.size)
             if h is None:
                 return None
             full = np.full((te.size, P), np.nan)
@@ -547,8 +546,8 @@ class PoseFilteredMethod(FilteredMethod):
         """As :class:`FilteredMethod`; with a heading model, the queries' implied headings are computed first."""
         self.step_headings_: FArray | None = None
         if self.heading_model_ is not None:
-            all_scans, split = self._need_context()
-            h = implied_headings(self.base_, scans, _full_poses(all_scans)[split.train_idx], split.train_labels)
+            _, split = self._need_context()
+            h = implied_headings(self.base_, scans, split.n_places)
             if h is not None:
                 self.step_headings_ = np.full((split.n_scans - split.n_mapping, split.n_places), np.nan)
                 self.step_headings_[split.query_idx - split.n_mapping] = h
@@ -591,40 +590,22 @@ class PoseFilteredMethod(FilteredMethod):
         )
 
 
-def implied_headings(method: Any, scans: Sequence[Scan], train_poses: Any, train_labels: Any) -> FArray | None:
-    """The robot's heading each scan implies at each place, radians in the mapping frame, shape (n, P); None without headings.
+def implied_headings(method: Any, scans: Sequence[Scan], n_places: int) -> FArray | None:
+    """The robot's heading each scan implies at each place ``0 .. n_places - 1`` (radians, mapping frame), shape (n, P).
 
-    ``method`` is a fitted fingerprint method (its ``model_`` gives
-    :meth:`~fingerloc.model.PlaceModel.headings_with_reference`: the
-    cyclic alignment's heading ``h`` against the best-matching training view
-    of each place); ``train_poses`` / ``train_labels`` are its training
-    scans' poses and labels in fit order (view ``v`` of place ``j`` is the
-    ``v``-th training scan labelled ``j``). The alignment's convention is
-    *bearing in the view = bearing in the query - h*, so the robot's
-    heading is ``theta_view - h`` (measured on the shared logs' mapping
-    passes: median error 3-6 deg at the true place on aces and intel with
-    this sign, 57-70 deg with the other). NaN where a place has no estimate.
+    ``method`` is a fitted fingerprint method (its ``model_``, a
+    :class:`~fingerloc.model.PlaceModel` whose training observations carry
+    the scans' poses): :func:`fingerloc.pipeline.tracker.implied_headings`.
+    None for a method without a model (the baselines).
     """
+    from ..pipeline.places import place_label
+    from ..pipeline.tracker import implied_headings as _implied
+
     model = getattr(method, "model_", None)
     if model is None or not hasattr(model, "headings_with_reference"):
         return None
-    from ..pipeline.places import place_label
-
-    poses = np.asarray(train_poses, dtype=np.float64).reshape(-1, 3)
-    y = np.asarray(train_labels, dtype=np.int64).reshape(-1)
     obs = method._observations(scans) if scans else []
-    P = int(y.max()) + 1 if y.size else 0
-    out = np.full((len(obs), P), np.nan)
-    known = {str(c) for c in model.classes_}
-    for j in range(P):
-        lab = place_label(j)
-        if str(lab) not in known or not obs:
-            continue
-        views = poses[y == j]
-        h, v = model.headings_with_reference(obs, [lab] * len(obs))
-        ok = (v >= 0) & (v < views.shape[0]) & np.isfinite(h)
-        out[ok, j] = np.mod(views[v[ok], 2] - np.radians(h[ok]) + math.pi, 2 * math.pi) - math.pi
-    return out
+    return _implied(model, obs, [place_label(j) for j in range(n_places)])
 
 
 def field_of_view(scans: Sequence[Scan]) -> float:
@@ -778,7 +759,7 @@ def prepare_tracking(
     steps_inc = None if inc is None else np.vstack([np.zeros((1, 3)), inc])
     hd = None
     if getattr(m, "heading_model_", None) is not None:
-        h = implied_headings(m.base_, [scans[i] for i in split.query_idx.tolist()], _full_poses(scans)[split.train_idx], split.train_labels)
+        h = implied_headings(m.base_, [scans[i] for i in split.query_idx.tolist()], split.n_places)
         if h is not None:
             hd = np.full(ll.shape, np.nan)
             hd[split.query_idx - split.n_mapping] = h
