@@ -11,9 +11,11 @@
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :class:`PoseFilteredMethod`: the same front end followed by the pose
   particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
-  not only distances), registered as ``fingerprint-odometry``; ablations
-  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``, and
-  ``baseline-histogram-odometry``, run only when named.
+  not only distances), registered as ``fingerprint-odometry`` (with the
+  heading each view implies, :class:`~fingerloc.map.pose_filter.HeadingModel`);
+  ablations ``fingerprint-odometry-exact``, ``fingerprint-odometry-untempered``
+  and ``fingerprint-odometry-noheading``, and ``baseline-histogram-odometry``,
+  run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover (either filter).
 
@@ -46,18 +48,17 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .._lse import logsumexp
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
-from ..map.pose_filter import Challenger, HeadingModel, fit_heading_model
+from ..map.pose_filter import Challenger, HeadingModel
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
     POSE_PARTICLES,
@@ -66,10 +67,13 @@ from ..pipeline.tracker import (
     HeldOut,
     Tracker,
     challenger_of,
+    heading_of,
     held_out_calibration,
+    held_out_headings,
     run_pose_steps,
     step_distances,
     tune_pose_filter,
+    with_heading_model,
 )
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
@@ -356,7 +360,7 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
         during ``tune``).
     challenger_switch_nats : float, default 3.0
-    heading : bool, default False
+    heading : bool, default True
         Weigh the particles also by the heading each observation implies
         (:class:`~fingerloc.map.pose_filter.HeadingModel`): a base method
         that estimates the robot's heading relative to the matched training
@@ -367,7 +371,9 @@ class PoseFilteredMethod(FilteredMethod):
         mapping pass (:func:`~fingerloc.map.pose_filter.fit_heading_model`
         on the held-out rows of ``beta``: each at its own place, from the
         fold model that did not see it) and the tuning runs with it. A base
-        method without headings leaves it off.
+        method without headings (the baselines) leaves it off. Default since
+        the third session of issue 15 (docs/RESULTS.md); method
+        ``fingerprint-odometry-noheading`` turns it off.
     heading_reverse : bool, default True
         Let the heading model have a peak at the reverse heading.
     heading_slope : bool, default True
@@ -407,7 +413,7 @@ class PoseFilteredMethod(FilteredMethod):
         tune: bool = True,
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
-        heading: bool = False,
+        heading: bool = True,
         heading_reverse: bool = True,
         heading_slope: bool = True,
     ) -> None:
@@ -477,25 +483,13 @@ class PoseFilteredMethod(FilteredMethod):
             challenger_switch_nats=self.challenger_switch_nats,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
-        self.heading_model_: HeadingModel | None = None
         self.held_headings_: FArray | None = None
         if self.heading and self.observe and held is not None and held.labels.size:
             self.held_headings_ = self._held_out_headings(scans, np.asarray(labels, dtype=np.int64).reshape(-1))
             if self.held_headings_ is not None:
-                rows = np.arange(held.labels.size)
-                true = poses[split.train_idx[held.index], 2]
-                implied = self.held_headings_[rows, held.labels]
-                s = self.scale_ * held.scores
-                with np.errstate(invalid="ignore"):
-                    x = (s - logsumexp(s, axis=1, keepdims=True))[rows, held.labels]
-                self.heading_model_ = fit_heading_model(
-                    true - implied, x if self.heading_slope else None, reverse=self.heading_reverse, slope=self.heading_slope
-                )
-            if self.heading_model_ is not None:
-                hm = self.heading_model_
-                self.calibration_ = replace(
-                    self.calibration_, heading_kappa=hm.kappa, heading_intercept=hm.intercept,
-                    heading_slope=hm.slope, heading_reverse=hm.reverse, heading_cap=hm.cap,
+                self.calibration_ = with_heading_model(
+                    self.calibration_, held, self.held_headings_, poses[split.train_idx[held.index], 2],
+                    reverse=self.heading_reverse, slope=self.heading_slope,
                 )  # fmt: skip
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
@@ -506,6 +500,7 @@ class PoseFilteredMethod(FilteredMethod):
             )  # fmt: skip
             self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.outlier_ = self.calibration_.outlier
+        self.heading_model_: HeadingModel | None = heading_of(self.calibration_)
         self.temper_metres_ = self.calibration_.temper_metres
         self.temper_radians_ = self.calibration_.temper_radians
         self.filter_ = self.tracker_.pose_filter(self.seed)
@@ -519,28 +514,21 @@ class PoseFilteredMethod(FilteredMethod):
         same scans and labels: shared within a benchmark run).
         """
         held = self.held_out_
-        _, split = self._need_context()
-        if held is None or held.fold is None:
+        if held is None:
             return None
+        _, split = self._need_context()
         factory = self._factory()
-        P = split.n_places
-        parts: list[FArray] = []
-        for f in (0, 1):
-            tr, te = np.flatnonzero(held.fold != f), np.flatnonzero(held.fold == f)
-            if tr.size == 0 or te.size == 0:
-                continue
-            present = np.unique(labels[tr])
-            remap = np.full(P, -1, dtype=np.int64)
-            remap[present] = np.arange(present.size)
+        base = getattr(self, "base_", None)
+        if base is None or not hasattr(base, "_observations"):  # a baseline: no model, no headings
+            return None
+
+        def fit_model(tr: IArray, y: IArray) -> Any:
             m = factory()
-            m.fit([scans[i] for i in tr.tolist()], remap[labels[tr]])
-            h = implied_headings(m, [scans[i] for i in te.tolist()], present.size)
-            if h is None:
-                return None
-            full = np.full((te.size, P), np.nan)
-            full[:, present] = h
-            parts.append(full)
-        return np.concatenate(parts) if parts else None
+            m.fit([scans[i] for i in tr.tolist()], y)
+            return getattr(m, "model_", None)
+
+        observations = base._observations(list(scans))
+        return held_out_headings(fit_model, observations, labels, held, split.n_places)
 
     def score(self, scans: Sequence[Scan]) -> FArray:
         """As :class:`FilteredMethod`; with a heading model, the queries' implied headings are computed first."""
@@ -673,10 +661,10 @@ def _fingerprint_odometry_challenger() -> Method:
     return PoseFilteredMethod("fingerprint", challenger=True)
 
 
-@register_method("fingerprint-odometry-heading", default=False)
-def _fingerprint_odometry_heading() -> Method:
-    # The particles weighed also by the heading each view implies (fingerprint alignment + the view's pose).
-    return PoseFilteredMethod("fingerprint", heading=True)
+@register_method("fingerprint-odometry-noheading", default=False)
+def _fingerprint_odometry_noheading() -> Method:
+    # The pose filter without the heading evidence (the default before the third session of issue 15).
+    return PoseFilteredMethod("fingerprint", heading=False)
 
 
 @register_method("fingerprint-odometry-reset", default=False)

@@ -1096,6 +1096,18 @@ def _run_inputs(
         raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
     return ll, inc, wts
 
+def _update(f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None) -> FArray:
+    """``f.update``, with ``headings`` only when there are some (a filter class without them keeps working)."""
+    if headings is None:
+        return f.update(row, weight, prior) if kidnap is None else f.update(row, weight, prior, kidnap=kidnap)
+    return f.update(row, weight, prior, kidnap=kidnap, headings=headings)
+
+
+def _evidence(f: PoseFilter, row: FArray, weight: float, headings: FArray | None) -> float:
+    """``f.log_evidence``, with ``headings`` only when there are some."""
+    return f.log_evidence(row, weight) if headings is None else f.log_evidence(row, weight, headings)
+
+
 def _run_headings(headings: Any, shape: tuple[int, ...]) -> FArray | None:
     """The checked implied headings of a run, shape (n_steps, P), or None."""
     if headings is None:
@@ -1236,11 +1248,11 @@ def run_pose_filter(
             cusum = min(0.0, cusum + r)
         hd = None if hds is None else hds[t]
         if lost:
-            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0, headings=hd)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd)
             lost, cusum = False, 0.0
             continue
         predicted = pose_filter.place_log_posterior() if answer_untempered else None
-        out[t] = pose_filter.update(row, float(wts[t]), prior, headings=hd)
+        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd)
         if predicted is not None:
             full = predicted + pose_filter.place_likelihood(row)
             if np.any(np.isfinite(full)):
@@ -1393,18 +1405,18 @@ def run_challenged_pose_filter(
             continue
         hd = None if hds is None else hds[t]
         if lost:
-            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0, headings=hd)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd)
             lost = False
             continue
         w = float(wts[t])
         we = w if ch.tempered_evidence else 1.0
-        mine = pose_filter.log_evidence(row, we, hd)
+        mine = _evidence(pose_filter, row, we, hd)
         if rival is not None:
-            factor += rival.log_evidence(row, we, hd) - mine
-            rival.update(row, w, prior, headings=hd)
+            factor += _evidence(rival, row, we, hd) - mine
+            _update(rival, row, w, prior, None, hd)
             age += 1
             trace.append((t, "compare", factor))
-        out[t] = pose_filter.update(row, w, prior, headings=hd)
+        out[t] = _update(pose_filter, row, w, prior, None, hd)
         if rival is not None:
             if factor > ch.switch_nats:
                 out[t] = pose_filter.adopt(rival)
@@ -1423,7 +1435,7 @@ def run_challenged_pose_filter(
         anywhere = float(logsumexp(alt + we * pose_filter.place_likelihood(row)))
         if anywhere - mine > ch.spawn_nats:
             rival = pose_filter.spawn(ch.n_particles)
-            rival.update(row, 1.0, prior, kidnap=1.0, headings=hd)
+            _update(rival, row, 1.0, prior, 1.0, hd)
             factor, age = anywhere - mine, 0
             trace.append((t, "spawn", factor))
     pose_filter.resets_ = len(switches)

@@ -65,6 +65,7 @@ __all__ = [
     "fit_scale",
     "heading_of",
     "held_out_calibration",
+    "held_out_headings",
     "held_out_rows",
     "held_out_scores",
     "implied_headings",
@@ -75,6 +76,7 @@ __all__ = [
     "step_distances",
     "tune_grid",
     "tune_pose_filter",
+    "with_heading_model",
 ]
 
 
@@ -371,6 +373,76 @@ def implied_headings(model: Any, observations: Sequence[Observation], labels: Se
         if np.any(ok):
             out[ok, j] = np.mod(theta[v[ok]] - np.radians(h[ok]) + math.pi, 2 * math.pi) - math.pi
     return out
+
+
+def held_out_headings(
+    fit_model: Callable[[IArray, IArray], Any],
+    observations: Sequence[Observation],
+    labels: Any,
+    held: HeldOut,
+    n_places: int,
+) -> FArray | None:
+    """Implied headings (:func:`implied_headings`) of the held-out rows of ``held``, rows as ``held.scores``; None without folds.
+
+    ``fit_model(train_rows, train_labels)`` fits the same recogniser as the
+    calibration's ``fit_score`` on those training rows (labels ``0 .. k -
+    1``, as :func:`held_out_scores` remaps them) and returns a model with
+    :meth:`~fingerloc.model.PlaceModel.headings_with_reference` whose
+    training observations carry their poses.
+    """
+    if held.fold is None or held.index.size == 0:
+        return None
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    parts: list[FArray] = []
+    for f in (0, 1):
+        tr, te = np.flatnonzero(held.fold != f), np.flatnonzero(held.fold == f)
+        if tr.size == 0 or te.size == 0:
+            continue
+        present = np.unique(y[tr])
+        remap = np.full(n_places, -1, dtype=np.int64)
+        remap[present] = np.arange(present.size)
+        model = fit_model(tr, remap[y[tr]])
+        full = np.full((te.size, n_places), np.nan)
+        full[:, present] = implied_headings(model, [observations[i] for i in te.tolist()], [str(k) for k in range(present.size)])
+        parts.append(full)
+    return np.concatenate(parts) if parts else None
+
+
+def with_heading_model(
+    calibration: Calibration,
+    held: HeldOut,
+    headings: Any,
+    headings_true: Any,
+    *,
+    reverse: bool = True,
+    slope: bool = True,
+) -> Calibration:
+    """The calibration with the pose filter's heading model fitted on the mapping part's held-out rows.
+
+    ``headings`` (rows as ``held.scores``): :func:`held_out_headings`;
+    ``headings_true``: each held-out row's recorded heading (radians). The
+    error at the row's own place and the row's log-probability of it
+    (``beta``-scaled softmax) fit :func:`~fingerloc.map.pose_filter.fit_heading_model`.
+    Unchanged when there are too few estimates.
+    """
+    from ..map.pose_filter import fit_heading_model
+
+    h = np.asarray(headings, dtype=np.float64)
+    rows = np.arange(held.labels.size)
+    if h.shape != held.scores.shape or rows.size == 0:
+        return calibration
+    s = calibration.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
+    with np.errstate(invalid="ignore"):
+        top = np.max(s, axis=1, keepdims=True)
+        x = (s - top - np.log(np.sum(np.exp(s - top), axis=1, keepdims=True)))[rows, held.labels]
+    true = np.asarray(headings_true, dtype=np.float64).reshape(-1)
+    hm = fit_heading_model(true - h[rows, held.labels], x if slope else None, reverse=reverse, slope=slope)
+    if hm is None:
+        return calibration
+    return replace(
+        calibration, heading_kappa=hm.kappa, heading_intercept=hm.intercept, heading_slope=hm.slope,
+        heading_reverse=hm.reverse, heading_cap=hm.cap,
+    )  # fmt: skip
 
 
 def run_pose_steps(
