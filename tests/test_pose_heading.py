@@ -183,3 +183,50 @@ def test_a_reversed_traversal_falls_to_the_outlier_part():
     assert none >= 0.8
     assert robust >= none - 0.1
     assert trusting <= 0.3  # the case can fail
+
+
+def test_implied_headings_follow_the_alignment_sign_convention():
+    """A view turned by theta at a training view's spot implies theta (not -theta: bearing in the view = bearing in the query - h)."""
+    from fingerloc.experiments import markov
+    from fingerloc.experiments.carmen import FingerprintMethod, best_fingerprint_params
+
+    from ._logs import box_scan
+
+    train = [box_scan(5, 12, 2.5, 6, 0.0, noise=0.005), box_scan(5, 12, 2.5, 6.2, 0.05, noise=0.005),
+             box_scan(8, 3, 3, 1.5, 0.0), box_scan(8, 3, 3.2, 1.5, 0.0)]  # fmt: skip
+    fm = FingerprintMethod(**best_fingerprint_params()).fit(train, np.array([0, 0, 1, 1]))
+    for theta in (0.3, -0.4):
+        h = markov.implied_headings(fm, [box_scan(8, 3, 3.1, 1.5, theta, noise=0.005)], 2)
+        assert h.shape == (1, 2)
+        assert abs(float(wrap(h[0, 1] - theta))) < 0.1
+    assert markov.implied_headings(object(), [], 2) is None  # a baseline: no headings
+
+
+def test_the_heading_is_the_pose_filter_default_and_can_be_switched_off():
+    from fingerloc.experiments.markov import PoseFilteredMethod
+    from fingerloc.experiments.protocol import METHODS, load_methods
+
+    load_methods()
+    assert PoseFilteredMethod("fingerprint").heading is True
+    assert METHODS["fingerprint-odometry-noheading"]().heading is False
+    cal = Calibration(heading_kappa=50.0, heading_intercept=1.5, heading_slope=2.0, heading_reverse=0.1, heading_cap=0.95)
+    back = Calibration.from_json(cal.to_json())
+    assert heading_of(back) == HeadingModel(50.0, 1.5, 2.0, 0.1, 0.95)
+    old = {k: v for k, v in cal.to_json().items() if not k.startswith("heading")}  # a database from before: off
+    assert heading_of(Calibration.from_json(old)) is None
+
+
+def test_cli_track_pose_filter_with_and_without_heading(rooms_log, tmp_path, capsys):
+    import json
+
+    from tests._cli import run_cli
+
+    db = tmp_path / "rooms.sqlite"
+    tops = []
+    for flag in ("--heading", "--no-heading"):
+        out = tmp_path / f"t{flag}.json"
+        args = ["track", str(rooms_log), "--db", str(db), "--filter", "pose", "--json", str(out), "-q", flag]
+        code, _, err = run_cli(capsys, *(args + (["--map"] if flag == "--heading" else [])))
+        assert code == 0, err
+        tops.append(json.loads(out.read_text())["summary"]["filtered"]["top1"])
+    assert all(np.isfinite(tops))
