@@ -349,11 +349,12 @@ def implied_headings(model: Any, observations: Sequence[Observation], labels: Se
     gives the heading ``h`` (degrees) of the observation against the place's
     best-matching training view (the fingerprint's cyclic alignment, or the
     profile's); that view's recorded pose ``(x, y, theta)`` (the mapping
-    run's) makes it absolute. The alignment's convention is *bearing in the
-    view = bearing in the observation - h*, so the robot's heading is
-    ``theta - h`` (on the shared logs' mapping passes: median error 3-6 deg
-    at the true place on aces and intel with this sign, 57-70 deg with the
-    other). NaN where a place is unknown to the model, has no estimate, or
+    run's) makes it absolute. The model's convention is *bearing in the
+    view = bearing in the observation - h* (``localize --json`` reports
+    ``-h`` as ``heading_deg``: the README's *b + heading_deg*), so the
+    robot's heading is ``theta - h`` (on the shared logs' mapping passes: median error 3-6 deg
+    at the true place on aces and intel with this sign, 25-37 deg with the
+    other; docs/RESULTS.md). NaN where a place is unknown to the model, has no estimate, or
     its view has no pose.
     """
     obs = list(observations)
