@@ -230,3 +230,22 @@ def test_cli_track_pose_filter_with_and_without_heading(rooms_log, tmp_path, cap
         assert code == 0, err
         tops.append(json.loads(out.read_text())["summary"]["filtered"]["top1"])
     assert all(np.isfinite(tops))
+
+
+def test_the_heading_evidence_can_be_tempered_on_its_own():
+    hm = HeadingModel(kappa=20.0, intercept=0.0, slope=0.0, cap=0.8)
+    centres = np.array([[0.0, 0.0], [10.0, 0.0]])
+    row = np.array([0.0, -50.0])
+    shares = {}
+    for hw in (None, 0.25):
+        f = PoseFilter(centres, 1.0, n_particles=1000, kidnap=0.0, outlier=0.0, heading=hm, random_state=0)
+        f.particles_ = np.array([[0.0, 0.0, 0.0]] * 500 + [[0.0, 0.0, math.pi]] * 500)
+        f.log_weights_ = np.full(1000, -math.log(1000))
+        f.update(row, 1.0, headings=np.array([0.0, np.nan]), heading_weight=hw)
+        shares[hw] = float(np.mean(np.abs(f.particles_[:, 2]) < 1.0))
+    x = row[0] - logsumexp(row)
+    r = math.exp(float(hm.log_factor(0.0, x) - hm.log_factor(math.pi, x)))  # odds of facing the implied heading
+    assert shares[None] == pytest.approx(r / (1 + r), abs=0.02)
+    assert shares[0.25] == pytest.approx(r**0.25 / (1 + r**0.25), abs=0.02)
+    with pytest.raises(InvalidParameterError):
+        f.update(row, 1.0, headings=np.array([0.0, np.nan]), heading_weight=0.0)

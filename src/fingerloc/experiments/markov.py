@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -377,6 +377,9 @@ class PoseFilteredMethod(FilteredMethod):
         session of issue 15).
     heading_reverse : bool, default True
         Let the heading model have a peak at the reverse heading.
+    heading_temper_metres : float, default 0.0
+        The heading evidence counts fully after this much travel (0: as
+        the observations, the tuned tempering).
     heading_slope : bool, default True
         Let the heading estimate's reliability grow with the view's
         probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
@@ -417,11 +420,13 @@ class PoseFilteredMethod(FilteredMethod):
         heading: bool = False,
         heading_reverse: bool = True,
         heading_slope: bool = True,
+        heading_temper_metres: float = 0.0,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         self.heading = bool(heading)
         self.heading_reverse = bool(heading_reverse)
         self.heading_slope = bool(heading_slope)
+        self.heading_temper_metres = float(heading_temper_metres)
         self.challenger = bool(challenger)
         self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
@@ -492,6 +497,7 @@ class PoseFilteredMethod(FilteredMethod):
                     self.calibration_, held, self.held_headings_, poses[split.train_idx[held.index], 2],
                     reverse=self.heading_reverse, slope=self.heading_slope,
                 )  # fmt: skip
+                self.calibration_ = replace(self.calibration_, heading_temper_metres=self.heading_temper_metres)
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
         if self.tune and self.observe and held is not None:
@@ -563,6 +569,11 @@ class PoseFilteredMethod(FilteredMethod):
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
             headings=headings if self.observe else None,
+            heading_temper=(
+                (self.calibration_.heading_temper_metres, self.temper_radians_)
+                if self.temper and self.calibration_.heading_temper_metres > 0
+                else None
+            ),
         )
 
     def _challenger(self) -> Challenger | None:

@@ -649,6 +649,7 @@ class PoseFilter:
         kidnap_prior: Any = None,
         kidnap: float | None = None,
         headings: Any = None,
+        heading_weight: float | None = None,
     ) -> FArray:
         """Weigh the particles by one observation, apply the kidnapping term, resample; the place log-posterior.
 
@@ -665,7 +666,10 @@ class PoseFilter:
         the observation implies at each place; with the filter's
         :class:`HeadingModel` a particle at place ``j`` is also weighed by
         ``(2 pi f(theta - headings[j])) ** weight``, and fresh particles at
-        ``j`` draw their heading from ``f``.
+        ``j`` draw their heading from ``f``. ``heading_weight`` (in ``(0,
+        1]``, default ``weight``): the exponent of the heading factor, when
+        the heading evidence is tempered on its own (its errors repeat over
+        longer stretches than the place's).
         """
         w_obs = _finite("weight", weight)
         if kidnap is not None and not 0 <= _finite("kidnap", kidnap) <= 1:
@@ -682,15 +686,18 @@ class PoseFilter:
         any_finite = observation_weights_at(d, near, lp, self.radius, float(floor), self.log_weights_, w)
         hd = self._headings(headings)
         conf = log_mean = None
+        w_head = w_obs if heading_weight is None else _finite("heading_weight", heading_weight)
+        if not 0 < w_head <= 1:
+            raise InvalidParameterError(f"heading_weight must be in (0, 1], got {heading_weight!r}")
         if hd is not None:
             assert self.heading is not None
             conf = self._place_confidence(log_likelihood)
-            w += w_obs * self._heading_log_factor(d, near, hd, conf)
+            w += w_head * self._heading_log_factor(d, near, hd, conf)
             # the kidnapped component integrates the (tempered) heading factor over a uniform heading
             log_mean = np.zeros(P)
-            if w_obs != 1.0:
+            if w_head != 1.0:
                 has = np.isfinite(hd)
-                log_mean[has] = self.heading.log_mean_tempered(w_obs, conf[has])
+                log_mean[has] = self.heading.log_mean_tempered(w_head, conf[has])
                 lp = lp + log_mean
         tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
@@ -722,7 +729,7 @@ class PoseFilter:
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
             fresh, corr = self._sample_at_places(
-                kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_obs, correction=True
+                kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
             logw.append(comp_kid - math.log(m) + corr)
@@ -1096,11 +1103,14 @@ def _run_inputs(
         raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
     return ll, inc, wts
 
-def _update(f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None) -> FArray:
+def _update(
+    f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None,
+    heading_weight: float | None = None,
+) -> FArray:  # fmt: skip
     """``f.update``, with ``headings`` only when there are some (a filter class without them keeps working)."""
     if headings is None:
         return f.update(row, weight, prior) if kidnap is None else f.update(row, weight, prior, kidnap=kidnap)
-    return f.update(row, weight, prior, kidnap=kidnap, headings=headings)
+    return f.update(row, weight, prior, kidnap=kidnap, headings=headings, heading_weight=heading_weight)
 
 
 def _evidence(f: PoseFilter, row: FArray, weight: float, headings: FArray | None) -> float:
@@ -1132,6 +1142,7 @@ def run_pose_filter(
     gap_metres: float | None = None,
     answer_untempered: bool = False,
     headings: Any = None,
+    heading_weights: Any = None,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -1197,6 +1208,9 @@ def run_pose_filter(
         Row ``t``: the heading (radians, mapping frame) observation ``t``
         implies at each place (NaN = none); used when the filter has a
         :class:`HeadingModel` (:meth:`PoseFilter.update`).
+    heading_weights : array_like, shape (n_steps,), optional
+        The heading evidence's own weight per step (``heading_weight`` of
+        :meth:`PoseFilter.update`); default the observations' weights.
 
     Returns
     -------
@@ -1207,6 +1221,9 @@ def run_pose_filter(
     ll, inc, wts = _run_inputs(pose_filter, log_likelihood, increments, weights, temper)
     P, n = pose_filter.n_places, ll.shape[0]
     hds = _run_headings(headings, ll.shape)
+    hws = None if heading_weights is None else np.asarray(heading_weights, dtype=np.float64).reshape(-1)
+    if hws is not None and hws.size != n:
+        raise InvalidParameterError(f"heading_weights must have one entry per step ({n}), got {hws.size}")
     if reset_threshold is not None:
         thr = _finite("reset_threshold", reset_threshold)
         frac = _finite("reset_fraction", reset_fraction)
@@ -1252,7 +1269,7 @@ def run_pose_filter(
             lost, cusum = False, 0.0
             continue
         predicted = pose_filter.place_log_posterior() if answer_untempered else None
-        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd)
+        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]))
         if predicted is not None:
             full = predicted + pose_filter.place_likelihood(row)
             if np.any(np.isfinite(full)):

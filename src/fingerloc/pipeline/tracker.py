@@ -137,6 +137,9 @@ class Calibration:
         Pose filter: the :class:`~fingerloc.map.pose_filter.HeadingModel`
         of the headings the observations imply (fitted on the mapping part);
         ``heading_kappa == 0`` (the default): headings are not used.
+    heading_temper_metres : float
+        Pose filter: the heading evidence counts fully after this much
+        travel (or the field of view's turn); 0: as the observations.
     """
 
     beta: float = 1.0
@@ -160,6 +163,7 @@ class Calibration:
     heading_slope: float = 0.0
     heading_reverse: float = 0.0
     heading_cap: float = 0.0
+    heading_temper_metres: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -460,6 +464,7 @@ def run_pose_steps(
     challenger: Challenger | None = None,
     place_steps: SharedPlaceSteps | None = None,
     headings: Any = None,
+    heading_temper: tuple[float, float] | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -486,8 +491,18 @@ def run_pose_steps(
     headings : array_like, shape (n_steps, P), optional
         The heading each observation implies at each place (radians, NaN =
         none), used when the pose filter has a heading model.
+    heading_temper : (metres, radians), optional
+        The heading evidence's own tempering (default: the observations').
     """
-    from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
+    from ..map.pose_filter import observation_weights, run_challenged_pose_filter, run_pose_filter
+
+    hw = None
+    if headings is not None and heading_temper is not None:
+        lls = np.asarray(log_likelihood, dtype=np.float64)
+        hw = observation_weights(
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:], ~np.all(np.isnan(lls), axis=1),
+            metres=heading_temper[0], radians=heading_temper[1],
+        )  # fmt: skip
 
     def places() -> MarkovFilter | None:
         if not relocalize:
@@ -517,6 +532,7 @@ def run_pose_steps(
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
         headings=headings,
+        heading_weights=hw,
     )
 
 
@@ -731,6 +747,7 @@ class Tracker:
             challenger=challenger_of(c),
             place_steps=place_steps,
             headings=headings,
+            heading_temper=(c.heading_temper_metres, c.temper_radians) if temper and c.heading_temper_metres > 0 else None,
         )
 
     def run(
