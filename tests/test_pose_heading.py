@@ -202,15 +202,19 @@ def test_implied_headings_follow_the_alignment_sign_convention():
     assert markov.implied_headings(object(), [], 2) is None  # a baseline: no headings
 
 
-def test_the_heading_is_a_named_method_and_round_trips_in_the_calibration():
+def test_the_heading_is_the_pose_filter_default_can_be_switched_off_and_round_trips():
     from fingerloc.experiments.markov import PoseFilteredMethod
     from fingerloc.experiments.protocol import METHODS, load_methods
 
     load_methods()
-    assert PoseFilteredMethod("fingerprint").heading is False  # not the default (docs/RESULTS.md)
-    assert METHODS["fingerprint-odometry-heading"]().heading is True
-    cal = Calibration(heading_kappa=50.0, heading_intercept=1.5, heading_slope=2.0, heading_reverse=0.1, heading_cap=0.95)
+    assert PoseFilteredMethod("fingerprint").heading is True  # the default (docs/RESULTS.md)
+    assert PoseFilteredMethod("fingerprint").heading_temper_metres == 8.0
+    assert METHODS["fingerprint-odometry-noheading"]().heading is False
+    assert METHODS["fingerprint-odometry-heading-untempered"]().heading_temper_metres == 0.0
+    cal = Calibration(heading_kappa=50.0, heading_intercept=1.5, heading_slope=2.0, heading_reverse=0.1, heading_cap=0.95,
+                      heading_temper_metres=8.0)  # fmt: skip
     back = Calibration.from_json(cal.to_json())
+    assert back == cal
     assert heading_of(back) == HeadingModel(50.0, 1.5, 2.0, 0.1, 0.95)
     old = {k: v for k, v in cal.to_json().items() if not k.startswith("heading")}  # a database from before: off
     assert heading_of(Calibration.from_json(old)) is None

@@ -54,8 +54,8 @@ def map_cmd(
     costs: str | None = typer.Option(None, help="'unit' or 'feature' (overrides the preset)."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Do not fit the likelihood scale beta (beta = 1; faster)."),
     heading: bool = typer.Option(
-        False, "--heading/--no-heading",
-        help="Also fit the pose filter's heading model on the mapping part (two more fits), for 'track --filter pose --heading'.",
+        True, "--heading/--no-heading",
+        help="Fit the pose filter's heading model on the mapping part (two more fits), used by 'track --filter pose'.",
     ),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."

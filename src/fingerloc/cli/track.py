@@ -92,12 +92,11 @@ def track_cmd(
     ),
     seed: int = typer.Option(0, min=0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
     heading: bool = typer.Option(
-        False,
+        True,
         "--heading/--no-heading",
         help="Pose filter with a database made by 'fingerloc map': weigh the particles also by the heading each view "
         "implies (the alignment against the place's best view, and that view's recorded heading), with the heading "
-        "model the map fitted on its mapping part ('map --heading', or --map --heading here) [off: not a robust "
-        "gain on the shared logs, docs/RESULTS.md].",
+        "model the map fitted on its mapping part (when it has one: 'map' fits it by default).",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     report: Path | None = typer.Option(
@@ -221,7 +220,7 @@ def _check_db_flags(data: Path, db: Path, kind: str, map_log: bool, graph_from: 
 
 
 def _track_with_map(
-    data: Path, db: Path, *, filter_kind: str, seed: int, heading: bool = False, **options: Any
+    data: Path, db: Path, *, filter_kind: str, seed: int, heading: bool = True, **options: Any
 ) -> _Tracked:
     """A raw run (or JSON Lines) against a database made by 'fingerloc map': the library's tracker."""
     ll, truth, poses, classes, tracker, names, factor, hd = _run_steps(
@@ -436,7 +435,7 @@ def _run_steps(
     odometry_error: float | None,
     filter_kind: str,
     pending: list[Any],
-    heading: bool = False,
+    heading: bool = True,
 ) -> tuple[Any, ...]:
     """A run tracked with a map's stored places, positions and calibration (the library's tracker).
 

@@ -11,11 +11,12 @@
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :class:`PoseFilteredMethod`: the same front end followed by the pose
   particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
-  not only distances), registered as ``fingerprint-odometry``; ablations
-  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``,
-  ``fingerprint-odometry-heading`` (the particles also weighed by the
-  heading each view implies, :class:`~fingerloc.map.pose_filter.HeadingModel`),
-  and ``baseline-histogram-odometry``, run only when named.
+  not only distances; the particles also weighed by the heading each view
+  implies, :class:`~fingerloc.map.pose_filter.HeadingModel`), registered as
+  ``fingerprint-odometry``; ablations ``fingerprint-odometry-exact``,
+  ``fingerprint-odometry-untempered``, ``fingerprint-odometry-noheading``
+  and ``fingerprint-odometry-heading-untempered``, and
+  ``baseline-histogram-odometry``, run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover (either filter).
 
@@ -48,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +60,8 @@ from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger, HeadingModel
-from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
+    HEADING_TEMPER_M,
     POSE_PARTICLES,
     Calibration,
     FitScore,
@@ -75,6 +76,7 @@ from ..pipeline.tracker import (
     tune_pose_filter,
     with_heading_model,
 )
+from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
 from ..validation import check_random_state
@@ -360,7 +362,7 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
         during ``tune``).
     challenger_switch_nats : float, default 3.0
-    heading : bool, default False
+    heading : bool, default True
         Weigh the particles also by the heading each observation implies
         (:class:`~fingerloc.map.pose_filter.HeadingModel`): a base method
         that estimates the robot's heading relative to the matched training
@@ -371,15 +373,18 @@ class PoseFilteredMethod(FilteredMethod):
         mapping pass (:func:`~fingerloc.map.pose_filter.fit_heading_model`
         on the held-out rows of ``beta``: each at its own place, from the
         fold model that did not see it) and the tuning runs with it. A base
-        method without headings (the baselines) leaves it off. Method
-        ``fingerprint-odometry-heading``; not the default: over five seeds
-        on the shared logs it does not help robustly (docs/RESULTS.md, third
-        session of issue 15).
+        method without headings (the baselines) leaves it off. The default
+        since the third session of issue 15 (docs/RESULTS.md: +2 to +6
+        points pooled at each of five seeds on the shared logs); method
+        ``fingerprint-odometry-noheading`` turns it off.
     heading_reverse : bool, default True
         Let the heading model have a peak at the reverse heading.
-    heading_temper_metres : float, default 0.0
-        The heading evidence counts fully after this much travel (0: as
-        the observations, the tuned tempering).
+    heading_temper_metres : float, default HEADING_TEMPER_M
+        The heading evidence counts fully after this much travel (or the
+        field of view's turn); 0: as the observations (the tuned tempering).
+        :data:`fingerloc.pipeline.tracker.HEADING_TEMPER_M` (8 m): on the
+        shared logs' mapping passes a held-out view's heading error stays
+        correlated with the previous ones' up to 8 m of travel.
     heading_slope : bool, default True
         Let the heading estimate's reliability grow with the view's
         probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
@@ -417,10 +422,10 @@ class PoseFilteredMethod(FilteredMethod):
         tune: bool = True,
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
-        heading: bool = False,
+        heading: bool = True,
         heading_reverse: bool = True,
         heading_slope: bool = True,
-        heading_temper_metres: float = 0.0,
+        heading_temper_metres: float = HEADING_TEMPER_M,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         self.heading = bool(heading)
@@ -495,9 +500,8 @@ class PoseFilteredMethod(FilteredMethod):
             if self.held_headings_ is not None:
                 self.calibration_ = with_heading_model(
                     self.calibration_, held, self.held_headings_, poses[split.train_idx[held.index], 2],
-                    reverse=self.heading_reverse, slope=self.heading_slope,
+                    reverse=self.heading_reverse, slope=self.heading_slope, temper_metres=self.heading_temper_metres,
                 )  # fmt: skip
-                self.calibration_ = replace(self.calibration_, heading_temper_metres=self.heading_temper_metres)
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
         if self.tune and self.observe and held is not None:
@@ -673,10 +677,16 @@ def _fingerprint_odometry_challenger() -> Method:
     return PoseFilteredMethod("fingerprint", challenger=True)
 
 
-@register_method("fingerprint-odometry-heading", default=False)
-def _fingerprint_odometry_heading() -> Method:
-    # The particles weighed also by the heading each view implies (the fingerprint's alignment and the view's pose).
-    return PoseFilteredMethod("fingerprint", heading=True)
+@register_method("fingerprint-odometry-noheading", default=False)
+def _fingerprint_odometry_noheading() -> Method:
+    # The pose filter without the heading each view implies (the default before the third session of issue 15).
+    return PoseFilteredMethod("fingerprint", heading=False)
+
+
+@register_method("fingerprint-odometry-heading-untempered", default=False)
+def _fingerprint_odometry_heading_untempered() -> Method:
+    # Ablation: the heading evidence tempered as the observations (not over its own 8 m).
+    return PoseFilteredMethod("fingerprint", heading_temper_metres=0.0)
 
 
 @register_method("fingerprint-odometry-reset", default=False)

@@ -106,7 +106,7 @@ def make_map(
     radius: float = PLACE_RADIUS_M,
     calibrate: bool = True,
     odometry_error: float | None = None,
-    heading: bool = False,
+    heading: bool = True,
     on_step: Callable[[str], None] | None = None,
 ) -> PlaceMap:
     """Places from a run's poses, learned with a preset, with the filters' calibration.
@@ -129,16 +129,14 @@ def make_map(
         Factor of the simulated wheel-odometry errors used while choosing them:
         by default 1 for CARMEN logs (their poses are corrected ones, as
         ``fingerloc track`` and the benchmark assume), else 0.
-    heading : bool, default False
+    heading : bool, default True
         With ``calibrate``: fit the pose filter's heading model on the
         mapping part (:func:`~fingerloc.pipeline.tracker.with_heading_model`:
         each held-out training view's heading implied at its own place by
         the model fit on the other views, against its recorded heading; two
         more fits) so that ``track --filter pose`` weighs the particles by
-        the heading each view implies (``--heading``; the tuning of ``rho``
-        and the tempering then runs with it). Skipped when the views have no
-        poses. Off by default: not a robust gain on the shared logs
-        (docs/RESULTS.md, issue 15).
+        the heading each view implies (the tuning of ``rho`` and the
+        tempering then runs with it). Skipped when the views have no poses.
     on_step : callable, optional
         Called with a short text before each stage.
 

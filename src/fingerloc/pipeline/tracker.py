@@ -54,6 +54,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FILTERS",
+    "HEADING_TEMPER_M",
     "MIN_CALIBRATION_ROWS",
     "POSE_PARTICLES",
     "Calibration",
@@ -84,6 +85,9 @@ __all__ = [
 MIN_CALIBRATION_ROWS = 10
 #: Particles of the pose filter (:class:`Tracker` and the benchmark's pose-filtered methods).
 POSE_PARTICLES = 3000
+#: Metres after which the pose filter's heading evidence counts fully (issue 15: on the shared logs'
+#: mapping passes a held-out view's heading error stays correlated with the previous views' up to 8 m).
+HEADING_TEMPER_M = 8.0
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -421,6 +425,7 @@ def with_heading_model(
     *,
     reverse: bool = True,
     slope: bool = True,
+    temper_metres: float = HEADING_TEMPER_M,
 ) -> Calibration:
     """The calibration with the pose filter's heading model fitted on the mapping part's held-out rows.
 
@@ -428,7 +433,8 @@ def with_heading_model(
     ``headings_true``: each held-out row's recorded heading (radians). The
     error at the row's own place and the row's log-probability of it
     (``beta``-scaled softmax) fit :func:`~fingerloc.map.pose_filter.fit_heading_model`.
-    Unchanged when there are too few estimates.
+    ``temper_metres``: the heading evidence's own tempering
+    (``heading_temper_metres``). Unchanged when there are too few estimates.
     """
     from ..map.pose_filter import fit_heading_model
 
@@ -446,7 +452,7 @@ def with_heading_model(
         return calibration
     return replace(
         calibration, heading_kappa=hm.kappa, heading_intercept=hm.intercept, heading_slope=hm.slope,
-        heading_reverse=hm.reverse, heading_cap=hm.cap,
+        heading_reverse=hm.reverse, heading_cap=hm.cap, heading_temper_metres=float(temper_metres),
     )  # fmt: skip
 
 
