@@ -544,7 +544,7 @@ class PoseFilteredMethod(FilteredMethod):
     def score(self, scans: Sequence[Scan]) -> FArray:
         """As :class:`FilteredMethod`; with a heading model, the queries' implied headings are computed first."""
         self.step_headings_: FArray | None = None
-        if self.heading_model_ is not None:
+        if getattr(self, "heading_model_", None) is not None:
             _, split = self._need_context()
             h = implied_headings(self.base_, scans, split.n_places)
             if h is not None:
@@ -573,12 +573,15 @@ class PoseFilteredMethod(FilteredMethod):
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
             headings=headings if self.observe else None,
-            heading_temper=(
-                (self.calibration_.heading_temper_metres, self.temper_radians_)
-                if self.temper and self.calibration_.heading_temper_metres > 0
-                else None
-            ),
+            heading_temper=self._heading_temper(),
         )
+
+    def _heading_temper(self) -> tuple[float, float] | None:
+        """The heading evidence's own tempering (metres, radians) of the fitted calibration, or None."""
+        cal = getattr(self, "calibration_", None)
+        if not self.temper or cal is None or cal.heading_temper_metres <= 0:
+            return None
+        return (float(cal.heading_temper_metres), float(self.temper_radians_))
 
     def _challenger(self) -> Challenger | None:
         """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
