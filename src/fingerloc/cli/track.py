@@ -91,6 +91,13 @@ def track_cmd(
         None, help="Pose filter, JSON Lines with --graph-from: metres within which a pose is at a place [half the median spacing]."
     ),
     seed: int = typer.Option(0, min=0, help="Pose filter: seed of the particles (and of simulated odometry errors)."),
+    heading: bool = typer.Option(
+        True,
+        "--heading/--no-heading",
+        help="Pose filter with a database made by 'fingerloc map': weigh the particles also by the heading each view "
+        "implies (the alignment against the place's best view, and that view's recorded heading), with the heading "
+        "model the map fitted on its mapping part (when it has one: 'map' fits it by default).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
@@ -125,7 +132,7 @@ def track_cmd(
         tr = _track_with_map(
             data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe, scale=scale,
             metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, odometry_error=odometry_error,
-            filter_kind=filter_kind, seed=seed, pending=pending,
+            filter_kind=filter_kind, seed=seed, pending=pending, heading=heading,
         )  # fmt: skip
     else:
         tr = _track_jsonl(
@@ -212,10 +219,14 @@ def _check_db_flags(data: Path, db: Path, kind: str, map_log: bool, graph_from: 
     return raw_kind
 
 
-def _track_with_map(data: Path, db: Path, *, filter_kind: str, seed: int, **options: Any) -> _Tracked:
+def _track_with_map(
+    data: Path, db: Path, *, filter_kind: str, seed: int, heading: bool = True, **options: Any
+) -> _Tracked:
     """A raw run (or JSON Lines) against a database made by 'fingerloc map': the library's tracker."""
-    ll, truth, poses, classes, tracker, names, factor = _run_steps(data, db, filter_kind=filter_kind, **options)
-    res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed)
+    ll, truth, poses, classes, tracker, names, factor, hd = _run_steps(
+        data, db, filter_kind=filter_kind, heading=heading, **options
+    )
+    res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed, headings=hd)
     cal = tracker.calibration
     geo = {"poses": poses, "centres": tracker.centres}
     return _Tracked(ll, truth, classes, names, cal.beta, cal.metres_per_move, tracker.transition_, res, factor, geo)
@@ -424,6 +435,7 @@ def _run_steps(
     odometry_error: float | None,
     filter_kind: str,
     pending: list[Any],
+    heading: bool = True,
 ) -> tuple[Any, ...]:
     """A run tracked with a map's stored places, positions and calibration (the library's tracker).
 
@@ -434,12 +446,13 @@ def _run_steps(
 
     from ..pipeline.mapping import load_map, make_map, save_map
     from ..pipeline.places import nearest_within
-    from ..pipeline.tracker import Tracker, posterior_columns
+    from ..pipeline.tracker import Tracker, heading_of, implied_headings, posterior_columns
 
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
+    hd = None
     if map_log:
         with err_console.status("mapping...") as status:
-            pm = make_map(run, on_step=lambda s: status.update(s))
+            pm = make_map(run, heading=heading, on_step=lambda s: status.update(s))
         err_console.print(pm.preset.reason, markup=False)
 
         def store() -> None:
@@ -464,6 +477,8 @@ def _run_steps(
         col = {lab: j for j, lab in enumerate(lm.labels)}
         truth = np.array([col.get(str(o.label), -1) if o.label else -1 for o in run.records], dtype=np.int64)
         ll = posterior_columns(lm.model, list(run.records), p, lm.labels)
+        if heading and filter_kind == "pose" and lm.calibration is not None and heading_of(lm.calibration) is not None:
+            hd = implied_headings(lm.model, list(run.records), lm.labels)
         start = 0
     else:
         if poses is None:
@@ -484,6 +499,9 @@ def _run_steps(
         with err_console.status(f"scoring {observed.size} scans..."):
             obs = run.observations(observed + start, features=features)
             ll[observed] = posterior_columns(lm.model, obs, p, lm.labels)
+            if heading and filter_kind == "pose" and heading_of(lm.calibration) is not None:
+                hd = np.full((n, p), np.nan)
+                hd[observed] = implied_headings(lm.model, obs, lm.labels)
     cal = lm.calibration
     if scale is not None:
         cal = dataclasses.replace(cal, beta=scale)
@@ -498,7 +516,7 @@ def _run_steps(
             err_console.print("CARMEN poses are corrected ones: simulating wheel-odometry errors (--odometry-error 1)",
                               markup=False)  # fmt: skip
     names = run.names[start:]
-    return ll, truth, poses, list(lm.labels), tracker, names, factor
+    return ll, truth, poses, list(lm.labels), tracker, names, factor, hd
 
 
 @bench_app.command("kidnap")

@@ -11,8 +11,11 @@
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :class:`PoseFilteredMethod`: the same front end followed by the pose
   particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
-  not only distances), registered as ``fingerprint-odometry``; ablations
-  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``, and
+  not only distances; the particles also weighed by the heading each view
+  implies, :class:`~fingerloc.map.pose_filter.HeadingModel`), registered as
+  ``fingerprint-odometry``; ablations ``fingerprint-odometry-exact``,
+  ``fingerprint-odometry-untempered``, ``fingerprint-odometry-noheading``
+  and ``fingerprint-odometry-heading-untempered``, and
   ``baseline-histogram-odometry``, run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover (either filter).
@@ -56,20 +59,24 @@ from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
-from ..map.pose_filter import Challenger
-from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
+from ..map.pose_filter import Challenger, HeadingModel
 from ..pipeline.tracker import (
+    HEADING_TEMPER_M,
     POSE_PARTICLES,
     Calibration,
     FitScore,
     HeldOut,
     Tracker,
     challenger_of,
+    heading_of,
     held_out_calibration,
+    held_out_headings,
     run_pose_steps,
     step_distances,
     tune_pose_filter,
+    with_heading_model,
 )
+from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
 from ..validation import check_random_state
@@ -81,6 +88,7 @@ __all__ = [
     "PoseFilteredMethod",
     "TrackingData",
     "field_of_view",
+    "implied_headings",
     "kidnap_experiment",
     "mapping_graph",
     "prepare_tracking",
@@ -354,6 +362,32 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
         during ``tune``).
     challenger_switch_nats : float, default 3.0
+    heading : bool, default True
+        Weigh the particles also by the heading each observation implies
+        (:class:`~fingerloc.map.pose_filter.HeadingModel`): a base method
+        that estimates the robot's heading relative to the matched training
+        view (the fingerprint program's cyclic alignment,
+        :meth:`fingerloc.model.PlaceModel.headings_with_reference`) and that
+        view's recorded heading give, per place, an absolute heading
+        (:func:`implied_headings`). The heading model is fitted on the
+        mapping pass (:func:`~fingerloc.map.pose_filter.fit_heading_model`
+        on the held-out rows of ``beta``: each at its own place, from the
+        fold model that did not see it) and the tuning runs with it. A base
+        method without headings (the baselines) leaves it off. The default
+        since the third session of issue 15 (docs/RESULTS.md: +2 to +6
+        points pooled at each of five seeds on the shared logs); method
+        ``fingerprint-odometry-noheading`` turns it off.
+    heading_reverse : bool, default True
+        Let the heading model have a peak at the reverse heading.
+    heading_temper_metres : float, default HEADING_TEMPER_M
+        The heading evidence counts fully after this much travel (or the
+        field of view's turn); 0: as the observations (the tuned tempering).
+        :data:`fingerloc.pipeline.tracker.HEADING_TEMPER_M` (8 m): on the
+        shared logs' mapping passes a held-out view's heading error stays
+        correlated with the previous ones' up to 8 m of travel.
+    heading_slope : bool, default True
+        Let the heading estimate's reliability grow with the view's
+        probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -388,8 +422,16 @@ class PoseFilteredMethod(FilteredMethod):
         tune: bool = True,
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
+        heading: bool = True,
+        heading_reverse: bool = True,
+        heading_slope: bool = True,
+        heading_temper_metres: float = HEADING_TEMPER_M,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.heading = bool(heading)
+        self.heading_reverse = bool(heading_reverse)
+        self.heading_slope = bool(heading_slope)
+        self.heading_temper_metres = float(heading_temper_metres)
         self.challenger = bool(challenger)
         self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
@@ -452,23 +494,70 @@ class PoseFilteredMethod(FilteredMethod):
             challenger_switch_nats=self.challenger_switch_nats,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
+        self.held_headings_: FArray | None = None
+        if self.heading and self.observe and held is not None and held.labels.size:
+            self.held_headings_ = self._held_out_headings(scans, np.asarray(labels, dtype=np.int64).reshape(-1))
+            if self.held_headings_ is not None:
+                self.calibration_ = with_heading_model(
+                    self.calibration_, held, self.held_headings_, poses[split.train_idx[held.index], 2],
+                    reverse=self.heading_reverse, slope=self.heading_slope, temper_metres=self.heading_temper_metres,
+                )  # fmt: skip
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
         if self.tune and self.observe and held is not None:
             self.calibration_, self.tuning_ = tune_pose_filter(
                 self.tracker_, held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
-                seed=self.seed, temper=self.temper, relocalize=self.relocalize,
+                seed=self.seed, temper=self.temper, relocalize=self.relocalize, headings=self.held_headings_,
             )  # fmt: skip
             self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.outlier_ = self.calibration_.outlier
+        self.heading_model_: HeadingModel | None = heading_of(self.calibration_)
         self.temper_metres_ = self.calibration_.temper_metres
         self.temper_radians_ = self.calibration_.temper_radians
         self.filter_ = self.tracker_.pose_filter(self.seed)
         self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         return self
 
-    def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
-        """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
+    def _held_out_headings(self, scans: Sequence[Scan], labels: IArray) -> FArray | None:
+        """Implied headings of the held-out rows of ``beta`` (rows as ``held_out_.scores``), or None without headings.
+
+        Each fold's model is the calibration's (the same factory, fit on the
+        same scans and labels: shared within a benchmark run).
+        """
+        held = self.held_out_
+        if held is None:
+            return None
+        _, split = self._need_context()
+        factory = self._factory()
+        base = getattr(self, "base_", None)
+        if base is None or not hasattr(base, "_observations"):  # a baseline: no model, no headings
+            return None
+
+        def fit_model(tr: IArray, y: IArray) -> Any:
+            m = factory()
+            m.fit([scans[i] for i in tr.tolist()], y)
+            return getattr(m, "model_", None)
+
+        observations = base._observations(list(scans))
+        return held_out_headings(fit_model, observations, labels, held, split.n_places)
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """As :class:`FilteredMethod`; with a heading model, the queries' implied headings are computed first."""
+        self.step_headings_: FArray | None = None
+        if getattr(self, "heading_model_", None) is not None:
+            _, split = self._need_context()
+            h = implied_headings(self.base_, scans, split.n_places)
+            if h is not None:
+                self.step_headings_ = np.full((split.n_scans - split.n_mapping, split.n_places), np.nan)
+                self.step_headings_[split.query_idx - split.n_mapping] = h
+        return super().score(scans)
+
+    def run_steps(self, log_likelihood: Any, increments: Any, headings: Any = None) -> FilterResult:
+        """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused).
+
+        ``headings`` (same shape as ``log_likelihood``): the implied headings
+        of the steps (used with a heading model).
+        """
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
             ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
@@ -483,7 +572,16 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
+            headings=headings if self.observe else None,
+            heading_temper=self._heading_temper(),
         )
+
+    def _heading_temper(self) -> tuple[float, float] | None:
+        """The heading evidence's own tempering (metres, radians) of the fitted calibration, or None."""
+        cal = getattr(self, "calibration_", None)
+        if not self.temper or cal is None or cal.heading_temper_metres <= 0:
+            return None
+        return (float(cal.heading_temper_metres), float(self.temper_radians_))
 
     def _challenger(self) -> Challenger | None:
         """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
@@ -494,7 +592,27 @@ class PoseFilteredMethod(FilteredMethod):
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
         """The pose filter over the whole query pass, with the method's odometry increments."""
-        return self.run_steps(log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]))
+        return self.run_steps(
+            log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]), getattr(self, "step_headings_", None)
+        )
+
+
+def implied_headings(method: Any, scans: Sequence[Scan], n_places: int) -> FArray | None:
+    """The robot's heading each scan implies at each place ``0 .. n_places - 1`` (radians, mapping frame), shape (n, P).
+
+    ``method`` is a fitted fingerprint method (its ``model_``, a
+    :class:`~fingerloc.model.PlaceModel` whose training observations carry
+    the scans' poses): :func:`fingerloc.pipeline.tracker.implied_headings`.
+    None for a method without a model (the baselines).
+    """
+    from ..pipeline.places import place_label
+    from ..pipeline.tracker import implied_headings as _implied
+
+    model = getattr(method, "model_", None)
+    if model is None or not hasattr(model, "headings_with_reference"):
+        return None
+    obs = method._observations(scans) if scans else []
+    return _implied(model, obs, [place_label(j) for j in range(n_places)])
 
 
 def field_of_view(scans: Sequence[Scan]) -> float:
@@ -562,6 +680,18 @@ def _fingerprint_odometry_challenger() -> Method:
     return PoseFilteredMethod("fingerprint", challenger=True)
 
 
+@register_method("fingerprint-odometry-noheading", default=False)
+def _fingerprint_odometry_noheading() -> Method:
+    # The pose filter without the heading each view implies (the default before the third session of issue 15).
+    return PoseFilteredMethod("fingerprint", heading=False)
+
+
+@register_method("fingerprint-odometry-heading-untempered", default=False)
+def _fingerprint_odometry_heading_untempered() -> Method:
+    # Ablation: the heading evidence tempered as the observations (not over its own 8 m).
+    return PoseFilteredMethod("fingerprint", heading_temper_metres=0.0)
+
+
 @register_method("fingerprint-odometry-reset", default=False)
 def _fingerprint_odometry_reset() -> Method:
     # Sensor resetting when the place filter has out-explained the particles by 8 nats (CUSUM).
@@ -589,6 +719,9 @@ class TrackingData:
     increments : ndarray, shape (n_steps, 3), optional
         Odometry from the previous step to each step (row 0 zero); needed by
         a :class:`PoseFilteredMethod`.
+    headings : ndarray, shape (n_steps, P), optional
+        The heading each step's view implies at each place (NaN elsewhere),
+        for a :class:`PoseFilteredMethod` with a heading model.
     """
 
     method: FilteredMethod
@@ -597,6 +730,7 @@ class TrackingData:
     truth: IArray
     positions: FArray
     increments: FArray | None = None
+    headings: FArray | None = None
 
     def run(self, idx: Any = None) -> FilterResult:
         """The method's filter over the steps ``idx`` (default all), in that order.
@@ -611,7 +745,8 @@ class TrackingData:
         if isinstance(self.method, PoseFilteredMethod):
             if self.increments is None:
                 raise InvalidParameterError("a pose filter needs the steps' odometry increments")
-            return self.method.run_steps(ll, self.increments[sel])
+            hd = None if self.headings is None else self.headings[sel]
+            return self.method.run_steps(ll, self.increments[sel], hd)
         dist = self.distances[sel].copy()
         if dist.size:
             dist[0] = 0.0
@@ -635,7 +770,13 @@ def prepare_tracking(
     truth[split.query_idx - split.n_mapping] = split.query_labels
     inc = getattr(m, "increments_", None)
     steps_inc = None if inc is None else np.vstack([np.zeros((1, 3)), inc])
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc)
+    hd = None
+    if getattr(m, "heading_model_", None) is not None:
+        h = implied_headings(m.base_, [scans[i] for i in split.query_idx.tolist()], split.n_places)
+        if h is not None:
+            hd = np.full(ll.shape, np.nan)
+            hd[split.query_idx - split.n_mapping] = h
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd)
 
 
 def with_synthetic_likelihood(
@@ -655,7 +796,7 @@ def with_synthetic_likelihood(
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
     ll[np.flatnonzero(q), data.truth[q]] += separation
-    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)
+    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)  # no headings: not this front end
 
 
 @dataclass(slots=True)
