@@ -589,6 +589,10 @@ class TrackingData:
     increments : ndarray, shape (n_steps, 3), optional
         Odometry from the previous step to each step (row 0 zero); needed by
         a :class:`PoseFilteredMethod`.
+    cells : ndarray of int, shape (n_steps,), optional
+        The place whose centre is nearest to each step's (corrected) position
+        (its Voronoi cell): the ground-truth place at *every* step, also
+        between places, as the pose filter answers there.
     """
 
     method: FilteredMethod
@@ -597,6 +601,7 @@ class TrackingData:
     truth: IArray
     positions: FArray
     increments: FArray | None = None
+    cells: IArray | None = None
 
     def run(self, idx: Any = None) -> FilterResult:
         """The method's filter over the steps ``idx`` (default all), in that order.
@@ -635,7 +640,18 @@ def prepare_tracking(
     truth[split.query_idx - split.n_mapping] = split.query_labels
     inc = getattr(m, "increments_", None)
     steps_inc = None if inc is None else np.vstack([np.zeros((1, 3)), inc])
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc)
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, nearest_cells(pos[split.n_mapping :], split.centres))
+
+
+def nearest_cells(positions: Any, centres: Any) -> IArray:
+    """Index of the nearest centre of each position (its Voronoi cell), shape (n,)."""
+    from scipy.spatial import cKDTree
+
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    if pos.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.asarray(cKDTree(c).query(pos)[1], dtype=np.int64)
 
 
 def with_synthetic_likelihood(
@@ -655,7 +671,7 @@ def with_synthetic_likelihood(
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
     ll[np.flatnonzero(q), data.truth[q]] += separation
-    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)
+    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments, data.cells)
 
 
 @dataclass(slots=True)
@@ -679,13 +695,77 @@ class KidnapResult:
         ``first_right_steps`` (steps after the jump until the best place is
         the true place at a query step; ``None`` if never) and the same for
         the never-kidnapped filter (``reference_first_right_steps``).
+
+        What is recovery and what is noise (added fields, issue 15):
+
+        * ``floor_recover_steps`` / ``floor_recover_observed_steps``: the
+          criteria of ``recover_steps`` / ``recover_observed_steps`` applied
+          to a *second never-kidnapped run* of the same filter over the
+          whole query pass (for a particle filter: other random draws)
+          against the reference, on the same B stretch. Nothing was
+          kidnapped there, so anything above 0 steps is the filter's own
+          run-to-run noise: the floor of the column. A deterministic filter
+          (the discrete one over places) gives 0. ``floor_disagreement``: the
+          fraction of B's steps where the two never-kidnapped runs name
+          different places.
+        * ``recover_truth_steps``: steps after the jump until the kidnapped
+          filter's best place is the *true* place (the place whose radius
+          holds the corrected pose) at every later observed step of B;
+          ``reference_recover_truth_steps``: the same for the
+          never-kidnapped reference (its floor: a filter that is wrong at
+          some late query never "recovers" on this column).
+        * ``recover_cell_steps`` / ``reference_recover_cell_steps`` (when the
+          data carry ``cells``): the same against the nearest place centre
+          of the corrected pose at *every* step of B (its Voronoi cell).
+        * ``observed`` / ``right`` / ``reference_right``: B's observed steps
+          and how many of them the kidnapped filter and the reference name
+          the true place (top-1 after a kidnapping, pooled by the summary).
     """
 
     name: str
     trials: list[dict[str, Any]]
 
     def summary(self, within: int = 10) -> dict[str, Any]:
-        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
+        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps.
+
+        Beside each recovery column, the same figures of its floor or
+        ground-truth counterpart (the trial fields above): ``floor_*`` (a
+        second never-kidnapped run against the reference), ``truth_*`` and
+        ``reference_truth_*`` (the true place at observed steps), ``cell_*``
+        and ``reference_cell_*`` (the true Voronoi cell at every step), and
+        ``kidnapped_top1`` / ``reference_top1`` over B's observed steps. A
+        field is ``None`` when no trial carries it.
+        """
+        out = self._summary(within)
+        out.update(self._honest(within))
+        return out
+
+    def _honest(self, within: int) -> dict[str, Any]:
+        """The floor and ground-truth figures (added fields; None where no trial has them)."""
+        tr = self.trials
+        out: dict[str, Any] = {}
+        for key, field in (
+            ("floor", "floor_recover_steps"),
+            ("floor_observed", "floor_recover_observed_steps"),
+            ("truth", "recover_truth_steps"),
+            ("reference_truth", "reference_recover_truth_steps"),
+            ("cell", "recover_cell_steps"),
+            ("reference_cell", "reference_recover_cell_steps"),
+        ):
+            have = [t for t in tr if field in t]
+            vals = [t[field] for t in have]
+            out[f"{key}_within_{within}"] = (
+                float(np.mean([v is not None and v <= within for v in vals])) if have else None
+            )
+            out[f"{key}_median_steps"] = _median(vals) if have else None
+        dis = [t["floor_disagreement"] for t in tr if t.get("floor_disagreement") is not None]
+        out["floor_disagreement"] = float(np.mean(dis)) if dis else None
+        n_obs = sum(int(t.get("observed", 0)) for t in tr)
+        out["kidnapped_top1"] = sum(int(t.get("right", 0)) for t in tr) / n_obs if n_obs else None
+        out["reference_top1"] = sum(int(t.get("reference_right", 0)) for t in tr) / n_obs if n_obs else None
+        return out
+
+    def _summary(self, within: int) -> dict[str, Any]:
         rec = [t["recover_steps"] for t in self.trials]
         rec_seen = [t.get("recover_observed_steps") for t in self.trials]
         merged = [t["merge_steps"] for t in self.trials if t["merge_steps"] is not None]
@@ -796,6 +876,17 @@ def kidnap_experiment(
             hit = np.flatnonzero((truth >= 0) & (best == truth))
             return int(hit[0]) if hit.size else None
 
+        cells = None if data.cells is None else data.cells[b : b + stretch]
+        honest: dict[str, Any] = {
+            "recover_truth_steps": _settles(kid == truth, seen),
+            "reference_recover_truth_steps": _settles(ref == truth, seen),
+            "observed": int(seen.sum()),
+            "right": int(np.sum(seen & (kid == truth))),
+            "reference_right": int(np.sum(seen & (ref == truth))),
+        }
+        if cells is not None:
+            honest["recover_cell_steps"] = _settles(kid == cells)
+            honest["reference_recover_cell_steps"] = _settles(ref == cells)
         trials.append(
             {
                 "a_start": int(a),
@@ -808,9 +899,31 @@ def kidnap_experiment(
                 "merge_observations": None if merged is None else int(has_q[b : b + merged + 1].sum()),
                 "first_right_steps": first_right(kid),
                 "reference_first_right_steps": first_right(ref),
+                **honest,
             }
         )
+    # The floor: a second never-kidnapped run (run after the trials, so that their draws are as before)
+    # against the reference, with the same criteria, on each trial's B stretch.
+    second = data.run()
+    for t in trials:
+        b = t["b_start"]
+        agree = second.best[b : b + stretch] == full.best[b : b + stretch]
+        t["floor_recover_steps"] = _settles(agree)
+        t["floor_recover_observed_steps"] = _settles(agree, has_q[b : b + stretch])
+        t["floor_disagreement"] = float(np.mean(~agree))
     return KidnapResult(name, trials)
+
+
+def _settles(agree: Any, mask: Any = None) -> int | None:
+    """First ``j`` such that ``agree`` holds at every step ``>= j`` (only the steps of ``mask``); None if none.
+
+    The recovery criterion of :func:`kidnap_experiment`: ``j`` ranges over
+    the stretch's steps, so a stretch whose last (masked) step disagrees
+    never settles.
+    """
+    ok = np.asarray(agree, dtype=bool)
+    m = np.ones(ok.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    return next((j for j in range(ok.size) if np.all(ok[j:][m[j:]])), None)
 
 
 def run_kidnap(
