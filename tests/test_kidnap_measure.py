@@ -64,6 +64,10 @@ def test_settles_is_the_first_step_after_the_last_disagreement():
     assert _settles([True, False]) is None  # the last step disagrees: never
     # only the masked steps count
     assert _settles([False, False, True, False, True], [True, False, True, False, True]) == 1
+    # unconfirmed, a stretch whose only observation is wrong settles after it; confirmed, it never does
+    assert _settles([True, False, True, True], [False, True, False, False]) == 2
+    assert _settles([True, False, True, True], [False, True, False, False], confirmed=True) is None
+    assert _settles([True, True, True], [False, True, False], confirmed=True) == 0
 
 
 def test_kidnap_figures_of_a_scripted_filter():

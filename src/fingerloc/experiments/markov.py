@@ -57,6 +57,7 @@ from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger
+from ..map.relocalize import Augmented
 from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
     POSE_PARTICLES,
@@ -354,6 +355,16 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
         during ``tune``).
     challenger_switch_nats : float, default 3.0
+    augmented : Augmented, optional
+        Augmented MCL: a share of the belief re-drawn from the sensor when
+        the short-term average likelihood falls below the long-term one
+        (:func:`~fingerloc.map.relocalize.run_augmented_pose_filter`; the
+        tuning on the mapping pass runs without it). ``None`` = off.
+    hold_margin : float, optional
+        Between observations the best place is held unless another place's
+        probability exceeds it by this much
+        (:func:`~fingerloc.map.relocalize.held_best`; the posterior and the
+        answers at observed steps are unchanged). ``None`` = the argmax.
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -388,8 +399,14 @@ class PoseFilteredMethod(FilteredMethod):
         tune: bool = True,
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
+        augmented: Augmented | None = None,
+        hold_margin: float | None = None,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.augmented = augmented
+        if hold_margin is not None and (math.isnan(hold_margin) or hold_margin < 0):
+            raise InvalidParameterError(f"hold_margin must be >= 0 (or inf), got {hold_margin!r}")
+        self.hold_margin = hold_margin
         self.challenger = bool(challenger)
         self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
@@ -472,7 +489,7 @@ class PoseFilteredMethod(FilteredMethod):
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
             ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
-        return run_pose_steps(
+        res = run_pose_steps(
             ll,
             increments,
             self.filter_,
@@ -483,7 +500,13 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
+            augmented=self.augmented,
         )
+        if self.hold_margin is not None:
+            from ..map.relocalize import held_best
+
+            res = held_best(res, ~np.all(np.isnan(ll), axis=1), self.hold_margin)
+        return res
 
     def _challenger(self) -> Challenger | None:
         """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
@@ -710,7 +733,10 @@ class KidnapResult:
           different places.
         * ``recover_truth_steps``: steps after the jump until the kidnapped
           filter's best place is the *true* place (the place whose radius
-          holds the corrected pose) at every later observed step of B;
+          holds the corrected pose) at every later observed step of B, at
+          least one of them (unlike ``recover_observed_steps``, which
+          counts a stretch as recovered after its last observation even
+          when that was wrong);
           ``reference_recover_truth_steps``: the same for the
           never-kidnapped reference (its floor: a filter that is wrong at
           some late query never "recovers" on this column).
@@ -878,8 +904,8 @@ def kidnap_experiment(
 
         cells = None if data.cells is None else data.cells[b : b + stretch]
         honest: dict[str, Any] = {
-            "recover_truth_steps": _settles(kid == truth, seen),
-            "reference_recover_truth_steps": _settles(ref == truth, seen),
+            "recover_truth_steps": _settles(kid == truth, seen, confirmed=True),
+            "reference_recover_truth_steps": _settles(ref == truth, seen, confirmed=True),
             "observed": int(seen.sum()),
             "right": int(np.sum(seen & (kid == truth))),
             "reference_right": int(np.sum(seen & (ref == truth))),
@@ -914,16 +940,21 @@ def kidnap_experiment(
     return KidnapResult(name, trials)
 
 
-def _settles(agree: Any, mask: Any = None) -> int | None:
+def _settles(agree: Any, mask: Any = None, *, confirmed: bool = False) -> int | None:
     """First ``j`` such that ``agree`` holds at every step ``>= j`` (only the steps of ``mask``); None if none.
 
     The recovery criterion of :func:`kidnap_experiment`: ``j`` ranges over
     the stretch's steps, so a stretch whose last (masked) step disagrees
-    never settles.
+    never settles. Without ``confirmed`` a ``j`` after the last masked step
+    counts (nothing is left to disagree: a stretch whose observations all
+    come early "settles" after them, right or wrong); with it, ``j`` must
+    be at or before the last masked step (at least one observation shows
+    the answer right).
     """
     ok = np.asarray(agree, dtype=bool)
     m = np.ones(ok.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
-    return next((j for j in range(ok.size) if np.all(ok[j:][m[j:]])), None)
+    last = int(np.flatnonzero(m)[-1]) + 1 if confirmed and m.any() else (0 if confirmed else ok.size)
+    return next((j for j in range(min(ok.size, last)) if np.all(ok[j:][m[j:]])), None)
 
 
 def run_kidnap(

@@ -50,6 +50,7 @@ from .places import visit_folds
 
 if TYPE_CHECKING:
     from ..map.pose_filter import Challenger, PoseFilter
+    from ..map.relocalize import Augmented
     from ..observation import Observation
 
 __all__ = [
@@ -339,6 +340,7 @@ def run_pose_steps(
     reset_threshold: float | None = None,
     challenger: Challenger | None = None,
     place_steps: SharedPlaceSteps | None = None,
+    augmented: Augmented | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -362,6 +364,10 @@ def run_pose_steps(
     place_steps : SharedPlaceSteps, optional
         The discrete filter's beliefs shared with other runs on the same
         steps (:func:`tune_pose_filter`); the same results.
+    augmented : Augmented, optional
+        Run :func:`~fingerloc.map.relocalize.run_augmented_pose_filter`
+        (Augmented MCL) instead (``reset_threshold`` is then not used;
+        not with ``challenger``).
     """
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
 
@@ -369,6 +375,22 @@ def run_pose_steps(
         if not relocalize:
             return None
         return MarkovFilter(transition) if place_steps is None else place_steps.filter(transition)
+
+    if augmented is not None:
+        if challenger is not None:
+            raise InvalidParameterError("the challenger and Augmented MCL are not run together")
+        from ..map.relocalize import run_augmented_pose_filter
+
+        return run_augmented_pose_filter(
+            log_likelihood,
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            pose_filter,
+            augmented,
+            temper=temper,
+            place_filter=places(),
+            start_at_first_observation=start_at_first_observation,
+            gap_metres=gap_metres,
+        )
 
     if challenger is not None:
         return run_challenged_pose_filter(
