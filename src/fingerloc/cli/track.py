@@ -521,6 +521,10 @@ def kidnap_cmd(
     kidnap: float | None = typer.Option(
         None, "--kidnap-prob", help="Pose filter: kidnapping probability per observation [1 / (training scans + 2)]."
     ),
+    hold_margin: float | None = typer.Option(
+        None, "--hold-margin", help="Pose filter: between observations keep the previous best place unless another "
+        "place's probability exceeds it by this much [off: the argmax]."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures and trials as JSON here."),
 ) -> None:
     """Kidnapped robot: splice two distant stretches of each log's query pass; steps until the filter recovers.
@@ -560,6 +564,7 @@ def kidnap_cmd(
             pose=filter_kind == "pose",
             odometry_error=odometry_error,
             kidnap=kidnap,
+            hold_margin=hold_margin,
             on_progress=lambda s: status.update(s),
         )
     rows = [*((n, lg["summary"]) for n, lg in res["logs"].items()), ("pooled", res["pooled"])]

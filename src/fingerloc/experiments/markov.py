@@ -969,6 +969,7 @@ def run_kidnap(
     pose: bool = False,
     odometry_error: float = 1.0,
     kidnap: float | None = None,
+    hold_margin: float | None = None,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -977,8 +978,9 @@ def run_kidnap(
     with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
     pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
     simulated odometry errors times ``odometry_error``, kidnapping
-    probability ``kidnap`` per observation if given) instead of the discrete
-    filter over places.
+    probability ``kidnap`` per observation if given, best place held between
+    observations with ``hold_margin`` if given: :func:`~fingerloc.map.relocalize.held_best`)
+    instead of the discrete filter over places.
     """
     from .protocol import load_log_scans, log_name
 
@@ -986,7 +988,8 @@ def run_kidnap(
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
                                                   "filter": "pose" if pose else "places",
                                                   "odometry_error": odometry_error if pose else None,
-                                                  "kidnap": kidnap if pose else None}}  # fmt: skip
+                                                  "kidnap": kidnap if pose else None,
+                                                  "hold_margin": hold_margin if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -996,7 +999,9 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        opts: dict[str, Any] = (
+            {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap, "hold_margin": hold_margin} if pose else {}
+        )
         data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)
