@@ -119,3 +119,31 @@ def test_augmented_settings_are_checked():
     for bad in ({"slow": 0.5, "fast": 0.1}, {"cap": 1.5}, {"threshold": 0.0}, {"reserve": -1}, {"floor": 0.6, "cap": 0.5}):
         with pytest.raises(InvalidParameterError):
             Augmented(**bad)
+
+
+def test_pose_filtered_method_options_are_checked():
+    from fingerloc.experiments.markov import PoseFilteredMethod
+
+    with pytest.raises(InvalidParameterError, match="hold_margin"):
+        PoseFilteredMethod("fingerprint", hold_margin=-0.1)
+    m = PoseFilteredMethod("fingerprint", hold_margin=0.05, augmented=Augmented(reserve=100, adaptive=False))
+    assert m.hold_margin == 0.05 and m.augmented is not None and m.augmented.reserve == 100
+
+
+def test_tie_broken_best_asks_the_deterministic_belief_between_observations():
+    """Near-ties (within delta of the best) between observations go to the place the tie-breaker believes most."""
+    from fingerloc.map.relocalize import tie_broken_best
+
+    rows = [[0.5, 0.3, 0.2], [0.36, 0.34, 0.30], [0.36, 0.34, 0.30], [0.6, 0.1, 0.3], [0.34, 0.36, 0.30]]
+    observed = [True, False, False, False, True]
+    tb = np.log([[0.1, 0.8, 0.1], [0.1, 0.8, 0.1], [0.1, 0.1, 0.8], [0.1, 0.8, 0.1], [0.8, 0.1, 0.1]])
+    res = _posterior(rows)
+    out = tie_broken_best(res, observed, tb, 0.05)
+    # step 1: places 0 and 1 within 0.05 of the best -> 1, the tie-breaker's; step 2: the same candidates (place 2
+    # is 0.06 below), the tie-breaker ranks them equal -> the first, 0; step 3: a clear lead stays; step 4 observed
+    assert out.best.tolist() == [0, 1, 0, 0, 1]
+    assert tie_broken_best(res, observed, tb, 0.1).best.tolist() == [0, 1, 2, 0, 1]
+    assert tie_broken_best(res, observed, tb, 0.0).best.tolist() == res.best.tolist()
+    np.testing.assert_array_equal(out.log_posterior, res.log_posterior)
+    with pytest.raises(InvalidParameterError, match="delta"):
+        tie_broken_best(res, observed, tb, -1.0)

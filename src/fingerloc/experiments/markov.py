@@ -365,6 +365,12 @@ class PoseFilteredMethod(FilteredMethod):
         probability exceeds it by this much
         (:func:`~fingerloc.map.relocalize.held_best`; the posterior and the
         answers at observed steps are unchanged). ``None`` = the argmax.
+    tie_break : float, optional
+        Between observations, among the places within this probability of
+        the best, answer the one the discrete place filter (deterministic,
+        over the same steps) believes most
+        (:func:`~fingerloc.map.relocalize.tie_broken_best`; after
+        ``hold_margin`` if both are given). ``None`` = off.
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -401,8 +407,12 @@ class PoseFilteredMethod(FilteredMethod):
         challenger_switch_nats: float = 3.0,
         augmented: Augmented | None = None,
         hold_margin: float | None = None,
+        tie_break: float | None = None,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        if tie_break is not None and (math.isnan(tie_break) or tie_break < 0):
+            raise InvalidParameterError(f"tie_break must be >= 0, got {tie_break!r}")
+        self.tie_break = tie_break
         self.augmented = augmented
         if hold_margin is not None and (math.isnan(hold_margin) or hold_margin < 0):
             raise InvalidParameterError(f"hold_margin must be >= 0 (or inf), got {hold_margin!r}")
@@ -502,10 +512,20 @@ class PoseFilteredMethod(FilteredMethod):
             challenger=self._challenger(),
             augmented=self.augmented,
         )
+        observed = ~np.all(np.isnan(ll), axis=1)
         if self.hold_margin is not None:
             from ..map.relocalize import held_best
 
-            res = held_best(res, ~np.all(np.isnan(ll), axis=1), self.hold_margin)
+            res = held_best(res, observed, self.hold_margin)
+        if self.tie_break is not None:
+            from ..map.relocalize import tie_broken_best
+
+            inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)
+            dist = np.hypot(inc[:, 0], inc[:, 1])
+            if dist.size:
+                dist[0] = 0.0
+            places = run_filter(ll, self.transition_, distances=dist)
+            res = tie_broken_best(res, observed, places.log_posterior, self.tie_break)
         return res
 
     def _challenger(self) -> Challenger | None:

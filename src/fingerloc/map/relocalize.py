@@ -8,7 +8,8 @@ Two additions to :mod:`fingerloc.map.pose_filter`, kept apart from it:
   differently; the answer there keeps the previous best place unless
   another place's probability exceeds it by ``margin``. At an observed step
   the answer is the posterior's argmax, as before. The posterior itself is
-  unchanged.
+  unchanged. :func:`tie_broken_best` breaks such near-ties by a
+  deterministic belief instead (the discrete place filter run alongside).
 * :func:`run_augmented_pose_filter`: Augmented Monte Carlo localization
   (Thrun, Burgard and Fox, *Probabilistic Robotics*, 2005, section 8.3.5).
   Two exponential averages of the particles' mean observation likelihood, a
@@ -35,7 +36,7 @@ from ..errors import InvalidParameterError
 from .filter import FilterResult, MarkovFilter
 from .pose_filter import PoseFilter, _run_inputs
 
-__all__ = ["Augmented", "held_best", "run_augmented_pose_filter"]
+__all__ = ["Augmented", "held_best", "run_augmented_pose_filter", "tie_broken_best"]
 
 
 def held_best(result: FilterResult, observed: Any, margin: float) -> FilterResult:
@@ -74,6 +75,48 @@ def held_best(result: FilterResult, observed: Any, margin: float) -> FilterResul
         k = int(best[t - 1])
         if not p[t, best[t]] > p[t, k] + m:
             best[t] = k
+    return FilterResult(lp, best, p[np.arange(n), best] if n else np.zeros(0), result.entropy_bits)
+
+
+def tie_broken_best(result: FilterResult, observed: Any, tie_break: Any, delta: float) -> FilterResult:
+    """``result`` with near-ties between observations broken by a deterministic belief ``tie_break``.
+
+    A particle filter whose belief is spread over many places (far from the
+    map, or a sensor trusted little) has a near-flat place posterior, whose
+    argmax two runs (other draws) pick differently. At a step without
+    observation the answer here is, among the places whose probability is
+    within ``delta`` of the largest, the one ``tie_break`` (e.g. the discrete
+    place filter run alongside, which draws no random numbers) believes
+    most. At an observed step it is the argmax, as before; the posterior is
+    unchanged.
+
+    Parameters
+    ----------
+    result : FilterResult
+    observed : array_like of bool, shape (n_steps,)
+    tie_break : array_like, shape (n_steps, P)
+        Log-probabilities (or any scores, larger = more likely) per step.
+    delta : float
+        Probability (>= 0; 0 = exact ties only).
+
+    Returns
+    -------
+    FilterResult
+    """
+    d = float(delta)
+    if math.isnan(d) or d < 0:
+        raise InvalidParameterError(f"delta must be a probability difference >= 0, got {delta!r}")
+    obs = np.asarray(observed, dtype=bool).reshape(-1)
+    lp = result.log_posterior
+    n = lp.shape[0]
+    tb = np.asarray(tie_break, dtype=np.float64)
+    if obs.size != n or tb.shape != lp.shape:
+        raise InvalidParameterError(f"observed and tie_break must have {n} steps (tie_break {lp.shape}), got {obs.size}, {tb.shape}")
+    p = np.exp(lp)
+    best = result.best.copy()
+    for t in np.flatnonzero(~obs).tolist():
+        cand = np.flatnonzero(p[t] >= p[t, best[t]] - d)
+        best[t] = int(cand[np.argmax(np.nan_to_num(tb[t, cand], nan=-np.inf))])
     return FilterResult(lp, best, p[np.arange(n), best] if n else np.zeros(0), result.entropy_bits)
 
 
