@@ -147,3 +147,29 @@ def test_tie_broken_best_asks_the_deterministic_belief_between_observations():
     np.testing.assert_array_equal(out.log_posterior, res.log_posterior)
     with pytest.raises(InvalidParameterError, match="delta"):
         tie_broken_best(res, observed, tb, -1.0)
+
+
+def test_the_tracker_answers_between_observations_with_the_calibration_defaults():
+    """run_pose_steps with hold_margin and tie_break = the plain run's answers passed through answer_between."""
+    from fingerloc.map.filter import TransitionModel
+    from fingerloc.map.relocalize import answer_between
+    from fingerloc.pipeline.tracker import HOLD_MARGIN, TIE_BREAK, Calibration, run_pose_steps
+
+    assert (Calibration().hold_margin, Calibration().tie_break) == (HOLD_MARGIN, TIE_BREAK) == (0.05, 0.02)
+    poses = _polyline([(0, 0), (27, 0)], 0.25)
+    truth = _truth(poses, CORRIDOR, radius=0.5)
+    ll = _sensor(truth, 10, 1.5, 0)
+    inc = np.vstack([np.zeros((1, 3)), odometry_increments(poses)])
+    trans = TransitionModel.uniform(10)
+
+    def run(**kw):
+        f = PoseFilter(CORRIDOR, 0.5, n_particles=200, kidnap=0.01, outlier=0.3, random_state=4)
+        return run_pose_steps(ll, inc, f, trans, temper=(2.0, math.pi), **kw)
+
+    plain = run()
+    both = run(hold_margin=0.05, tie_break=0.02)
+    np.testing.assert_array_equal(both.log_posterior, plain.log_posterior)
+    expected = answer_between(plain, ll, inc, trans, hold_margin=0.05, tie_break=0.02)
+    np.testing.assert_array_equal(both.best, expected.best)
+    obs = truth >= 0
+    np.testing.assert_array_equal(both.best[obs], plain.best[obs])  # observed steps: the argmax

@@ -11,7 +11,10 @@ print("| variant | seed | tracking pooled (aces / csail / freiburg-101 / intel) 
       "| <= 10 at obs (floor) | median at obs | truth <= 10 (reference) | top-1 after (reference) |")
 print("|---|---|---|---|---|---|---|---|---|")
 for arg in sys.argv[1:]:
-    r = json.load(open(f"/tmp/kid/res-{arg}.json"))
+    try:
+        r = json.load(open(f"/tmp/kid/res-{arg}.json"))
+    except FileNotFoundError:
+        continue
     for seed, per in r["seeds"].items():
         logs = [k for k in per if k != "pooled"]
         tr = " / ".join(f"{per[k]['top1']:.3f}" for k in logs)

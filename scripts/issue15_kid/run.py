@@ -20,7 +20,8 @@ from fingerloc.map.relocalize import Augmented, held_best
 LOGS = ["aces", "csail", "freiburg-101", "intel"]
 MARGINS = [0.0, 0.05, 0.1, 0.2, 0.3, math.inf]
 VARIANTS = {
-    "base": {},
+    "base": {},  # the defaults before this session (argmax between observations)
+    "new": {"hold_margin": 0.05, "tie_break": 0.02},  # the defaults after it
     "amcl": {"augmented": Augmented()},                      # slow 0.05, fast 0.5, cap 0.5
     "amcl-f1": {"augmented": Augmented(fast=1.0)},
     "amcl-s01": {"augmented": Augmented(slow=0.01, fast=0.3)},
@@ -44,6 +45,9 @@ VARIANTS = {
     "res1000-pp": {"augmented": Augmented(reserve=1000, adaptive=False), "_place_poses": True},
     "res1000-e02-pp": {"augmented": Augmented(reserve=1000, adaptive=False, floor=0.02, cap=0.02), "_place_poses": True},
     "amcl-pp": {"augmented": Augmented(), "_place_poses": True},
+    "op03": {"off_place": 0.03},
+    "op01": {"off_place": 0.01},
+    "op003": {"off_place": 0.003},
     "tb01": {"tie_break": 0.01},
     "tb02": {"tie_break": 0.02},
     "tb03": {"tie_break": 0.03},
@@ -112,7 +116,8 @@ if __name__ == "__main__":
     name, seeds = sys.argv[1], [int(x) for x in sys.argv[2].split(",")]
     kid, do_null = "--kidnap" in sys.argv, "--null" in sys.argv
     logs = [a[6:] for a in sys.argv if a.startswith("--log=")] or LOGS
-    opts = VARIANTS[name]
+    # every variant with the former answers between observations unless it says otherwise
+    opts = {"hold_margin": None, "tie_break": None, **VARIANTS[name]}
     res = {"name": name, "opts": repr(opts), "seeds": {}}
     for seed in seeds:
         per = {}

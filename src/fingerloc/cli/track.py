@@ -523,7 +523,11 @@ def kidnap_cmd(
     ),
     hold_margin: float | None = typer.Option(
         None, "--hold-margin", help="Pose filter: between observations keep the previous best place unless another "
-        "place's probability exceeds it by this much [off: the argmax]."
+        "place's probability exceeds it by this much [0.05; 0 = the argmax]."
+    ),
+    tie_break: float | None = typer.Option(
+        None, "--tie-break", help="Pose filter: between observations, among the places within this probability of "
+        "the answer, the one the discrete place filter believes most [0.02; 0 = exact ties only]."
     ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures and trials as JSON here."),
 ) -> None:
@@ -565,6 +569,7 @@ def kidnap_cmd(
             odometry_error=odometry_error,
             kidnap=kidnap,
             hold_margin=hold_margin,
+            tie_break=tie_break,
             on_progress=lambda s: status.update(s),
         )
     rows = [*((n, lg["summary"]) for n, lg in res["logs"].items()), ("pooled", res["pooled"])]

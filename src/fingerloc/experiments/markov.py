@@ -58,9 +58,10 @@ from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger
 from ..map.relocalize import Augmented
-from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import (
+    HOLD_MARGIN,
     POSE_PARTICLES,
+    TIE_BREAK,
     Calibration,
     FitScore,
     HeldOut,
@@ -71,6 +72,7 @@ from ..pipeline.tracker import (
     step_distances,
     tune_pose_filter,
 )
+from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
 from ..validation import check_random_state
@@ -360,17 +362,19 @@ class PoseFilteredMethod(FilteredMethod):
         the short-term average likelihood falls below the long-term one
         (:func:`~fingerloc.map.relocalize.run_augmented_pose_filter`; the
         tuning on the mapping pass runs without it). ``None`` = off.
-    hold_margin : float, optional
+    hold_margin : float, optional, default HOLD_MARGIN (0.05)
         Between observations the best place is held unless another place's
         probability exceeds it by this much
         (:func:`~fingerloc.map.relocalize.held_best`; the posterior and the
         answers at observed steps are unchanged). ``None`` = the argmax.
-    tie_break : float, optional
+    tie_break : float, optional, default TIE_BREAK (0.02)
         Between observations, among the places within this probability of
-        the best, answer the one the discrete place filter (deterministic,
-        over the same steps) believes most
+        the answer, the one the discrete place filter (deterministic, over
+        the same steps) believes most
         (:func:`~fingerloc.map.relocalize.tie_broken_best`; after
-        ``hold_margin`` if both are given). ``None`` = off.
+        ``hold_margin``). ``None`` = off. Both defaults since issue 15's
+        third session (docs/RESULTS.md): two runs with other random draws
+        disagree less between places, tracking is unchanged.
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -406,8 +410,8 @@ class PoseFilteredMethod(FilteredMethod):
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
         augmented: Augmented | None = None,
-        hold_margin: float | None = None,
-        tie_break: float | None = None,
+        hold_margin: float | None = HOLD_MARGIN,
+        tie_break: float | None = TIE_BREAK,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         if tie_break is not None and (math.isnan(tie_break) or tie_break < 0):
@@ -477,6 +481,8 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             challenger=self.challenger,
             challenger_switch_nats=self.challenger_switch_nats,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
@@ -499,7 +505,7 @@ class PoseFilteredMethod(FilteredMethod):
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
             ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
-        res = run_pose_steps(
+        return run_pose_steps(
             ll,
             increments,
             self.filter_,
@@ -511,22 +517,9 @@ class PoseFilteredMethod(FilteredMethod):
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
             augmented=self.augmented,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
-        observed = ~np.all(np.isnan(ll), axis=1)
-        if self.hold_margin is not None:
-            from ..map.relocalize import held_best
-
-            res = held_best(res, observed, self.hold_margin)
-        if self.tie_break is not None:
-            from ..map.relocalize import tie_broken_best
-
-            inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)
-            dist = np.hypot(inc[:, 0], inc[:, 1])
-            if dist.size:
-                dist[0] = 0.0
-            places = run_filter(ll, self.transition_, distances=dist)
-            res = tie_broken_best(res, observed, places.log_posterior, self.tie_break)
-        return res
 
     def _challenger(self) -> Challenger | None:
         """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
@@ -990,6 +983,7 @@ def run_kidnap(
     odometry_error: float = 1.0,
     kidnap: float | None = None,
     hold_margin: float | None = None,
+    tie_break: float | None = None,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -998,8 +992,9 @@ def run_kidnap(
     with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
     pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
     simulated odometry errors times ``odometry_error``, kidnapping
-    probability ``kidnap`` per observation if given, best place held between
-    observations with ``hold_margin`` if given: :func:`~fingerloc.map.relocalize.held_best`)
+    probability ``kidnap`` per observation if given; ``hold_margin`` and
+    ``tie_break``, the answers between observations, if given, else the
+    method's defaults: :func:`~fingerloc.map.relocalize.answer_between`)
     instead of the discrete filter over places.
     """
     from .protocol import load_log_scans, log_name
@@ -1009,7 +1004,8 @@ def run_kidnap(
                                                   "filter": "pose" if pose else "places",
                                                   "odometry_error": odometry_error if pose else None,
                                                   "kidnap": kidnap if pose else None,
-                                                  "hold_margin": hold_margin if pose else None}}  # fmt: skip
+                                                  "hold_margin": hold_margin if pose else None,
+                                                  "tie_break": tie_break if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -1019,9 +1015,9 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        opts: dict[str, Any] = (
-            {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap, "hold_margin": hold_margin} if pose else {}
-        )
+        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        if pose:
+            opts.update({k: v for k, v in (("hold_margin", hold_margin), ("tie_break", tie_break)) if v is not None})
         data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)

@@ -33,10 +33,10 @@ import numpy as np
 
 from .._lse import logsumexp
 from ..errors import InvalidParameterError
-from .filter import FilterResult, MarkovFilter
+from .filter import FilterResult, MarkovFilter, TransitionModel, run_filter
 from .pose_filter import PoseFilter, _run_inputs
 
-__all__ = ["Augmented", "held_best", "run_augmented_pose_filter", "tie_broken_best"]
+__all__ = ["Augmented", "answer_between", "held_best", "run_augmented_pose_filter", "tie_broken_best"]
 
 
 def held_best(result: FilterResult, observed: Any, margin: float) -> FilterResult:
@@ -118,6 +118,37 @@ def tie_broken_best(result: FilterResult, observed: Any, tie_break: Any, delta: 
         cand = np.flatnonzero(p[t] >= p[t, best[t]] - d)
         best[t] = int(cand[np.argmax(np.nan_to_num(tb[t, cand], nan=-np.inf))])
     return FilterResult(lp, best, p[np.arange(n), best] if n else np.zeros(0), result.entropy_bits)
+
+
+def answer_between(
+    result: FilterResult,
+    log_likelihood: Any,
+    increments: Any,
+    transition: TransitionModel,
+    *,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
+) -> FilterResult:
+    """The pose filter's answers between observations made less random: :func:`held_best`, then :func:`tie_broken_best`.
+
+    ``tie_break`` asks the discrete place filter over ``transition`` run on
+    the same rows (NaN = prediction only) and the travelled distances of
+    ``increments`` (one row per step, row 0 unused): deterministic, it draws
+    no random numbers. ``None`` leaves that part out; both ``None``:
+    ``result`` itself.
+    """
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    observed = ~np.all(np.isnan(ll), axis=1)
+    out = result
+    if hold_margin is not None:
+        out = held_best(out, observed, hold_margin)
+    if tie_break is not None:
+        inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)
+        dist = np.hypot(inc[:, 0], inc[:, 1])
+        if dist.size:
+            dist[0] = 0.0
+        out = tie_broken_best(out, observed, run_filter(ll, transition, distances=dist).log_posterior, tie_break)
+    return out
 
 
 @dataclass(frozen=True, slots=True)

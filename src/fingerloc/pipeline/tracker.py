@@ -55,8 +55,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FILTERS",
+    "HOLD_MARGIN",
     "MIN_CALIBRATION_ROWS",
     "POSE_PARTICLES",
+    "TIE_BREAK",
     "Calibration",
     "FitScore",
     "HeldOut",
@@ -81,6 +83,10 @@ __all__ = [
 MIN_CALIBRATION_ROWS = 10
 #: Particles of the pose filter (:class:`Tracker` and the benchmark's pose-filtered methods).
 POSE_PARTICLES = 3000
+#: The pose filter's answer between observations: held unless another place leads by this (issue 15).
+HOLD_MARGIN = 0.05
+#: ... and near-ties within this broken by the discrete place filter (issue 15).
+TIE_BREAK = 0.02
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -130,6 +136,15 @@ class Calibration:
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`).
     challenger_switch_nats : float
         The challenger's log Bayes factor that makes the switch.
+    hold_margin : float or None
+        Pose filter, between observations: the previous best place stays
+        the answer unless another place's probability exceeds it by this
+        much (:func:`~fingerloc.map.relocalize.held_best`; None: the argmax).
+    tie_break : float or None
+        Pose filter, between observations: among the places within this
+        probability of the answer, the one the discrete place filter believes
+        most (:func:`~fingerloc.map.relocalize.tie_broken_best`; None: off).
+        Neither changes the posterior nor the answers at observed steps.
     """
 
     beta: float = 1.0
@@ -148,6 +163,8 @@ class Calibration:
     gap_metres: float | None = None
     challenger: bool = False
     challenger_switch_nats: float = 3.0
+    hold_margin: float | None = HOLD_MARGIN
+    tie_break: float | None = TIE_BREAK
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -341,6 +358,8 @@ def run_pose_steps(
     challenger: Challenger | None = None,
     place_steps: SharedPlaceSteps | None = None,
     augmented: Augmented | None = None,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -368,7 +387,37 @@ def run_pose_steps(
         Run :func:`~fingerloc.map.relocalize.run_augmented_pose_filter`
         (Augmented MCL) instead (``reset_threshold`` is then not used;
         not with ``challenger``).
+    hold_margin, tie_break : float, optional
+        The answers between observations
+        (:func:`~fingerloc.map.relocalize.answer_between`; ``None``: off).
     """
+    res = _run_pose_steps(log_likelihood, increments, pose_filter, transition, temper=temper, relocalize=relocalize,
+                          start_at_first_observation=start_at_first_observation, gap_metres=gap_metres,
+                          reset_threshold=reset_threshold, challenger=challenger, place_steps=place_steps,
+                          augmented=augmented)  # fmt: skip
+    if hold_margin is None and tie_break is None:
+        return res
+    from ..map.relocalize import answer_between
+
+    return answer_between(res, log_likelihood, increments, transition, hold_margin=hold_margin, tie_break=tie_break)
+
+
+def _run_pose_steps(
+    log_likelihood: Any,
+    increments: Any,
+    pose_filter: PoseFilter,
+    transition: TransitionModel,
+    *,
+    temper: tuple[float, float] | None,
+    relocalize: bool,
+    start_at_first_observation: bool,
+    gap_metres: float | None,
+    reset_threshold: float | None,
+    challenger: Challenger | None,
+    place_steps: SharedPlaceSteps | None,
+    augmented: Augmented | None,
+) -> FilterResult:
+    """:func:`run_pose_steps` before the answers between observations."""
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
 
     def places() -> MarkovFilter | None:
@@ -605,6 +654,8 @@ class Tracker:
             reset_threshold=reset_threshold,
             challenger=challenger_of(c),
             place_steps=place_steps,
+            hold_margin=c.hold_margin,
+            tie_break=c.tie_break,
         )
 
     def run(
