@@ -336,7 +336,13 @@ def _pose_filter_run(
     inc = wheel_odometry(np.asarray(geo["poses"], dtype=np.float64), odometry_error, random_state=seed + 1)
     f = PoseFilter(centres, float(r), kidnap=1.0 / (int(geo["n_train"]) + 2), random_state=seed)
     temper = (2.0 * float(r), float(geo.get("fov", math.pi)))  # a new view: the place spacing, or the field of view
-    return run_pose_filter(ll, inc, f, temper=temper, place_filter=MarkovFilter(transition))
+    res = run_pose_filter(ll, inc, f, temper=temper, place_filter=MarkovFilter(transition))
+    from ..map.relocalize import answer_between
+    from ..pipeline.tracker import HOLD_MARGIN, TIE_BREAK
+
+    # the answers between observations as the tracker gives them (held, near-ties to the place filter)
+    return answer_between(res, ll, np.vstack([np.zeros((1, 3)), inc]), transition, hold_margin=HOLD_MARGIN,
+                          tie_break=TIE_BREAK)  # fmt: skip
 
 
 def _jsonl_steps(
