@@ -551,8 +551,8 @@ def kidnap_cmd(
     ('dis': the fraction of steps where the two unkidnapped runs disagree;
     the discrete filter over places is deterministic: floor 1.00, dis 0).
     'truth': steps until the best place is the true place (the corrected
-    pose within its radius) at every later observed step, for the kidnapped
-    filter and for the reference ('ref', its floor); 'cell': the same
+    pose within its radius) at every later observed step, at least one, for
+    the kidnapped filter and for the reference ('ref', its floor); 'cell': the same
     against the nearest place centre of the corrected pose at every step.
     'top-1 kid / ref': fraction of the stretches' observed steps at the true
     place after the kidnapping, and in the never-kidnapped run.
