@@ -113,9 +113,9 @@ def test_old_trials_without_the_new_fields_summarise():
 
 def test_a_deterministic_filter_has_no_floor():
     """The discrete filter over places answers the same twice: the floor is 0 steps on every trial."""
-    from tests.test_markov import _chain_data
+    from ._chain import chain_data
 
-    res = kidnap_experiment(_chain_data(), name="chain", n_trials=6, stretch=20, min_jump_m=20.0)
+    res = kidnap_experiment(chain_data(), name="chain", n_trials=6, stretch=20, min_jump_m=20.0)
     for t in res.trials:
         assert t["floor_recover_steps"] == 0 and t["floor_disagreement"] == 0.0
     assert res.summary()["floor_within_10"] == 1.0
