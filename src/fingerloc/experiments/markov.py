@@ -60,9 +60,12 @@ from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger, HeadingModel
+from ..map.relocalize import Augmented
 from ..pipeline.tracker import (
     HEADING_TEMPER_M,
+    HOLD_MARGIN,
     POSE_PARTICLES,
+    TIE_BREAK,
     Calibration,
     FitScore,
     HeldOut,
@@ -388,6 +391,24 @@ class PoseFilteredMethod(FilteredMethod):
     heading_slope : bool, default True
         Let the heading estimate's reliability grow with the view's
         probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
+    augmented : Augmented, optional
+        Augmented MCL: a share of the belief re-drawn from the sensor when
+        the short-term average likelihood falls below the long-term one
+        (:func:`~fingerloc.map.relocalize.run_augmented_pose_filter`; the
+        tuning on the mapping pass runs without it). ``None`` = off.
+    hold_margin : float, optional, default HOLD_MARGIN (0.05)
+        Between observations the best place is held unless another place's
+        probability exceeds it by this much
+        (:func:`~fingerloc.map.relocalize.held_best`; the posterior and the
+        answers at observed steps are unchanged). ``None`` = the argmax.
+    tie_break : float, optional, default TIE_BREAK (0.02)
+        Between observations, among the places within this probability of
+        the answer, the one the discrete place filter (deterministic, over
+        the same steps) believes most
+        (:func:`~fingerloc.map.relocalize.tie_broken_best`; after
+        ``hold_margin``). ``None`` = off. Both defaults since issue 15's
+        third session (docs/RESULTS.md): two runs with other random draws
+        disagree less between places, tracking is unchanged.
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -426,12 +447,22 @@ class PoseFilteredMethod(FilteredMethod):
         heading_reverse: bool = True,
         heading_slope: bool = True,
         heading_temper_metres: float = HEADING_TEMPER_M,
+        augmented: Augmented | None = None,
+        hold_margin: float | None = HOLD_MARGIN,
+        tie_break: float | None = TIE_BREAK,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         self.heading = bool(heading)
         self.heading_reverse = bool(heading_reverse)
         self.heading_slope = bool(heading_slope)
         self.heading_temper_metres = float(heading_temper_metres)
+        if tie_break is not None and (math.isnan(tie_break) or tie_break < 0):
+            raise InvalidParameterError(f"tie_break must be >= 0, got {tie_break!r}")
+        self.tie_break = tie_break
+        self.augmented = augmented
+        if hold_margin is not None and (math.isnan(hold_margin) or hold_margin < 0):
+            raise InvalidParameterError(f"hold_margin must be >= 0 (or inf), got {hold_margin!r}")
+        self.hold_margin = hold_margin
         self.challenger = bool(challenger)
         self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
@@ -492,6 +523,8 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             challenger=self.challenger,
             challenger_switch_nats=self.challenger_switch_nats,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.held_headings_: FArray | None = None
@@ -574,6 +607,9 @@ class PoseFilteredMethod(FilteredMethod):
             challenger=self._challenger(),
             headings=headings if self.observe else None,
             heading_temper=self._heading_temper(),
+            augmented=self.augmented,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
 
     def _heading_temper(self) -> tuple[float, float] | None:
@@ -722,6 +758,10 @@ class TrackingData:
     headings : ndarray, shape (n_steps, P), optional
         The heading each step's view implies at each place (NaN elsewhere),
         for a :class:`PoseFilteredMethod` with a heading model.
+    cells : ndarray of int, shape (n_steps,), optional
+        The place whose centre is nearest to each step's (corrected) position
+        (its Voronoi cell): the ground-truth place at *every* step, also
+        between places, as the pose filter answers there.
     """
 
     method: FilteredMethod
@@ -731,6 +771,7 @@ class TrackingData:
     positions: FArray
     increments: FArray | None = None
     headings: FArray | None = None
+    cells: IArray | None = None
 
     def run(self, idx: Any = None) -> FilterResult:
         """The method's filter over the steps ``idx`` (default all), in that order.
@@ -776,7 +817,18 @@ def prepare_tracking(
         if h is not None:
             hd = np.full(ll.shape, np.nan)
             hd[split.query_idx - split.n_mapping] = h
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd)
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd, nearest_cells(pos[split.n_mapping :], split.centres))
+
+
+def nearest_cells(positions: Any, centres: Any) -> IArray:
+    """Index of the nearest centre of each position (its Voronoi cell), shape (n,)."""
+    from scipy.spatial import cKDTree
+
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    if pos.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.asarray(cKDTree(c).query(pos)[1], dtype=np.int64)
 
 
 def with_synthetic_likelihood(
@@ -796,7 +848,7 @@ def with_synthetic_likelihood(
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
     ll[np.flatnonzero(q), data.truth[q]] += separation
-    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)  # no headings: not this front end
+    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments, None, data.cells)  # no headings: not this front end
 
 
 @dataclass(slots=True)
@@ -820,13 +872,80 @@ class KidnapResult:
         ``first_right_steps`` (steps after the jump until the best place is
         the true place at a query step; ``None`` if never) and the same for
         the never-kidnapped filter (``reference_first_right_steps``).
+
+        What is recovery and what is noise (added fields, issue 15):
+
+        * ``floor_recover_steps`` / ``floor_recover_observed_steps``: the
+          criteria of ``recover_steps`` / ``recover_observed_steps`` applied
+          to a *second never-kidnapped run* of the same filter over the
+          whole query pass (for a particle filter: other random draws)
+          against the reference, on the same B stretch. Nothing was
+          kidnapped there, so anything above 0 steps is the filter's own
+          run-to-run noise: the floor of the column. A deterministic filter
+          (the discrete one over places) gives 0. ``floor_disagreement``: the
+          fraction of B's steps where the two never-kidnapped runs name
+          different places.
+        * ``recover_truth_steps``: steps after the jump until the kidnapped
+          filter's best place is the *true* place (the place whose radius
+          holds the corrected pose) at every later observed step of B, at
+          least one of them (unlike ``recover_observed_steps``, which
+          counts a stretch as recovered after its last observation even
+          when that was wrong);
+          ``reference_recover_truth_steps``: the same for the
+          never-kidnapped reference (its floor: a filter that is wrong at
+          some late query never "recovers" on this column).
+        * ``recover_cell_steps`` / ``reference_recover_cell_steps`` (when the
+          data carry ``cells``): the same against the nearest place centre
+          of the corrected pose at *every* step of B (its Voronoi cell).
+        * ``observed`` / ``right`` / ``reference_right``: B's observed steps
+          and how many of them the kidnapped filter and the reference name
+          the true place (top-1 after a kidnapping, pooled by the summary).
     """
 
     name: str
     trials: list[dict[str, Any]]
 
     def summary(self, within: int = 10) -> dict[str, Any]:
-        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
+        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps.
+
+        Beside each recovery column, the same figures of its floor or
+        ground-truth counterpart (the trial fields above): ``floor_*`` (a
+        second never-kidnapped run against the reference), ``truth_*`` and
+        ``reference_truth_*`` (the true place at observed steps), ``cell_*``
+        and ``reference_cell_*`` (the true Voronoi cell at every step), and
+        ``kidnapped_top1`` / ``reference_top1`` over B's observed steps. A
+        field is ``None`` when no trial carries it.
+        """
+        out = self._summary(within)
+        out.update(self._honest(within))
+        return out
+
+    def _honest(self, within: int) -> dict[str, Any]:
+        """The floor and ground-truth figures (added fields; None where no trial has them)."""
+        tr = self.trials
+        out: dict[str, Any] = {}
+        for key, field in (
+            ("floor", "floor_recover_steps"),
+            ("floor_observed", "floor_recover_observed_steps"),
+            ("truth", "recover_truth_steps"),
+            ("reference_truth", "reference_recover_truth_steps"),
+            ("cell", "recover_cell_steps"),
+            ("reference_cell", "reference_recover_cell_steps"),
+        ):
+            have = [t for t in tr if field in t]
+            vals = [t[field] for t in have]
+            out[f"{key}_within_{within}"] = (
+                float(np.mean([v is not None and v <= within for v in vals])) if have else None
+            )
+            out[f"{key}_median_steps"] = _median(vals) if have else None
+        dis = [t["floor_disagreement"] for t in tr if t.get("floor_disagreement") is not None]
+        out["floor_disagreement"] = float(np.mean(dis)) if dis else None
+        n_obs = sum(int(t.get("observed", 0)) for t in tr)
+        out["kidnapped_top1"] = sum(int(t.get("right", 0)) for t in tr) / n_obs if n_obs else None
+        out["reference_top1"] = sum(int(t.get("reference_right", 0)) for t in tr) / n_obs if n_obs else None
+        return out
+
+    def _summary(self, within: int) -> dict[str, Any]:
         rec = [t["recover_steps"] for t in self.trials]
         rec_seen = [t.get("recover_observed_steps") for t in self.trials]
         merged = [t["merge_steps"] for t in self.trials if t["merge_steps"] is not None]
@@ -937,6 +1056,17 @@ def kidnap_experiment(
             hit = np.flatnonzero((truth >= 0) & (best == truth))
             return int(hit[0]) if hit.size else None
 
+        cells = None if data.cells is None else data.cells[b : b + stretch]
+        honest: dict[str, Any] = {
+            "recover_truth_steps": _settles(kid == truth, seen, confirmed=True),
+            "reference_recover_truth_steps": _settles(ref == truth, seen, confirmed=True),
+            "observed": int(seen.sum()),
+            "right": int(np.sum(seen & (kid == truth))),
+            "reference_right": int(np.sum(seen & (ref == truth))),
+        }
+        if cells is not None:
+            honest["recover_cell_steps"] = _settles(kid == cells)
+            honest["reference_recover_cell_steps"] = _settles(ref == cells)
         trials.append(
             {
                 "a_start": int(a),
@@ -949,9 +1079,36 @@ def kidnap_experiment(
                 "merge_observations": None if merged is None else int(has_q[b : b + merged + 1].sum()),
                 "first_right_steps": first_right(kid),
                 "reference_first_right_steps": first_right(ref),
+                **honest,
             }
         )
+    # The floor: a second never-kidnapped run (run after the trials, so that their draws are as before)
+    # against the reference, with the same criteria, on each trial's B stretch.
+    second = data.run()
+    for t in trials:
+        b = t["b_start"]
+        agree = second.best[b : b + stretch] == full.best[b : b + stretch]
+        t["floor_recover_steps"] = _settles(agree)
+        t["floor_recover_observed_steps"] = _settles(agree, has_q[b : b + stretch])
+        t["floor_disagreement"] = float(np.mean(~agree))
     return KidnapResult(name, trials)
+
+
+def _settles(agree: Any, mask: Any = None, *, confirmed: bool = False) -> int | None:
+    """First ``j`` such that ``agree`` holds at every step ``>= j`` (only the steps of ``mask``); None if none.
+
+    The recovery criterion of :func:`kidnap_experiment`: ``j`` ranges over
+    the stretch's steps, so a stretch whose last (masked) step disagrees
+    never settles. Without ``confirmed`` a ``j`` after the last masked step
+    counts (nothing is left to disagree: a stretch whose observations all
+    come early "settles" after them, right or wrong); with it, ``j`` must
+    be at or before the last masked step (at least one observation shows
+    the answer right).
+    """
+    ok = np.asarray(agree, dtype=bool)
+    m = np.ones(ok.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    last = int(np.flatnonzero(m)[-1]) + 1 if confirmed and m.any() else (0 if confirmed else ok.size)
+    return next((j for j in range(min(ok.size, last)) if np.all(ok[j:][m[j:]])), None)
 
 
 def run_kidnap(
@@ -966,6 +1123,8 @@ def run_kidnap(
     pose: bool = False,
     odometry_error: float = 1.0,
     kidnap: float | None = None,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -974,8 +1133,10 @@ def run_kidnap(
     with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
     pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
     simulated odometry errors times ``odometry_error``, kidnapping
-    probability ``kidnap`` per observation if given) instead of the discrete
-    filter over places.
+    probability ``kidnap`` per observation if given; ``hold_margin`` and
+    ``tie_break``, the answers between observations, if given, else the
+    method's defaults: :func:`~fingerloc.map.relocalize.answer_between`)
+    instead of the discrete filter over places.
     """
     from .protocol import load_log_scans, log_name
 
@@ -983,7 +1144,9 @@ def run_kidnap(
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
                                                   "filter": "pose" if pose else "places",
                                                   "odometry_error": odometry_error if pose else None,
-                                                  "kidnap": kidnap if pose else None}}  # fmt: skip
+                                                  "kidnap": kidnap if pose else None,
+                                                  "hold_margin": hold_margin if pose else None,
+                                                  "tie_break": tie_break if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -994,6 +1157,8 @@ def run_kidnap(
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
         opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        if pose:
+            opts.update({k: v for k, v in (("hold_margin", hold_margin), ("tie_break", tie_break)) if v is not None})
         data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)

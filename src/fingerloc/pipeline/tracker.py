@@ -50,13 +50,16 @@ from .places import visit_folds
 
 if TYPE_CHECKING:
     from ..map.pose_filter import Challenger, HeadingModel, PoseFilter
+    from ..map.relocalize import Augmented
     from ..observation import Observation
 
 __all__ = [
     "FILTERS",
     "HEADING_TEMPER_M",
+    "HOLD_MARGIN",
     "MIN_CALIBRATION_ROWS",
     "POSE_PARTICLES",
+    "TIE_BREAK",
     "Calibration",
     "FitScore",
     "HeldOut",
@@ -88,6 +91,10 @@ POSE_PARTICLES = 3000
 #: Metres after which the pose filter's heading evidence counts fully (issue 15: on the shared logs'
 #: mapping passes a held-out view's heading error stays correlated with the previous views' up to 8 m).
 HEADING_TEMPER_M = 8.0
+#: The pose filter's answer between observations: held unless another place leads by this (issue 15).
+HOLD_MARGIN = 0.05
+#: ... and near-ties within this broken by the discrete place filter (issue 15).
+TIE_BREAK = 0.02
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -144,6 +151,15 @@ class Calibration:
     heading_temper_metres : float
         Pose filter: the heading evidence counts fully after this much
         travel (or the field of view's turn); 0: as the observations.
+    hold_margin : float or None
+        Pose filter, between observations: the previous best place stays
+        the answer unless another place's probability exceeds it by this
+        much (:func:`~fingerloc.map.relocalize.held_best`; None: the argmax).
+    tie_break : float or None
+        Pose filter, between observations: among the places within this
+        probability of the answer, the one the discrete place filter believes
+        most (:func:`~fingerloc.map.relocalize.tie_broken_best`; None: off).
+        Neither changes the posterior nor the answers at observed steps.
     """
 
     beta: float = 1.0
@@ -168,6 +184,8 @@ class Calibration:
     heading_reverse: float = 0.0
     heading_cap: float = 0.0
     heading_temper_metres: float = 0.0
+    hold_margin: float | None = HOLD_MARGIN
+    tie_break: float | None = TIE_BREAK
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -471,6 +489,9 @@ def run_pose_steps(
     place_steps: SharedPlaceSteps | None = None,
     headings: Any = None,
     heading_temper: tuple[float, float] | None = None,
+    augmented: Augmented | None = None,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -499,8 +520,15 @@ def run_pose_steps(
         none), used when the pose filter has a heading model.
     heading_temper : (metres, radians), optional
         The heading evidence's own tempering (default: the observations').
+    augmented : Augmented, optional
+        Run :func:`~fingerloc.map.relocalize.run_augmented_pose_filter`
+        (Augmented MCL) instead (``reset_threshold`` and ``headings`` are
+        then not used; not with ``challenger``).
+    hold_margin, tie_break : float, optional
+        The answers between observations
+        (:func:`~fingerloc.map.relocalize.answer_between`; ``None``: off).
     """
-    from ..map.pose_filter import observation_weights, run_challenged_pose_filter, run_pose_filter
+    from ..map.pose_filter import observation_weights
 
     hw = None
     if headings is not None and heading_temper is not None:
@@ -509,11 +537,57 @@ def run_pose_steps(
             np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:], ~np.all(np.isnan(lls), axis=1),
             metres=heading_temper[0], radians=heading_temper[1],
         )  # fmt: skip
+    res = _run_pose_steps(log_likelihood, increments, pose_filter, transition, temper=temper, relocalize=relocalize,
+                          start_at_first_observation=start_at_first_observation, gap_metres=gap_metres,
+                          reset_threshold=reset_threshold, challenger=challenger, place_steps=place_steps,
+                          augmented=augmented, headings=headings, heading_weights=hw)  # fmt: skip
+    if hold_margin is None and tie_break is None:
+        return res
+    from ..map.relocalize import answer_between
+
+    return answer_between(res, log_likelihood, increments, transition, hold_margin=hold_margin, tie_break=tie_break)
+
+
+def _run_pose_steps(
+    log_likelihood: Any,
+    increments: Any,
+    pose_filter: PoseFilter,
+    transition: TransitionModel,
+    *,
+    temper: tuple[float, float] | None,
+    relocalize: bool,
+    start_at_first_observation: bool,
+    gap_metres: float | None,
+    reset_threshold: float | None,
+    challenger: Challenger | None,
+    place_steps: SharedPlaceSteps | None,
+    augmented: Augmented | None,
+    headings: Any,
+    heading_weights: Any,
+) -> FilterResult:
+    """:func:`run_pose_steps` before the answers between observations (Augmented MCL runs without headings)."""
+    from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
 
     def places() -> MarkovFilter | None:
         if not relocalize:
             return None
         return MarkovFilter(transition) if place_steps is None else place_steps.filter(transition)
+
+    if augmented is not None:
+        if challenger is not None:
+            raise InvalidParameterError("the challenger and Augmented MCL are not run together")
+        from ..map.relocalize import run_augmented_pose_filter
+
+        return run_augmented_pose_filter(
+            log_likelihood,
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            pose_filter,
+            augmented,
+            temper=temper,
+            place_filter=places(),
+            start_at_first_observation=start_at_first_observation,
+            gap_metres=gap_metres,
+        )
 
     if challenger is not None:
         return run_challenged_pose_filter(
@@ -538,7 +612,7 @@ def run_pose_steps(
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
         headings=headings,
-        heading_weights=hw,
+        heading_weights=heading_weights,
     )
 
 
@@ -754,6 +828,8 @@ class Tracker:
             place_steps=place_steps,
             headings=headings,
             heading_temper=(c.heading_temper_metres, c.temper_radians) if temper and c.heading_temper_metres > 0 else None,
+            hold_margin=c.hold_margin,
+            tie_break=c.tie_break,
         )
 
     def run(
