@@ -948,6 +948,9 @@ class _ReplayGenerator(np.random.Generator):
         self._own = False  # diverged from the record: every draw is this generator's
 
     def _draw(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
+        if self._own and self._synced == self._i:  # diverged and in step: a plain draw (the same as below)
+            self._i = self._synced = self._i + 1
+            return getattr(np.random.Generator, name)(self, *args, **kwargs)
         key = (name, args, tuple(sorted(kwargs.items())))
         log = self._shared.log
         i = self._i
@@ -986,6 +989,9 @@ class _ReplayGenerator(np.random.Generator):
 
     def integers(self, *args: Any, **kwargs: Any) -> Any:
         return self._draw("integers", args, kwargs)
+
+    def vonmises(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("vonmises", args, kwargs)
 
     def choice(self, a: Any, size: Any = None, replace: bool = True, p: Any = None, **kwargs: Any) -> Any:  # type: ignore[override]
         if p is not None and replace and not kwargs and isinstance(a, (int, np.integer)) and isinstance(size, (int, np.integer)):
