@@ -11,7 +11,12 @@ from hypothesis import strategies as st
 from scipy.special import logsumexp
 
 from fingerloc.errors import InvalidParameterError, NotFittedError
-from fingerloc.features.vision import AppearanceParams, appearance_descriptor, observation_from_views
+from fingerloc.features.vision import (
+    APPEARANCE_VERSIONS,
+    AppearanceParams,
+    appearance_descriptor,
+    observation_from_views,
+)
 from fingerloc.observation import Observation
 from fingerloc.sensors import Panorama
 from fingerloc.terms.appearance import AppearanceTerm, fit_lambda
@@ -28,14 +33,37 @@ def _pano(seed: int = 0, **kw: object) -> Panorama:
     return Panorama(img.astype(np.float32))
 
 
-def test_descriptor_blocks_sum_to_one_and_size():
+def _other_scene() -> Panorama:
+    return _pano(seed=3, wall_cols=(100, 200, 520, 650), patches=((20, 60, 300.0), (300, 360, 60.0), (560, 600, 180.0)))
+
+
+def _l1(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).sum())
+
+
+def test_descriptor_blocks_and_size():
+    """Per strip: squares of the colour / grey shares sum to 1 / strips, as do the gradient orientation and
+    magnitude shares' (each number is sqrt(share / strips))."""
     p = AppearanceParams()
     d = appearance_descriptor(_pano())
-    nh = p.hue_bins * len(p.sat_edges)
-    assert d.shape == (p.size,)
+    assert d.shape == (p.size,) == (222,)
+    assert APPEARANCE_VERSIONS[p.size] == 2
     assert np.all(d >= 0)
-    assert d[: nh + p.value_bins + 2].sum() == pytest.approx(1.0)  # every pixel in one colour/grey bin
-    assert d[nh + p.value_bins + 2 :].sum() == pytest.approx(1.0)  # layout spectrum
+    nc = p.hue_bins * len(p.sat_edges) + p.value_bins + 2
+    per = d.reshape(p.strips, p.strip_size) ** 2
+    assert np.allclose(per[:, :nc].sum(axis=1), 1.0 / p.strips)  # every pixel in one colour/grey/dark/blown bin
+    assert np.allclose(per[:, nc : nc + p.orientation_bins].sum(axis=1), 1.0 / p.strips)
+    assert np.allclose(per[:, nc + p.orientation_bins :].sum(axis=1), 1.0 / p.strips)
+
+
+def test_descriptor_version_1_layout_still_available():
+    """strips=1, no gradients, 12 harmonics: the 94 numbers of version 1 (the term tells the versions apart)."""
+    p = AppearanceParams(strips=1, gradients=False, harmonics=12)
+    assert p.size == 94 and APPEARANCE_VERSIONS[94] == 1
+    assert appearance_descriptor(_pano(), strips=1, gradients=False, harmonics=12).shape == (94,)
+    from fingerloc.terms.appearance import _DESCRIPTOR_VERSIONS
+
+    assert _DESCRIPTOR_VERSIONS == APPEARANCE_VERSIONS
 
 
 @settings(max_examples=15, deadline=None)
@@ -47,26 +75,88 @@ def test_descriptor_is_heading_free(shift):
     assert np.allclose(appearance_descriptor(rolled), appearance_descriptor(pano), atol=1e-9)
 
 
-def test_descriptor_tells_scenes_apart_despite_exposure():
-    """A darker exposure of one scene stays nearer to it than another scene does."""
+def test_descriptor_same_at_any_resolution():
+    """A photo twice as large (each pixel a 2 x 2 block) gives the same descriptor: block means to ~720 columns."""
+    pano = _pano()
+    big = Panorama(np.repeat(np.repeat(pano.image, 2, axis=0), 2, axis=1))
+    assert np.allclose(appearance_descriptor(big), appearance_descriptor(pano), atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda im: im * np.array([1.15, 1.0, 0.85], dtype=np.float32),  # a warm white balance
+        lambda im: im * 0.7,  # a shorter exposure
+        lambda im: im * 1.1,  # a longer one (the ceiling clips)
+    ],
+)
+def test_colour_cast_and_exposure_barely_move_the_descriptor(change):
+    """White balance and exposure normalisation: another cast or exposure of one scene moves the descriptor
+    by less than a fifth of the distance to another room painted alike."""
     a = _pano()
-    darker = Panorama((a.image * 0.75).astype(np.float32))
-    other = _pano(
-        seed=3, wall_cols=(100, 200, 520, 650), patches=((20, 60, 300.0), (300, 360, 60.0), (560, 600, 180.0))
-    )
-    da, dd, do = (appearance_descriptor(p) for p in (a, darker, other))
-    assert np.abs(da - dd).sum() < 0.5 * np.abs(da - do).sum()
+    changed = Panorama(np.clip(change(a.image), 0.0, 1.0).astype(np.float32))
+    da, dc, do = (appearance_descriptor(p) for p in (a, changed, _other_scene()))
+    assert _l1(da, dc) < 0.2 * _l1(da, do)
+
+
+def test_cool_cast_on_walls_at_the_grey_threshold_known_limit():
+    """Known limit: this scene's beige walls sit on the grey / colour saturation edge (0.15); under a cool
+    cast the grey-world balance picks other reference pixels and part of the walls changes bins. The
+    scene stays nearer to itself than to another room, but not by a factor 5 (0.66 of the way). Repeating
+    the balance until it settles cured this scene but lost on real photos (docs/RESULTS.md, issue 14,
+    second pass of the appearance term), so it is not done."""
+    a = _pano()
+    cool = Panorama(np.clip(a.image * np.array([0.88, 1.0, 1.12], dtype=np.float32), 0.0, 1.0))
+    da, dc, do = (appearance_descriptor(p) for p in (a, cool, _other_scene()))
+    assert _l1(da, dc) < 0.75 * _l1(da, do)
+
+
+def test_different_scene_moves_the_descriptor():
+    """Another room painted alike (other wall breaks and posters) is far; new noise on the same room is not."""
+    a = _pano()
+    again = _pano(seed=1)  # the same room, another noise draw
+    da = appearance_descriptor(a)
+    assert _l1(da, appearance_descriptor(again)) < 0.15 * _l1(da, appearance_descriptor(_other_scene()))
+
+
+def test_strips_see_elevation():
+    """Upside down, the same pixels: one strip without gradients cannot tell, the default strips can."""
+    a = _pano()
+    flipped = Panorama(np.ascontiguousarray(a.image[::-1]))
+    kw = {"strips": 1, "gradients": False}
+    assert np.allclose(appearance_descriptor(flipped, **kw), appearance_descriptor(a, **kw), atol=1e-12)
+    assert _l1(appearance_descriptor(flipped), appearance_descriptor(a)) > 1.0
 
 
 def test_descriptor_hue_goes_to_its_bin():
-    """A uniform saturated red band fills the red, most saturated bin only."""
-    img = np.zeros((20, 64, 3), dtype=np.float32)
+    """A uniform saturated red band fills the red, most saturated bin only, in every strip."""
+    img = np.zeros((24, 64, 3), dtype=np.float32)
     img[..., 0] = 0.9
     img[..., 1] = 0.1
     img[..., 2] = 0.1
-    d = appearance_descriptor(Panorama(img), white_balance=False)
     p = AppearanceParams()
-    assert d[len(p.sat_edges) - 1] == pytest.approx(1.0)  # hue bin 0, top saturation bin
+    d = appearance_descriptor(Panorama(img), white_balance=False).reshape(p.strips, p.strip_size)
+    assert np.allclose(d[:, len(p.sat_edges) - 1], np.sqrt(1.0 / p.strips))  # hue bin 0, top saturation bin
+    assert np.allclose(d[:, : p.hue_bins * len(p.sat_edges) + p.value_bins + 2].sum(axis=1), np.sqrt(1.0 / p.strips))
+
+
+def test_gradient_orientation_oracle():
+    """Vertical stripes (edges across the columns) put every gradient in orientation bin 0; horizontal
+    stripes in the bin of 90 deg; a flat image has only the weakest magnitude bin."""
+    p = AppearanceParams(strips=1)
+    nc = p.hue_bins * len(p.sat_edges) + p.value_bins + 2
+    cols = np.zeros((40, 64, 3), dtype=np.float32) + 0.3
+    cols[:, ::8] = 0.8  # one bright column in 8: column gradients only
+    rows = np.ascontiguousarray(np.transpose(cols, (1, 0, 2))[:, :40].repeat(2, axis=1)[:, :64])
+    rows = np.zeros((40, 64, 3), dtype=np.float32) + 0.3
+    rows[::8] = 0.8  # one bright row in 8: row gradients only (away from the band's border rows)
+    for img, bin_ in ((cols, 0), (rows, p.orientation_bins // 2)):
+        d = appearance_descriptor(Panorama(img), strips=1, white_balance=False) ** 2
+        orient = d[nc : nc + p.orientation_bins]
+        assert orient[bin_] == pytest.approx(1.0)
+    flat = appearance_descriptor(Panorama(np.full((40, 64, 3), 0.5, dtype=np.float32)), strips=1) ** 2
+    assert flat[nc + p.orientation_bins] == pytest.approx(1.0)  # magnitude below 0.005 everywhere
+    assert np.allclose(flat[nc : nc + p.orientation_bins], 1.0 / p.orientation_bins)  # no gradient: uniform
 
 
 def test_descriptor_bad_params():
@@ -74,6 +164,14 @@ def test_descriptor_bad_params():
         appearance_descriptor(_pano(), sat_edges=(0.5, 0.2))
     with pytest.raises(InvalidParameterError, match="hue_bins"):
         appearance_descriptor(_pano(), hue_bins=0)
+    with pytest.raises(InvalidParameterError, match="strips"):
+        appearance_descriptor(_pano(), strips=0)
+    with pytest.raises(InvalidParameterError, match="harmonics"):
+        appearance_descriptor(_pano(), harmonics=-1)
+    with pytest.raises(InvalidParameterError, match="gradients"):
+        appearance_descriptor(_pano(), gradients=1)
+    with pytest.raises(InvalidParameterError, match="fewer than the 3 strips"):
+        appearance_descriptor(Panorama(np.full((2, 64, 3), 0.5, dtype=np.float32)))
     with pytest.raises(InvalidParameterError, match="unknown appearance parameter 'bins'"):
         appearance_descriptor(_pano(), bins=3)
 
@@ -216,6 +314,26 @@ def test_term_errors():
         term.log_likelihood([Observation(appearance=[1.0, 2.0, 3.0])])
     with pytest.raises(InvalidParameterError, match="malformed"):
         AppearanceTerm().set_state({"metric": "l1"}, [])
+
+
+def test_old_database_new_query_names_the_descriptor_versions(tmp_path):
+    """Places learned from version-1 descriptors (94 numbers), a query with version 2 (222): one clear
+    error through a saved and loaded model, naming both versions; same-version queries still work."""
+    from fingerloc.errors import FingerlocError
+    from fingerloc.map.database import load_model, save_model
+    from fingerloc.model import PlaceModel
+
+    old = [_pano(seed=s) for s in (0, 1)] + [_other_scene()]
+    v1 = {"strips": 1, "gradients": False, "harmonics": 12}
+    train = [Observation(appearance=appearance_descriptor(p, **v1), label=lab) for p, lab in zip(old, "aab", strict=True)]
+    model = PlaceModel(terms=("A",)).fit(train)
+    save_model(model, tmp_path / "old.sqlite")
+    loaded = load_model(tmp_path / "old.sqlite")
+    assert loaded.predict([train[2]])[0] == "b"  # old features still work with the old database
+    query = Observation(appearance=appearance_descriptor(_other_scene()))
+    with pytest.raises(FingerlocError, match="descriptor versions 2 and 1") as err:
+        loaded.predict([query])
+    assert "\n" not in str(err.value)
 
 
 # ---------------------------------------------------------------------------

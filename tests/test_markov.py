@@ -7,16 +7,14 @@ from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.carmen import make_method, make_split, run_benchmark
 from fingerloc.experiments.markov import (
     FilteredMethod,
-    TrackingData,
     kidnap_experiment,
     mapping_graph,
     step_distances,
     with_synthetic_likelihood,
 )
-from fingerloc.map.filter import TransitionModel
-from fingerloc.map.graph import PlaceGraph
 from fingerloc.pipeline.places import visit_folds
 
+from ._chain import chain_data as _chain_data
 from ._cli import run_cli as _run_cli
 
 
@@ -71,19 +69,6 @@ def test_filtered_method_steps_every_query_pass_scan(rooms_log):
     assert m.scale_ > 0 and m.calibration_rows_ > 0
     with pytest.raises(InvalidParameterError, match="queries"):
         m.score(scans[:2])
-
-
-def _chain_data(p=30, per_place=3, seed=0):
-    """A robot walking a 30-place corridor three steps per place, one metre a step, with a synthetic sensor."""
-    truth = np.repeat(np.arange(p), per_place)
-    pos = np.column_stack([np.arange(truth.size) * 1.0, np.zeros(truth.size)])
-    g = PlaceGraph.from_sequence([str(i) for i in range(p)], [str(i) for i in truth])
-
-    class Fitted:
-        transition_ = TransitionModel.from_graph(g, metres_per_move=3.0)
-
-    data = TrackingData(Fitted(), np.zeros((truth.size, p)), step_distances(pos), truth, pos)  # type: ignore[arg-type]
-    return with_synthetic_likelihood(data, 2.5, random_state=seed)
 
 
 def test_synthetic_likelihood_marks_the_true_place():
@@ -145,6 +130,11 @@ def test_cli_bench_kidnap(rooms_log, tmp_path, capsys):
     js = json.loads(out.read_text())
     assert "rooms" in js["logs"] and "pooled" in js and js["params"]["stretch"] == 3
     assert "pooled" in text
+    # the floor and ground-truth fields beside the old ones (issue 15); the discrete filter has no floor
+    assert {"floor_within_10", "floor_observed_within_10", "truth_within_10", "reference_truth_within_10",
+            "cell_within_10", "kidnapped_top1"} <= set(js["pooled"])  # fmt: skip
+    assert all(t["floor_recover_steps"] == 0 for t in js["logs"]["rooms"]["trials"])
+    assert "floor" in text and "truth" in text
 
 
 def test_cli_track_jsonl_graph_from(tmp_path, capsys):

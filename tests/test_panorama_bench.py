@@ -229,7 +229,7 @@ def test_bench_commands(tour, tmp_path, capsys):
     assert code == 2 and "--cache: no folder" in err
     bad = tmp_path / "bad-cache.jsonl"
     bad.write_text(
-        '{"band": [0.25, 0.75], "width": 360, "edges": {"nms_deg": 3.0, "max_edges": 12}, "version": 4}\nnot json\n'
+        '{"band": [0.25, 0.75], "width": 360, "edges": {"nms_deg": 3.0, "max_edges": 12}, "version": 5}\nnot json\n'
     )
     code, _, err = run_cli(capsys, "bench", "panorama", photos, "--areas", blocks, "--width", 360, "--cache", bad)
     assert code == 2 and "bad-cache.jsonl:2" in err and "not a feature cache" in err

@@ -281,6 +281,24 @@ def test_tuning_grid_with_shared_draws_equals_separate_runs():
     assert len({x["top1"] for x in a[1]}) > 1  # the grid's runs differ
 
 
+def test_tuning_grid_with_headings_shares_draws_exactly():
+    """Heading evidence draws von Mises headings for fresh particles: those draws are shared too."""
+    from fingerloc.pipeline.tracker import Calibration, HeldOut, Tracker, tune_pose_filter
+
+    ll, _, q, centres, poses, g = _corridor(8, 5)
+    rows = np.flatnonzero(q)
+    truth = np.argmin(np.linalg.norm(poses[rows, None, :2] - centres[None], axis=2), axis=1)
+    held = HeldOut(beta=1.0, rows=rows.size, scores=ll[rows], labels=truth, index=np.arange(rows.size))
+    rng = np.random.default_rng(5)
+    headings = poses[rows, 2:3] + 0.1 * rng.standard_normal((rows.size, centres.shape[0]))  # implied at every place
+    cal = Calibration(radius=0.6, kidnap=0.05, start_at_first_observation=True, heading_kappa=30.0,
+                      heading_intercept=1.0, heading_cap=0.9, heading_temper_metres=3.0)  # fmt: skip
+    tr = Tracker(centres, g, cal, n_particles=300)
+    a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, headings=headings)
+    b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, share_draws=False, headings=headings)
+    assert a == b
+
+
 def test_shared_place_steps_are_the_filter_own_beliefs():
     from fingerloc.map.filter import SharedPlaceSteps
 

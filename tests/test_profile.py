@@ -79,11 +79,12 @@ def test_profile_is_standardised_and_checked():
 def test_observation_profile_round_trip_and_rotation():
     prof = column_profile(Panorama(_room(1, 0, seed=0)))
     o = observation_from_views(panorama=Panorama(_room(1, 0, seed=0)), appearance=True, profile=True)
-    assert o.profile is not None and np.allclose(o.profile, prof)
+    assert o.profile is not None and o.profile.shape == (36, 20)  # 36 sectors of 10 deg x 4 strips x 5 channels
+    assert np.array_equal(o.profile, np.round(prof, 2))  # stored at two decimals
     rec = json.loads(json.dumps(observation_to_record(o)))
     back = observation_from_record(rec)
     assert back.profile is not None and np.allclose(back.profile, o.profile, atol=1e-3)
-    r = o.rotated(np.deg2rad(10.0))  # two rows of 5 deg
+    r = o.rotated(np.deg2rad(20.0))  # two rows of 10 deg
     assert np.array_equal(r.profile, np.roll(o.profile, 2, axis=0))
     assert observation_from_views(panorama=Panorama(_room(1, 0, seed=0))).profile is None
     with pytest.raises(InvalidParameterError, match="profile"):
@@ -221,3 +222,16 @@ def test_heading_link_errors_scores_the_profile_against_the_arrows(tmp_path):
     assert res["profile, same area"]["median_error_deg"] < 3.0
     assert res["profile, all links"]["pairs"] == 2 and res["profile, all links"]["within_30"] == 0.5
     assert res["pairs"][0]["truth_deg"] == 320.0
+
+
+def test_old_72_sector_profiles_against_new_36_sector_query_say_so():
+    """Places learned from the former 72-sector profiles, a query with today's 36: one error naming both."""
+    old = [
+        [Observation(profile=column_profile(Panorama(_room(r, 0, seed=s)), columns=72), label=f"room{r}") for s in (0, 1)]
+        for r in (0, 1)
+    ]
+    term = ProfileTerm().fit(old)
+    query = Observation(profile=column_profile(Panorama(_room(0, 40, seed=5))))
+    with pytest.raises(InvalidParameterError, match="72 sectors before issue 14's second pass, 36 since"):
+        term.log_likelihood([query])
+    assert term.log_likelihood([old[0][0]]).shape == (1, 2)  # old queries still work with old places

@@ -16,7 +16,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import intrinsic
+
+from ._seed_kernels import default_rng_random
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -38,8 +41,21 @@ _LN2_HI = 0.6931471803691238
 _LN2_LO = 1.9082149292705877e-10
 #: 1.5 * 2^52: ``(y + _ROUND) - _ROUND`` is y rounded to the nearest integer (|y| < 2^51).
 _ROUND = 6755399441055744.0
-# 1 / n!, n = 2..13: the Taylor polynomial of exp on |r| <= ln 2 / 2 (truncation error < 1e-17 relative)
-_E2, _E3, _E4, _E5, _E6, _E7, _E8, _E9, _E10, _E11, _E12, _E13 = (1.0 / math.factorial(i) for i in range(2, 14))
+# exp on |r| <= 0.347 (> ln 2 / 2) by a polynomial of degree 11: exp's Taylor polynomial of degree 14 with its
+# terms of degree 14, 13 and 12 traded for their Chebyshev approximations ("economisation", done in exact
+# rationals: tests/test_mog_seeding.py re-derives these constants), then rounded to float64. Error below 3.2e-18
+# (0.03 units in the last place), against 4e-18 for the Taylor polynomial of degree 13 used before, in two
+# fused multiply-adds fewer. The constant and linear coefficients round to exactly 1.
+_E2 = 0.5000000000000019
+_E3 = 0.16666666666666702
+_E4 = 0.041666666666486316
+_E5 = 0.008333333333309335
+_E6 = 0.0013888888952787917
+_E7 = 0.0001984126990960452
+_E8 = 2.4801484976906916e-05
+_E9 = 2.7557224637093587e-06
+_E10 = 2.763282629384276e-07
+_E11 = 2.5114952121245525e-08
 
 
 @njit(cache=True)
@@ -69,7 +85,9 @@ def _wrap1(a: float) -> float:  # pragma: no cover - compiled
 @njit(cache=True)
 def _log_norm(s: float) -> float:  # pragma: no cover - compiled
     """log eta = -log( sqrt(2 pi) s erf(pi / (sqrt(2) s)) )."""
-    return -(_LOG_SQRT_2PI + math.log(s) + math.log(math.erf(_PI / (_SQRT2 * s))))
+    z = _PI / (_SQRT2 * s)
+    # erf(z) rounds to exactly 1.0 from z = 6 on (1 - erf(6) = 2e-17 < 2^-54), and log(1.0) is +0.0: skip both calls
+    return -(_LOG_SQRT_2PI + math.log(s) + (0.0 if z >= 6.0 else math.log(math.erf(z))))
 
 
 @njit(cache=True, inline="always")
@@ -77,9 +95,7 @@ def _exp_poly(t: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """(p, k) with exp(t) = p 2^k, k the nearest integer to t / ln 2, p = exp(t - k ln 2) in [0.7, 1.42] (see :func:`_exp_neg`)."""
     kf = (t * _INV_LN2 + _ROUND) - _ROUND
     r = (t - kf * _LN2_HI) - kf * _LN2_LO
-    p = _E13 * r + _E12
-    p = p * r + _E11
-    p = p * r + _E10
+    p = _E11 * r + _E10
     p = p * r + _E9
     p = p * r + _E8
     p = p * r + _E7
@@ -99,8 +115,8 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
 
     Branch-free so a loop of it vectorises (the C library's ``exp`` is a call
     per value): t = k ln 2 + r with k the nearest integer to t / ln 2 (ln 2
-    split in two for an exact reduction), a degree-13 Taylor polynomial for
-    exp(r) on |r| <= ln 2 / 2, then the factor 2^k, k in [-58, 0], as one exact
+    split in two for an exact reduction), a polynomial of degree 11 for
+    exp(r) on |r| <= ln 2 / 2 (see the constants ``_E2``...), then the factor 2^k, k in [-58, 0], as one exact
     power-of-two product per bit of -k. Compiled with fused multiply-adds, as
     in :func:`_e_step`: equal to the C library's ``exp`` for 94 % of
     arguments and one ulp away for the rest (tests/test_mog.py).
@@ -125,69 +141,162 @@ def _exp_neg(t: float) -> float:  # pragma: no cover - compiled
     return p * (0.5 if m >= 1.0 else 1.0)
 
 
-@njit(cache=True, fastmath={"contract"})
-def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
-    """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
+@intrinsic
+def _bits_to_float(typingctx, b):  # pragma: no cover - compiled
+    """The float64 whose IEEE bits are the int64 ``b`` (a register bitcast: free, and vectorisable)."""
+    if b != types.int64:
+        return None
 
-    ``mx``, ``ssum`` (float64) and ``bits`` (int64) are (n,) scratch. Every
-    loop runs component-major and branch-free, so the compiler vectorises all
-    of them but the log-likelihood product. The exponentials are those of
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return types.float64(types.int64), codegen
+
+
+@njit(cache=True, fastmath={"contract"})
+def _e_terms(x, k, w, mu, sg, d, r, mx, ssum):  # pragma: no cover
+    """The E-step up to the normalisation: distances ``d`` = distAS(mu_j, x_i) (K, n) and terms ``r`` (K, n).
+
+    Leaves in ``r`` the unnormalised terms (the largest of each point exactly
+    1), in ``ssum`` the reciprocals of their sums, and returns the mean
+    log-likelihood; rows of dead components (weight 0) are set to 0 in ``r``
+    and ``d``. ``mx`` and ``ssum`` are (n,) scratch. Every loop runs
+    component-major and branch-free, so the compiler vectorises all of them
+    but the log-likelihood product. The exponentials are those of
     :func:`_exp_neg` (its polynomial on fused multiply-adds: ``fastmath`` is
-    ``contract`` only), the factor 2^k built from its bits. A term below
+    ``contract`` only), the factor 2^k made from its bits. A term below
     ``exp(-_SKIP)`` times the largest one is taken as 0 (it could not change
-    the sum in double precision); the largest one is exactly 1.
+    the sum in double precision).
     """
-    n = x.shape[0]
-    for i in range(n):
-        mx[i] = -np.inf
-        ssum[i] = 0.0
+    n = d.shape[1]
+    first = True  # the first live component sets mx and ssum (the same values as max / sum from -inf / 0)
     for j in range(k):
         if w[j] > 0.0:
             cj = math.log(w[j]) + _log_norm(sg[j])
             invj = 0.5 / (sg[j] * sg[j])
             muj = mu[j]
-            for i in range(n):
-                dj = x[i] - muj
-                dj = dj - _TWO_PI if dj > _PI else dj
-                dj = dj + _TWO_PI if dj <= -_PI else dj
-                d[j, i] = dj
-                a = cj - dj * dj * invj
-                r[j, i] = a
-                mx[i] = a if a > mx[i] else mx[i]
-    # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) built from its bits, in a second loop:
-    # an exact power of two either way, so the same values, in fewer instructions
-    scale = bits.view(np.float64)
+            if first:
+                for i in range(n):
+                    dj = x[i] - muj
+                    dj = dj - _TWO_PI if dj > _PI else dj
+                    dj = dj + _TWO_PI if dj <= -_PI else dj
+                    d[j, i] = dj
+                    a = cj - dj * dj * invj
+                    r[j, i] = a
+                    mx[i] = a
+            else:
+                for i in range(n):
+                    dj = x[i] - muj
+                    dj = dj - _TWO_PI if dj > _PI else dj
+                    dj = dj + _TWO_PI if dj <= -_PI else dj
+                    d[j, i] = dj
+                    a = cj - dj * dj * invj
+                    r[j, i] = a
+                    mx[i] = a if a > mx[i] else mx[i]
+            first = False
+    # exp(t) = p 2^k as in _exp_neg, the factor 2^k (k in [-58, 0]) made from its bits: an exact power of
+    # two either way, so the same values in fewer instructions. At t = 0 (the largest term) p = 1 and k = 0.
+    first = True
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 t = r[j, i] - mx[i]
                 p, kf = _exp_poly(t if t > -_SKIP else -_SKIP)
-                bits[i] = (np.int64(kf) + 1023) << 52
-                r[j, i] = 1.0 if t == 0.0 else (p if t > -_SKIP else 0.0)  # k = 0 where t = 0
-            for i in range(n):
-                e = r[j, i] * scale[i]
+                e = p * _bits_to_float((np.int64(kf) + 1023) << 52)  # type: ignore[call-arg]  # numba intrinsic
+                e = e if t > -_SKIP else 0.0
                 r[j, i] = e
-                ssum[i] += e
+                ssum[i] = e if first else ssum[i] + e
+            first = False
         else:
             for i in range(n):
                 r[j, i] = 0.0
                 d[j, i] = 0.0
     # log-likelihood: sum_i (mx_i + log s_i) with s_i = ssum_i in [1, K]; one log per many points
-    total = 0.0
-    prod = 1.0
-    for i in range(n):
-        total += mx[i]
-        prod *= ssum[i]
-        if prod > 1e200:
-            total += math.log(prod)
-            prod = 1.0
+    total = _sum(mx)
+    p0 = 1.0
+    p1 = 1.0
+    p2 = 1.0
+    p3 = 1.0
+    n4 = n - n % 4
+    for i in range(0, n4, 4):  # four independent products: a quarter of the latency of one
+        p0 *= ssum[i]
+        p1 *= ssum[i + 1]
+        p2 *= ssum[i + 2]
+        p3 *= ssum[i + 3]
+        if p0 > 1e70 or p1 > 1e70 or p2 > 1e70 or p3 > 1e70:
+            total += math.log((p0 * p1) * (p2 * p3))
+            p0 = 1.0
+            p1 = 1.0
+            p2 = 1.0
+            p3 = 1.0
+    for i in range(n4, n):
+        p0 *= ssum[i]
     for i in range(n):
         ssum[i] = 1.0 / ssum[i]
+    return (total + math.log((p0 * p1) * (p2 * p3))) / n
+
+
+@njit(cache=True)
+def _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits):  # pragma: no cover
+    """Responsibilities r (K, n), distances d = distAS(mu_j, x_i) (K, n); returns the mean log-likelihood.
+
+    :func:`_e_terms`, then each term times the reciprocal of its point's sum (``ssum`` ends as those reciprocals).
+    ``bits`` (n,) int64 is no longer used (the factors 2^k are made in
+    registers); it stays in the signature for existing callers.
+    """
+    n = x.shape[0]
+    ll = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
     for j in range(k):
         if w[j] > 0.0:
             for i in range(n):
                 r[j, i] *= ssum[i]
-    return (total + math.log(prod)) / n
+    return ll
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _sum(a):  # pragma: no cover
+    """sum_i a_i in any order (vectorised)."""
+    t = 0.0
+    for i in range(a.shape[0]):
+        t += a[i]
+    return t
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _resp_sums(k, w, r, inv, d, nk, sd):  # pragma: no cover
+    """For each live component: r_j *= inv (the responsibilities), nk_j = sum_i r_ji, sd_j = sum_i r_ji d_ji (vectorised)."""
+    n = inv.shape[0]
+    for j in range(k):
+        if w[j] > 0.0:
+            a = 0.0
+            b = 0.0
+            for i in range(n):
+                e = r[j, i] * inv[i]
+                r[j, i] = e
+                a += e
+                b += e * d[j, i]
+            nk[j] = a
+            sd[j] = b
+
+
+@njit(cache=True, fastmath={"reassoc"})
+def _sq_dist_sums(k, w, r, x, m, s2):  # pragma: no cover
+    """For each live component: s2_j = sum_i r_ji distAS(m_j, x_i)^2 in any order (vectorised).
+
+    distAS as two selects: as fast as the E-step's; written as products by
+    booleans (``e - 2 pi (e > pi)``) this loop took 8 % more of the whole fit.
+    """
+    n = x.shape[0]
+    for j in range(k):
+        if w[j] > 0.0:
+            a = 0.0
+            mj = m[j]
+            for i in range(n):
+                e = x[i] - mj
+                e = e - _TWO_PI if e > _PI else e
+                e = e + _TWO_PI if e <= -_PI else e
+                a += r[j, i] * e * e
+            s2[j] = a
 
 
 @njit(cache=True, fastmath={"reassoc"})
@@ -207,7 +316,8 @@ def _sum_sq_dist(rj, x, m):  # pragma: no cover
     a = 0.0
     for i in range(x.shape[0]):
         e = x[i] - m
-        e = (e - _TWO_PI * (e > _PI)) + _TWO_PI * (e <= -_PI)  # _dist(m, x_i), without branches
+        e = e - _TWO_PI if e > _PI else e  # _dist(m, x_i), as selects (no branches)
+        e = e + _TWO_PI if e <= -_PI else e
         a += rj[i] * e * e
     return a
 
@@ -298,17 +408,22 @@ def _init_params(x, kmax, u, min_sigma, w, mu, sg, d, r, dmin):  # pragma: no co
             w[j] = 0.0
             mu[j] = 0.0
             sg[j] = 1.0
-    for i in range(n):
-        best = 0
-        bestd = np.inf
-        for j in range(k):
-            e = _dist(centers[j], x[i])
+    # each point to its nearest centre (the first one on ties), component by component so the loops vectorise
+    best = np.zeros(n, dtype=np.int64)
+    for j in range(k):
+        cj = centers[j]
+        for i in range(n):
+            e = x[i] - cj  # _dist(cj, x_i)
+            e = e - _TWO_PI if e > _PI else e
+            e = e + _TWO_PI if e <= -_PI else e
             d[j, i] = e
-            if abs(e) < bestd:
-                bestd = abs(e)
-                best = j
-        for j in range(k):
-            r[j, i] = 1.0 if j == best else 0.0
+            ae = abs(e)
+            closer = j == 0 or ae < dmin[i]
+            dmin[i] = ae if closer else dmin[i]
+            best[i] = j if closer else best[i]
+    for j in range(k):
+        for i in range(n):
+            r[j, i] = 1.0 if best[i] == j else 0.0
     _m_step(x, k, w, mu, sg, d, r, min_sigma)
     return k
 
@@ -322,25 +437,56 @@ def _em(x, k, w, mu, sg, tol, max_iter, min_sigma, d, r, mx, ssum, trace):  # pr
     the truncation at +-pi matters, which the paper's sigma update ignores) is
     undone: the parameters returned are never worse than any earlier iterate.
     ``trace`` (length max_iter + 1, or empty) receives the raw log-likelihoods.
+
+    Each iteration is :func:`_m_step` then :func:`_e_step`, with one pass over
+    the points fewer: the E-step's normalisation also sums the
+    responsibilities and their weighted distances (the next M-step's weights
+    and means, :func:`_resp_sums`), and each sum over the points runs for all
+    components in one call. (Storing the distances to the new means in the
+    sigma pass, for the next E-step to read, was slower than computing them
+    twice.)
     """
+    n = x.shape[0]
     wb = np.empty(k)
     mub = np.empty(k)
     sgb = np.empty(k)
-    bits = np.empty(x.shape[0], dtype=np.int64)
-    ll = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
+    nk = np.empty(k)
+    sd = np.empty(k)
+    s2 = np.empty(k)
+    ll = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
     rec = trace.shape[0] > 0
     if rec:
         trace[0] = ll
     converged = False
     it = 0
     while it < max_iter:
+        # the E-step's normalisation, with the sums of the M-step
+        _resp_sums(k, w, r, ssum, d, nk, sd)
         for j in range(k):
             wb[j] = w[j]
             mub[j] = mu[j]
             sgb[j] = sg[j]
-        _m_step(x, k, w, mu, sg, d, r, min_sigma)
+        # M-step (docs/METHOD.md §3, paper eqs. 9-11), as _m_step
+        for j in range(k):
+            if w[j] > 0.0:
+                if nk[j] < DEAD_MASS:
+                    w[j] = 0.0
+                else:
+                    mu[j] = _wrap1(mu[j] + sd[j] / nk[j])
+        _sq_dist_sums(k, w, r, x, mu, s2)
+        wsum = 0.0
+        for j in range(k):
+            if w[j] > 0.0:
+                s = math.sqrt(s2[j] / nk[j])
+                if s < min_sigma:
+                    s = min_sigma
+                w[j] = nk[j] / n
+                sg[j] = s
+                wsum += w[j]
+        for j in range(k):
+            w[j] /= wsum
         it += 1
-        ll_new = _e_step(x, k, w, mu, sg, d, r, mx, ssum, bits)
+        ll_new = _e_terms(x, k, w, mu, sg, d, r, mx, ssum)
         if rec:
             trace[it] = ll_new
         gain = ll_new - ll
@@ -419,33 +565,60 @@ def fit_batch(
 
 
 @njit(cache=True)
-def fit_single(x, kmax, u_m, tol, max_iter, min_sigma, params):  # pragma: no cover
-    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[x]``: same code, same results, fewer arguments.
+def _wrap_as_numpy(a: float) -> float:  # pragma: no cover - compiled
+    """:func:`fingerloc.angles.wrap` of one finite value, bit for bit: ``mod(a + pi, 2 pi) - pi``, pi folded to -pi.
 
-    ``x`` (n,) holds ``mod(bearings + pi, 2 pi) - pi``, folded here in place
-    to ``[-pi, pi)`` as :func:`fingerloc.angles.wrap` does (so already wrapped
-    bearings pass unchanged). ``u_m`` (n_init, kmax) drives the seeding; ``params`` (3, kmax) receives
-    the weights, means and sigmas. Returns (converged, n_iter, mean log-lik,
-    components with weight > 0).
-    One call from Python costs a few microseconds less per argument than
-    :func:`fit_batch`, which matters for :meth:`fingerloc.mog.AngularMixture.fit`.
+    numpy's float ``mod`` is ``fmod`` (exact) moved into ``[0, 2 pi)`` by one
+    addition of 2 pi when negative, +0.0 when zero; for ``a + pi`` already in
+    ``[0, 2 pi)`` (every wrapped bearing) it is ``a + pi`` itself.
     """
-    for i in range(x.shape[0]):  # the last step of fingerloc.angles.wrap (a no-op on wrapped bearings)
-        x[i] = x[i] - _TWO_PI if x[i] >= _PI else x[i]
-    conv, it, ll = _fit_one(x, kmax, u_m, tol, max_iter, min_sigma, params[0], params[1], params[2], np.empty((0, 0)))
-    used = 0
-    for j in range(kmax):
-        used += params[0, j] > 0.0
-    return conv, it, ll, used
+    y = a + _PI
+    if not (0.0 <= y < _TWO_PI):
+        m = np.fmod(y, _TWO_PI)
+        if m < 0.0:
+            m += _TWO_PI
+        elif m == 0.0:
+            m = 0.0
+        y = m
+    z = y - _PI
+    return z - _TWO_PI if z >= _PI else z
 
 
 @njit(cache=True)
-def all_finite(y):  # pragma: no cover
-    """Whether the 1-D array ``y`` holds neither nan nor inf."""
-    ok = True
-    for i in range(y.shape[0]):
-        ok &= math.isfinite(y[i])
-    return ok
+def fit_single(x, kmax, buf, seed, tol, max_iter, min_sigma):  # pragma: no cover
+    """One mixture, as :func:`fit_batch` fits mixture 0 of ``[wrap(x)]``: same code, same results, fewer arguments.
+
+    ``x`` (n,), n >= 1, holds the bearings as given (radians, any real
+    value); it is left unchanged: a non-finite one returns ``used = -1`` at
+    once, the others are wrapped into a new array exactly as
+    :func:`fingerloc.angles.wrap` does. ``buf`` (3 + n_init, kmax): rows 3:
+    hold the uniforms that drive the seeding; with ``seed >= 0`` (below
+    2**63) they are first drawn here as
+    ``numpy.random.default_rng(seed).random((n_init, kmax))``
+    (:func:`fingerloc._seed_kernels.default_rng_random`). Rows 0, 1, 2
+    receive the weights, means and sigmas. Returns (converged, n_iter, mean
+    log-lik, components with weight > 0).
+
+    Everything :meth:`fingerloc.mog.AngularMixture.fit` needs after its
+    parameter checks happens in this one compiled call.
+    """
+    n = x.shape[0]
+    finite = True
+    for i in range(n):
+        finite &= math.isfinite(x[i])
+    if not finite:
+        return False, 0, np.nan, -1
+    xs = np.empty(n)
+    for i in range(n):
+        xs[i] = _wrap_as_numpy(x[i])
+    u_m = buf[3:]
+    if seed >= 0:
+        default_rng_random(seed, u_m)
+    conv, it, ll = _fit_one(xs, kmax, u_m, tol, max_iter, min_sigma, buf[0], buf[1], buf[2], np.empty((0, 0)))
+    used = 0
+    for j in range(kmax):
+        used += buf[0, j] > 0.0
+    return conv, it, ll, used
 
 
 @njit(cache=True, parallel=True)

@@ -541,6 +541,8 @@ class PlaceModel(ParamsMixin):
         labs = list(self.predict(obs)) if places is None else list(places)
         out = np.full(len(obs), np.nan)
         ref = np.full(len(obs), -1, dtype=np.int64)
+        if len(obs) > 1 and any(not (isinstance(ap, ProfileTerm) and o.profile is not None) for o in obs):
+            fp.remember(obs)  # one batch of alignments instead of one a view (the same costs)
         for i, (o, lab) in enumerate(zip(obs, labs, strict=True)):
             if isinstance(ap, ProfileTerm) and o.profile is not None:
                 hp, v = ap.heading_at(o, self.column_of(lab))

@@ -67,9 +67,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import _mog_kernels as _k
+from . import _seed_kernels as _sk
 from ._estimator import ParamsMixin
 from ._numba_guard import try_parallel
-from .angles import TWO_PI, wrap
+from .angles import wrap
 from .errors import InvalidParameterError, NotFittedError
 from .validation import check_random_state
 
@@ -137,8 +138,8 @@ def _check_params(
     return k, float(tol), it, ni, float(min_sigma_deg)
 
 
-def _as_bearings(x: ArrayLike, name: str) -> Float64Array:
-    """Validate a 1-D array of bearings (radians) and wrap it to [-pi, pi)."""
+def _as_vector(x: ArrayLike, name: str) -> Float64Array:
+    """``x`` as a C-contiguous 1-D float64 array (shape (n,) or scikit-learn's (n, 1)); not wrapped, not checked for nan."""
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as err:
@@ -147,9 +148,32 @@ def _as_bearings(x: ArrayLike, name: str) -> Float64Array:
         a = a[:, 0]
     if a.ndim != 1:
         raise InvalidParameterError(f"{name} must be 1-D (n,) or (n, 1), got shape {a.shape}")
+    return np.ascontiguousarray(a)
+
+
+def _as_bearings(x: ArrayLike, name: str) -> Float64Array:
+    """Validate a 1-D array of bearings (radians) and wrap it to [-pi, pi)."""
+    a = _as_vector(x, name)
     if not np.all(np.isfinite(a)):
         raise InvalidParameterError(f"{name} holds a non-finite bearing (nan or inf)")
     return np.ascontiguousarray(wrap(a))
+
+
+#: Whether :func:`fingerloc._seed_kernels.default_rng_random` draws numpy's numbers (checked on first use).
+_seeding_matches_numpy: bool | None = None
+
+
+def _compiled_seeding_ok() -> bool:
+    """Check once per process that the compiled ``default_rng(seed).random`` equals numpy's, bit for bit."""
+    global _seeding_matches_numpy
+    if _seeding_matches_numpy is None:
+        ok = True
+        for seed in (0, 12345, 2**40 + 3):
+            got = np.empty(6)
+            _sk.default_rng_random(seed, got)
+            ok &= bool(np.array_equal(got, np.random.default_rng(seed).random(6)))
+        _seeding_matches_numpy = ok
+    return _seeding_matches_numpy
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -500,28 +524,43 @@ class AngularMixture(ParamsMixin):
 
         Gives exactly ``fit_mixtures([X], ...)`` with the same arguments (the
         same compiled fit and the same random draws), through a shorter path:
-        one validation of ``X`` and one compiled call, no :class:`MixtureSet`.
+        one compiled call that checks and wraps ``X``, draws the seeding's
+        uniforms (for an int ``random_state``) and fits; no :class:`MixtureSet`.
         """
         k, tol_f, it, ni, msd = _check_params(
             self.n_components, self.tol, self.max_iter, self.n_init, self.min_sigma_deg
         )
         rs = self.random_state
-        rng = np.random.default_rng(rs) if type(rs) is int and rs >= 0 else check_random_state(rs)
-        if type(X) is np.ndarray and X.dtype == np.float64 and X.ndim == 1 and X.size:
-            # the common case, with fewer numpy calls: the check for nan and inf is compiled, and
-            # fit_single does the last step of wrap(X) (fingerloc.angles.wrap), the fold of pi to -pi
-            if not _k.all_finite(X):
-                raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
-            xa = np.mod(X + np.pi, TWO_PI)
-            xa -= np.pi
+        # rows 0-2 receive the weights, means and sigmas; rows 3: hold the uniforms of the seeding, the draws
+        # fit_mixtures makes for one sample (its u[m], shape (n_init, k))
+        buf = np.empty((3 + ni, k))
+        rng = None
+        if type(rs) is int and 0 <= rs < 2**63 and (_seeding_matches_numpy or _compiled_seeding_ok()):
+            seed = rs  # default_rng(rs).random((n_init, k)), drawn in the compiled call
         else:
-            xa = _as_bearings(X, "X")
-            if xa.size == 0:
-                raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
-        u = rng.random((ni, k))  # the draws fit_mixtures makes for one sample (its u[m], shape (n_init, k))
-        params = np.empty((3, k))
-        conv, n_iter, ll, used = _k.fit_single(xa, k, u, tol_f, it, math.radians(msd), params)
-        self.weights_, self.means_, self.sigmas_ = params
+            rng = check_random_state(rs)
+            seed = -1
+        xa: Float64Array
+        if isinstance(X, np.ndarray) and X.dtype == np.float64 and X.ndim == 1:
+            fl = X.flags  # read, never written: writeable so that all calls share one compiled specialisation
+            xa = X if fl.c_contiguous and fl.writeable else np.array(X)
+        else:
+            xa = _as_vector(X, "X")
+            if not xa.flags.writeable:
+                xa = xa.copy()
+        if xa.size == 0:
+            raise InvalidParameterError("X is empty: a mixture needs at least one bearing")
+        if rng is not None:  # a Generator (or None): draw from it only for a valid X, as before
+            if not np.all(np.isfinite(xa)):
+                raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
+            buf[3:] = rng.random((ni, k))
+        # one compiled call: the check for nan and inf, wrap(X) into a new array, the draws, the fit
+        conv, n_iter, ll, used = _k.fit_single(xa, k, buf, seed, tol_f, it, math.radians(msd))
+        if used < 0:
+            raise InvalidParameterError("X holds a non-finite bearing (nan or inf)")
+        self.weights_ = buf[0]
+        self.means_ = buf[1]
+        self.sigmas_ = buf[2]
         self.converged_ = bool(conv)
         self.n_iter_ = int(n_iter)
         self.lower_bound_ = float(ll)

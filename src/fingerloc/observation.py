@@ -125,7 +125,7 @@ class Observation:
         Seconds, when known.
     appearance : array_like of float, shape (d,), optional
         A heading-free appearance descriptor of the view (for the camera: the
-        colour histograms of :func:`fingerloc.features.vision.appearance_descriptor`),
+        colour and gradient histograms of :func:`fingerloc.features.vision.appearance_descriptor`),
         finite and ``>= 0``; the appearance term ``A`` compares it between views.
     profile : array_like of float, shape (columns, channels), optional
         What the view looks like at each bearing: row ``k`` describes the

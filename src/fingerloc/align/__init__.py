@@ -52,6 +52,7 @@ __all__ = [
     "FingerprintBatch",
     "alignment_costs",
     "cyclic_alignment",
+    "cyclic_heading",
     "global_alignment",
     "minimum_energy",
     "minimum_energy_costs",
@@ -251,6 +252,33 @@ def cyclic_alignment(a: FingerprintLike, b: FingerprintLike, *, costs: CostModel
     assert best is not None  # at least one candidate
     _, rot, heading, alignment = best
     return CyclicAlignment(cost=cost, rotation=int(rot), heading_deg=heading, alignment=alignment)
+
+
+def cyclic_heading(a: Fingerprint, b: Fingerprint, *, costs: CostModel | None = None) -> tuple[float, float | None]:
+    """``(cost, heading_deg)`` of :func:`cyclic_alignment` for two fingerprints with bearings, in one compiled call.
+
+    The same cost and heading (degrees in ``[0, 360)``, ``None`` when
+    nothing is paired) as ``cyclic_alignment(a, b, costs=costs)``, without
+    building the alignment: for callers that want a heading for many pairs
+    (a heading at every place). The heading agrees with
+    :func:`cyclic_alignment`'s to rounding (the same pairs, tiers and sums
+    in numpy's order).
+    """
+    from ._heading_kernel import cyclic_cost_heading
+
+    cm = _costs_or_unit(costs)
+    if not isinstance(a, Fingerprint) or not isinstance(b, Fingerprint) or len(b) == 0:
+        r = cyclic_alignment(a, b, costs=cm)
+        return r.cost, r.heading_deg
+    cost, _, h = cyclic_cost_heading(
+        encode(a.letters), encode(b.letters), np.ascontiguousarray(a.bearings, dtype=np.float64),
+        np.ascontiguousarray(b.bearings, dtype=np.float64), cm.substitution, cm.indel, _N_CODE,
+    )  # fmt: skip
+    return cost, (None if math.isnan(h) else float(rad_to_deg360(h)))
+
+
+#: The letter code of ``n`` (its pairs rank below other equal letters in a heading).
+_N_CODE = int(encode("n")[0])
 
 
 # -- batch ---------------------------------------------------------------------

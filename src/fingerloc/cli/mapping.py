@@ -53,6 +53,10 @@ def map_cmd(
     cyclic: bool | None = typer.Option(None, "--cyclic/--no-cyclic", help="Overrides the preset."),
     costs: str | None = typer.Option(None, help="'unit' or 'feature' (overrides the preset)."),
     no_calibration: bool = typer.Option(False, "--no-calibration", help="Do not fit the likelihood scale beta (beta = 1; faster)."),
+    heading: bool = typer.Option(
+        True, "--heading/--no-heading",
+        help="Fit the pose filter's heading model on the mapping part (two more fits), used by 'track --filter pose'.",
+    ),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
     ),
@@ -99,6 +103,7 @@ def map_cmd(
             spacing=spacing,
             radius=radius,
             calibrate=not no_calibration,
+            heading=heading,
             on_step=lambda s: status.update(s),
         )
     err_console.print(pm.preset.reason, markup=False)

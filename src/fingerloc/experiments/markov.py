@@ -11,8 +11,11 @@
   ``fingerprint-filtered-unscaled`` (``beta = 1``), also run only when named.
 * :class:`PoseFilteredMethod`: the same front end followed by the pose
   particle filter of :mod:`fingerloc.map.pose_filter` (odometry increments,
-  not only distances), registered as ``fingerprint-odometry``; ablations
-  ``fingerprint-odometry-exact`` and ``fingerprint-odometry-untempered``, and
+  not only distances; the particles also weighed by the heading each view
+  implies, :class:`~fingerloc.map.pose_filter.HeadingModel`), registered as
+  ``fingerprint-odometry``; ablations ``fingerprint-odometry-exact``,
+  ``fingerprint-odometry-untempered``, ``fingerprint-odometry-noheading``
+  and ``fingerprint-odometry-heading-untempered``, and
   ``baseline-histogram-odometry``, run only when named.
 * :func:`kidnap_experiment`: splice two distant stretches of a log's query
   pass and count the steps the filter needs to recover (either filter).
@@ -56,20 +59,27 @@ from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_filter
 from ..map.graph import PlaceGraph
-from ..map.pose_filter import Challenger
-from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
+from ..map.pose_filter import Challenger, HeadingModel
+from ..map.relocalize import Augmented
 from ..pipeline.tracker import (
+    HEADING_TEMPER_M,
+    HOLD_MARGIN,
     POSE_PARTICLES,
+    TIE_BREAK,
     Calibration,
     FitScore,
     HeldOut,
     Tracker,
     challenger_of,
+    heading_of,
     held_out_calibration,
+    held_out_headings,
     run_pose_steps,
     step_distances,
     tune_pose_filter,
+    with_heading_model,
 )
+from ..pipeline.tracker import MIN_CALIBRATION_ROWS as _MIN_CALIBRATION_ROWS
 from ..pipeline.tracker import mapping_graph as _mapping_graph
 from ..sensors import Scan
 from ..validation import check_random_state
@@ -81,6 +91,7 @@ __all__ = [
     "PoseFilteredMethod",
     "TrackingData",
     "field_of_view",
+    "implied_headings",
     "kidnap_experiment",
     "mapping_graph",
     "prepare_tracking",
@@ -354,6 +365,50 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`; also
         during ``tune``).
     challenger_switch_nats : float, default 3.0
+    heading : bool, default True
+        Weigh the particles also by the heading each observation implies
+        (:class:`~fingerloc.map.pose_filter.HeadingModel`): a base method
+        that estimates the robot's heading relative to the matched training
+        view (the fingerprint program's cyclic alignment,
+        :meth:`fingerloc.model.PlaceModel.headings_with_reference`) and that
+        view's recorded heading give, per place, an absolute heading
+        (:func:`implied_headings`). The heading model is fitted on the
+        mapping pass (:func:`~fingerloc.map.pose_filter.fit_heading_model`
+        on the held-out rows of ``beta``: each at its own place, from the
+        fold model that did not see it) and the tuning runs with it. A base
+        method without headings (the baselines) leaves it off. The default
+        since the third session of issue 15 (docs/RESULTS.md: +2 to +6
+        points pooled at each of five seeds on the shared logs); method
+        ``fingerprint-odometry-noheading`` turns it off.
+    heading_reverse : bool, default True
+        Let the heading model have a peak at the reverse heading.
+    heading_temper_metres : float, default HEADING_TEMPER_M
+        The heading evidence counts fully after this much travel (or the
+        field of view's turn); 0: as the observations (the tuned tempering).
+        :data:`fingerloc.pipeline.tracker.HEADING_TEMPER_M` (8 m): on the
+        shared logs' mapping passes a held-out view's heading error stays
+        correlated with the previous ones' up to 8 m of travel.
+    heading_slope : bool, default True
+        Let the heading estimate's reliability grow with the view's
+        probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
+    augmented : Augmented, optional
+        Augmented MCL: a share of the belief re-drawn from the sensor when
+        the short-term average likelihood falls below the long-term one
+        (:func:`~fingerloc.map.relocalize.run_augmented_pose_filter`; the
+        tuning on the mapping pass runs without it). ``None`` = off.
+    hold_margin : float, optional, default HOLD_MARGIN (0.05)
+        Between observations the best place is held unless another place's
+        probability exceeds it by this much
+        (:func:`~fingerloc.map.relocalize.held_best`; the posterior and the
+        answers at observed steps are unchanged). ``None`` = the argmax.
+    tie_break : float, optional, default TIE_BREAK (0.02)
+        Between observations, among the places within this probability of
+        the answer, the one the discrete place filter (deterministic, over
+        the same steps) believes most
+        (:func:`~fingerloc.map.relocalize.tie_broken_best`; after
+        ``hold_margin``). ``None`` = off. Both defaults since issue 15's
+        third session (docs/RESULTS.md): two runs with other random draws
+        disagree less between places, tracking is unchanged.
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -388,8 +443,26 @@ class PoseFilteredMethod(FilteredMethod):
         tune: bool = True,
         challenger: bool = False,
         challenger_switch_nats: float = 3.0,
+        heading: bool = True,
+        heading_reverse: bool = True,
+        heading_slope: bool = True,
+        heading_temper_metres: float = HEADING_TEMPER_M,
+        augmented: Augmented | None = None,
+        hold_margin: float | None = HOLD_MARGIN,
+        tie_break: float | None = TIE_BREAK,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.heading = bool(heading)
+        self.heading_reverse = bool(heading_reverse)
+        self.heading_slope = bool(heading_slope)
+        self.heading_temper_metres = float(heading_temper_metres)
+        if tie_break is not None and (math.isnan(tie_break) or tie_break < 0):
+            raise InvalidParameterError(f"tie_break must be >= 0, got {tie_break!r}")
+        self.tie_break = tie_break
+        self.augmented = augmented
+        if hold_margin is not None and (math.isnan(hold_margin) or hold_margin < 0):
+            raise InvalidParameterError(f"hold_margin must be >= 0 (or inf), got {hold_margin!r}")
+        self.hold_margin = hold_margin
         self.challenger = bool(challenger)
         self.challenger_switch_nats = challenger_switch_nats
         self.tune = tune
@@ -450,25 +523,74 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             challenger=self.challenger,
             challenger_switch_nats=self.challenger_switch_nats,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
+        self.held_headings_: FArray | None = None
+        if self.heading and self.observe and held is not None and held.labels.size:
+            self.held_headings_ = self._held_out_headings(scans, np.asarray(labels, dtype=np.int64).reshape(-1))
+            if self.held_headings_ is not None:
+                self.calibration_ = with_heading_model(
+                    self.calibration_, held, self.held_headings_, poses[split.train_idx[held.index], 2],
+                    reverse=self.heading_reverse, slope=self.heading_slope, temper_metres=self.heading_temper_metres,
+                )  # fmt: skip
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
         if self.tune and self.observe and held is not None:
             self.calibration_, self.tuning_ = tune_pose_filter(
                 self.tracker_, held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
-                seed=self.seed, temper=self.temper, relocalize=self.relocalize,
+                seed=self.seed, temper=self.temper, relocalize=self.relocalize, headings=self.held_headings_,
             )  # fmt: skip
             self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.outlier_ = self.calibration_.outlier
+        self.heading_model_: HeadingModel | None = heading_of(self.calibration_)
         self.temper_metres_ = self.calibration_.temper_metres
         self.temper_radians_ = self.calibration_.temper_radians
         self.filter_ = self.tracker_.pose_filter(self.seed)
         self.increments_ = wheel_odometry(poses[split.n_mapping :], factor, random_state=self.seed + 1)
         return self
 
-    def run_steps(self, log_likelihood: Any, increments: Any) -> FilterResult:
-        """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused)."""
+    def _held_out_headings(self, scans: Sequence[Scan], labels: IArray) -> FArray | None:
+        """Implied headings of the held-out rows of ``beta`` (rows as ``held_out_.scores``), or None without headings.
+
+        Each fold's model is the calibration's (the same factory, fit on the
+        same scans and labels: shared within a benchmark run).
+        """
+        held = self.held_out_
+        if held is None:
+            return None
+        _, split = self._need_context()
+        factory = self._factory()
+        base = getattr(self, "base_", None)
+        if base is None or not hasattr(base, "_observations"):  # a baseline: no model, no headings
+            return None
+
+        def fit_model(tr: IArray, y: IArray) -> Any:
+            m = factory()
+            m.fit([scans[i] for i in tr.tolist()], y)
+            return getattr(m, "model_", None)
+
+        observations = base._observations(list(scans))
+        return held_out_headings(fit_model, observations, labels, held, split.n_places)
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """As :class:`FilteredMethod`; with a heading model, the queries' implied headings are computed first."""
+        self.step_headings_: FArray | None = None
+        if getattr(self, "heading_model_", None) is not None:
+            _, split = self._need_context()
+            h = implied_headings(self.base_, scans, split.n_places)
+            if h is not None:
+                self.step_headings_ = np.full((split.n_scans - split.n_mapping, split.n_places), np.nan)
+                self.step_headings_[split.query_idx - split.n_mapping] = h
+        return super().score(scans)
+
+    def run_steps(self, log_likelihood: Any, increments: Any, headings: Any = None) -> FilterResult:
+        """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused).
+
+        ``headings`` (same shape as ``log_likelihood``): the implied headings
+        of the steps (used with a heading model).
+        """
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
             ll = np.where(np.all(np.isnan(ll), axis=1, keepdims=True), np.nan, np.zeros_like(ll))
@@ -483,7 +605,19 @@ class PoseFilteredMethod(FilteredMethod):
             gap_metres=self.gap_metres,
             reset_threshold=self.reset_threshold,
             challenger=self._challenger(),
+            headings=headings if self.observe else None,
+            heading_temper=self._heading_temper(),
+            augmented=self.augmented,
+            hold_margin=self.hold_margin,
+            tie_break=self.tie_break,
         )
+
+    def _heading_temper(self) -> tuple[float, float] | None:
+        """The heading evidence's own tempering (metres, radians) of the fitted calibration, or None."""
+        cal = getattr(self, "calibration_", None)
+        if not self.temper or cal is None or cal.heading_temper_metres <= 0:
+            return None
+        return (float(cal.heading_temper_metres), float(self.temper_radians_))
 
     def _challenger(self) -> Challenger | None:
         """The challenger settings of the fitted calibration (before :meth:`fit`: of the constructor's options)."""
@@ -494,7 +628,27 @@ class PoseFilteredMethod(FilteredMethod):
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
         """The pose filter over the whole query pass, with the method's odometry increments."""
-        return self.run_steps(log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]))
+        return self.run_steps(
+            log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]), getattr(self, "step_headings_", None)
+        )
+
+
+def implied_headings(method: Any, scans: Sequence[Scan], n_places: int) -> FArray | None:
+    """The robot's heading each scan implies at each place ``0 .. n_places - 1`` (radians, mapping frame), shape (n, P).
+
+    ``method`` is a fitted fingerprint method (its ``model_``, a
+    :class:`~fingerloc.model.PlaceModel` whose training observations carry
+    the scans' poses): :func:`fingerloc.pipeline.tracker.implied_headings`.
+    None for a method without a model (the baselines).
+    """
+    from ..pipeline.places import place_label
+    from ..pipeline.tracker import implied_headings as _implied
+
+    model = getattr(method, "model_", None)
+    if model is None or not hasattr(model, "headings_with_reference"):
+        return None
+    obs = method._observations(scans) if scans else []
+    return _implied(model, obs, [place_label(j) for j in range(n_places)])
 
 
 def field_of_view(scans: Sequence[Scan]) -> float:
@@ -562,6 +716,18 @@ def _fingerprint_odometry_challenger() -> Method:
     return PoseFilteredMethod("fingerprint", challenger=True)
 
 
+@register_method("fingerprint-odometry-noheading", default=False)
+def _fingerprint_odometry_noheading() -> Method:
+    # The pose filter without the heading each view implies (the default before the third session of issue 15).
+    return PoseFilteredMethod("fingerprint", heading=False)
+
+
+@register_method("fingerprint-odometry-heading-untempered", default=False)
+def _fingerprint_odometry_heading_untempered() -> Method:
+    # Ablation: the heading evidence tempered as the observations (not over its own 8 m).
+    return PoseFilteredMethod("fingerprint", heading_temper_metres=0.0)
+
+
 @register_method("fingerprint-odometry-reset", default=False)
 def _fingerprint_odometry_reset() -> Method:
     # Sensor resetting when the place filter has out-explained the particles by 8 nats (CUSUM).
@@ -589,6 +755,13 @@ class TrackingData:
     increments : ndarray, shape (n_steps, 3), optional
         Odometry from the previous step to each step (row 0 zero); needed by
         a :class:`PoseFilteredMethod`.
+    headings : ndarray, shape (n_steps, P), optional
+        The heading each step's view implies at each place (NaN elsewhere),
+        for a :class:`PoseFilteredMethod` with a heading model.
+    cells : ndarray of int, shape (n_steps,), optional
+        The place whose centre is nearest to each step's (corrected) position
+        (its Voronoi cell): the ground-truth place at *every* step, also
+        between places, as the pose filter answers there.
     """
 
     method: FilteredMethod
@@ -597,6 +770,8 @@ class TrackingData:
     truth: IArray
     positions: FArray
     increments: FArray | None = None
+    headings: FArray | None = None
+    cells: IArray | None = None
 
     def run(self, idx: Any = None) -> FilterResult:
         """The method's filter over the steps ``idx`` (default all), in that order.
@@ -611,7 +786,8 @@ class TrackingData:
         if isinstance(self.method, PoseFilteredMethod):
             if self.increments is None:
                 raise InvalidParameterError("a pose filter needs the steps' odometry increments")
-            return self.method.run_steps(ll, self.increments[sel])
+            hd = None if self.headings is None else self.headings[sel]
+            return self.method.run_steps(ll, self.increments[sel], hd)
         dist = self.distances[sel].copy()
         if dist.size:
             dist[0] = 0.0
@@ -635,7 +811,24 @@ def prepare_tracking(
     truth[split.query_idx - split.n_mapping] = split.query_labels
     inc = getattr(m, "increments_", None)
     steps_inc = None if inc is None else np.vstack([np.zeros((1, 3)), inc])
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc)
+    hd = None
+    if getattr(m, "heading_model_", None) is not None:
+        h = implied_headings(m.base_, [scans[i] for i in split.query_idx.tolist()], split.n_places)
+        if h is not None:
+            hd = np.full(ll.shape, np.nan)
+            hd[split.query_idx - split.n_mapping] = h
+    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd, nearest_cells(pos[split.n_mapping :], split.centres))
+
+
+def nearest_cells(positions: Any, centres: Any) -> IArray:
+    """Index of the nearest centre of each position (its Voronoi cell), shape (n,)."""
+    from scipy.spatial import cKDTree
+
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    if pos.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.asarray(cKDTree(c).query(pos)[1], dtype=np.int64)
 
 
 def with_synthetic_likelihood(
@@ -655,7 +848,7 @@ def with_synthetic_likelihood(
     ll = np.full_like(data.log_likelihood, np.nan)
     ll[q] = rng.normal(size=(int(q.sum()), ll.shape[1]))
     ll[np.flatnonzero(q), data.truth[q]] += separation
-    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments)
+    return TrackingData(data.method, ll, data.distances, data.truth, data.positions, data.increments, None, data.cells)  # no headings: not this front end
 
 
 @dataclass(slots=True)
@@ -679,13 +872,80 @@ class KidnapResult:
         ``first_right_steps`` (steps after the jump until the best place is
         the true place at a query step; ``None`` if never) and the same for
         the never-kidnapped filter (``reference_first_right_steps``).
+
+        What is recovery and what is noise (added fields, issue 15):
+
+        * ``floor_recover_steps`` / ``floor_recover_observed_steps``: the
+          criteria of ``recover_steps`` / ``recover_observed_steps`` applied
+          to a *second never-kidnapped run* of the same filter over the
+          whole query pass (for a particle filter: other random draws)
+          against the reference, on the same B stretch. Nothing was
+          kidnapped there, so anything above 0 steps is the filter's own
+          run-to-run noise: the floor of the column. A deterministic filter
+          (the discrete one over places) gives 0. ``floor_disagreement``: the
+          fraction of B's steps where the two never-kidnapped runs name
+          different places.
+        * ``recover_truth_steps``: steps after the jump until the kidnapped
+          filter's best place is the *true* place (the place whose radius
+          holds the corrected pose) at every later observed step of B, at
+          least one of them (unlike ``recover_observed_steps``, which
+          counts a stretch as recovered after its last observation even
+          when that was wrong);
+          ``reference_recover_truth_steps``: the same for the
+          never-kidnapped reference (its floor: a filter that is wrong at
+          some late query never "recovers" on this column).
+        * ``recover_cell_steps`` / ``reference_recover_cell_steps`` (when the
+          data carry ``cells``): the same against the nearest place centre
+          of the corrected pose at *every* step of B (its Voronoi cell).
+        * ``observed`` / ``right`` / ``reference_right``: B's observed steps
+          and how many of them the kidnapped filter and the reference name
+          the true place (top-1 after a kidnapping, pooled by the summary).
     """
 
     name: str
     trials: list[dict[str, Any]]
 
     def summary(self, within: int = 10) -> dict[str, Any]:
-        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps."""
+        """Median / max of ``recover_steps`` and the fraction of trials recovered within ``within`` steps.
+
+        Beside each recovery column, the same figures of its floor or
+        ground-truth counterpart (the trial fields above): ``floor_*`` (a
+        second never-kidnapped run against the reference), ``truth_*`` and
+        ``reference_truth_*`` (the true place at observed steps), ``cell_*``
+        and ``reference_cell_*`` (the true Voronoi cell at every step), and
+        ``kidnapped_top1`` / ``reference_top1`` over B's observed steps. A
+        field is ``None`` when no trial carries it.
+        """
+        out = self._summary(within)
+        out.update(self._honest(within))
+        return out
+
+    def _honest(self, within: int) -> dict[str, Any]:
+        """The floor and ground-truth figures (added fields; None where no trial has them)."""
+        tr = self.trials
+        out: dict[str, Any] = {}
+        for key, field in (
+            ("floor", "floor_recover_steps"),
+            ("floor_observed", "floor_recover_observed_steps"),
+            ("truth", "recover_truth_steps"),
+            ("reference_truth", "reference_recover_truth_steps"),
+            ("cell", "recover_cell_steps"),
+            ("reference_cell", "reference_recover_cell_steps"),
+        ):
+            have = [t for t in tr if field in t]
+            vals = [t[field] for t in have]
+            out[f"{key}_within_{within}"] = (
+                float(np.mean([v is not None and v <= within for v in vals])) if have else None
+            )
+            out[f"{key}_median_steps"] = _median(vals) if have else None
+        dis = [t["floor_disagreement"] for t in tr if t.get("floor_disagreement") is not None]
+        out["floor_disagreement"] = float(np.mean(dis)) if dis else None
+        n_obs = sum(int(t.get("observed", 0)) for t in tr)
+        out["kidnapped_top1"] = sum(int(t.get("right", 0)) for t in tr) / n_obs if n_obs else None
+        out["reference_top1"] = sum(int(t.get("reference_right", 0)) for t in tr) / n_obs if n_obs else None
+        return out
+
+    def _summary(self, within: int) -> dict[str, Any]:
         rec = [t["recover_steps"] for t in self.trials]
         rec_seen = [t.get("recover_observed_steps") for t in self.trials]
         merged = [t["merge_steps"] for t in self.trials if t["merge_steps"] is not None]
@@ -796,6 +1056,17 @@ def kidnap_experiment(
             hit = np.flatnonzero((truth >= 0) & (best == truth))
             return int(hit[0]) if hit.size else None
 
+        cells = None if data.cells is None else data.cells[b : b + stretch]
+        honest: dict[str, Any] = {
+            "recover_truth_steps": _settles(kid == truth, seen, confirmed=True),
+            "reference_recover_truth_steps": _settles(ref == truth, seen, confirmed=True),
+            "observed": int(seen.sum()),
+            "right": int(np.sum(seen & (kid == truth))),
+            "reference_right": int(np.sum(seen & (ref == truth))),
+        }
+        if cells is not None:
+            honest["recover_cell_steps"] = _settles(kid == cells)
+            honest["reference_recover_cell_steps"] = _settles(ref == cells)
         trials.append(
             {
                 "a_start": int(a),
@@ -808,9 +1079,36 @@ def kidnap_experiment(
                 "merge_observations": None if merged is None else int(has_q[b : b + merged + 1].sum()),
                 "first_right_steps": first_right(kid),
                 "reference_first_right_steps": first_right(ref),
+                **honest,
             }
         )
+    # The floor: a second never-kidnapped run (run after the trials, so that their draws are as before)
+    # against the reference, with the same criteria, on each trial's B stretch.
+    second = data.run()
+    for t in trials:
+        b = t["b_start"]
+        agree = second.best[b : b + stretch] == full.best[b : b + stretch]
+        t["floor_recover_steps"] = _settles(agree)
+        t["floor_recover_observed_steps"] = _settles(agree, has_q[b : b + stretch])
+        t["floor_disagreement"] = float(np.mean(~agree))
     return KidnapResult(name, trials)
+
+
+def _settles(agree: Any, mask: Any = None, *, confirmed: bool = False) -> int | None:
+    """First ``j`` such that ``agree`` holds at every step ``>= j`` (only the steps of ``mask``); None if none.
+
+    The recovery criterion of :func:`kidnap_experiment`: ``j`` ranges over
+    the stretch's steps, so a stretch whose last (masked) step disagrees
+    never settles. Without ``confirmed`` a ``j`` after the last masked step
+    counts (nothing is left to disagree: a stretch whose observations all
+    come early "settles" after them, right or wrong); with it, ``j`` must
+    be at or before the last masked step (at least one observation shows
+    the answer right).
+    """
+    ok = np.asarray(agree, dtype=bool)
+    m = np.ones(ok.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    last = int(np.flatnonzero(m)[-1]) + 1 if confirmed and m.any() else (0 if confirmed else ok.size)
+    return next((j for j in range(min(ok.size, last)) if np.all(ok[j:][m[j:]])), None)
 
 
 def run_kidnap(
@@ -825,6 +1123,8 @@ def run_kidnap(
     pose: bool = False,
     odometry_error: float = 1.0,
     kidnap: float | None = None,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -833,8 +1133,10 @@ def run_kidnap(
     with this separation (:func:`with_synthetic_likelihood`). ``pose``: the
     pose particle filter (:class:`PoseFilteredMethod`, seeded with ``seed``,
     simulated odometry errors times ``odometry_error``, kidnapping
-    probability ``kidnap`` per observation if given) instead of the discrete
-    filter over places.
+    probability ``kidnap`` per observation if given; ``hold_margin`` and
+    ``tie_break``, the answers between observations, if given, else the
+    method's defaults: :func:`~fingerloc.map.relocalize.answer_between`)
+    instead of the discrete filter over places.
     """
     from .protocol import load_log_scans, log_name
 
@@ -842,7 +1144,9 @@ def run_kidnap(
                                                   "min_jump_m": min_jump_m, "seed": seed, "synthetic": synthetic,
                                                   "filter": "pose" if pose else "places",
                                                   "odometry_error": odometry_error if pose else None,
-                                                  "kidnap": kidnap if pose else None}}  # fmt: skip
+                                                  "kidnap": kidnap if pose else None,
+                                                  "hold_margin": hold_margin if pose else None,
+                                                  "tie_break": tie_break if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -853,6 +1157,8 @@ def run_kidnap(
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
         opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        if pose:
+            opts.update({k: v for k, v in (("hold_margin", hold_margin), ("tie_break", tie_break)) if v is not None})
         data = prepare_tracking(scans, base, pose=pose, **opts)
         if synthetic is not None:
             data = with_synthetic_likelihood(data, synthetic, random_state=seed)

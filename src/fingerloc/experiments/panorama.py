@@ -394,7 +394,7 @@ def extract_features(
     if not root.is_dir():
         raise DataFormatError("not a folder of photos", path=root)
     known: dict[str, PhotoFeatures] = {}
-    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 4}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 5}
     cpath = Path(cache) if cache is not None else None
     if cpath is not None and not cpath.parent.is_dir():
         raise InvalidParameterError(f"--cache: no folder {str(cpath.parent)!r} to write {cpath.name!r} into")

@@ -33,6 +33,16 @@ cell), mixed with the kidnapping term below.
   their exact total weight, then everything is resampled back to ``N``
   (systematic resampling).
 
+* **Heading** (optional, :class:`HeadingModel`): a front end that also
+  estimates the robot's heading relative to the matched reference view (the
+  fingerprint's cyclic alignment), with that view's pose from the mapping
+  run, implies an absolute heading per candidate place. A particle at place
+  ``j`` is then also weighed by a robust density of (its heading - the
+  heading implied at ``j``): a von Mises peak, an optional peak at the
+  reverse heading (a corridor looks alike both ways) and a uniform outlier
+  part. Fresh particles (kidnapping, the start from the first observation)
+  draw their heading from it.
+
 * **Lost and found** (:func:`run_pose_filter` options): the particles can be
   drawn from the first observation instead of a start prior carried blindly
   (a run that starts far from every place), re-drawn after a gap in the log
@@ -48,7 +58,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -62,10 +72,12 @@ from .filter import FilterResult, MarkovFilter
 
 __all__ = [
     "Challenger",
+    "HeadingModel",
     "MotionNoise",
     "OdometryError",
     "PoseFilter",
     "compose_increments",
+    "fit_heading_model",
     "observation_weights",
     "odometry_increments",
     "path_start_poses",
@@ -235,6 +247,146 @@ def wheel_odometry(poses: Any, error_factor: float = 1.0, *, random_state: int |
     return simulate_odometry(poses, OdometryError().scaled(f), random_state=random_state)
 
 
+@dataclass(frozen=True, slots=True)
+class HeadingModel:
+    """How far the robot's true heading lies from the heading a view implies at a place: a robust density.
+
+    ``delta = true heading - implied heading`` (radians) has density
+    ``f(delta | x) = g(x) [(1 - reverse) vM(delta; 0, kappa) + reverse
+    vM(delta; pi, kappa)] + (1 - g(x)) / (2 pi)``: a von Mises peak where
+    the alignment behind the estimate is right, part of it at the reverse
+    heading (a corridor seen from its other end can look alike), and a
+    uniform part for estimates that are noise. How often the estimate is
+    right depends on how well the view matched the place: ``g(x) = cap
+    sigmoid(intercept + slope x)``, ``x`` = the observation's log-probability
+    of that place (the softmax of its row, <= 0). The pose filter weighs a
+    particle at a place by ``2 pi f(particle heading - implied heading |
+    x)`` (1 when the place has no implied heading: as uninformative as the
+    uniform part). :func:`fit_heading_model` fits it on the mapping run.
+
+    Attributes
+    ----------
+    kappa : float, default 20.0
+        Concentration of the peaks (> 0; 1 / kappa ~ their variance in rad^2).
+    intercept : float, default 0.0
+        Logit of ``g / cap`` for a place the observation is sure of (``x = 0``).
+    slope : float, default 0.0
+        Per nat of ``x`` (0: the same reliability for every place).
+    reverse : float, default 0.0
+        Share of the peak at the reverse heading, in ``[0, 1]``.
+    cap : float, default 0.95
+        Largest peak share (the uniform part keeps ``1 - cap``), in ``[0, 1]``.
+    """
+
+    kappa: float = 20.0
+    intercept: float = 0.0
+    slope: float = 0.0
+    reverse: float = 0.0
+    cap: float = 0.95
+
+    def __post_init__(self) -> None:
+        k = _finite("kappa", self.kappa)
+        if k <= 0:
+            raise InvalidParameterError(f"kappa must be > 0, got {self.kappa!r}")
+        _finite("slope", self.slope)
+        if not math.isfinite(float(self.intercept)):
+            raise InvalidParameterError(f"intercept must be finite, got {self.intercept!r}")
+        for name in ("reverse", "cap"):
+            if _finite(name, getattr(self, name)) > 1:
+                raise InvalidParameterError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+
+    def peak_share(self, x: Any = 0.0) -> FArray:
+        """``g(x)``: the chance that the heading estimate is right (``x`` = log-probability of the place)."""
+        xx = np.maximum(np.asarray(x, dtype=np.float64), -50.0)
+        return np.asarray(self.cap / (1.0 + np.exp(-(self.intercept + self.slope * xx))), dtype=np.float64)
+
+    def log_factor(self, delta: Any, x: Any = 0.0) -> FArray:
+        """``log(2 pi f(delta | x))``: a particle's weight factor, relative to an uninformative heading."""
+        from scipy.special import i0e
+
+        d = np.asarray(delta, dtype=np.float64)
+        g = self.peak_share(x)
+        c = np.cos(d)
+        norm = 1.0 / float(i0e(self.kappa))  # 2 pi vM(delta) = exp(kappa (cos delta - 1)) / i0e(kappa)
+        peak = (1.0 - self.reverse) * np.exp(self.kappa * (c - 1.0))
+        if self.reverse > 0:
+            peak = peak + self.reverse * np.exp(self.kappa * (-c - 1.0))
+        with np.errstate(divide="ignore"):
+            return np.asarray(np.log(g * norm * peak + (1.0 - g)), dtype=np.float64)
+
+    def log_mean_tempered(self, weight: float, x: Any = 0.0) -> FArray:
+        """``log mean_delta (2 pi f(delta | x)) ** weight`` over the circle, per ``x`` (0 at weight 1)."""
+        xs = np.asarray(x, dtype=np.float64)
+        if weight == 1.0:
+            return np.zeros(xs.shape)
+        grid = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+        lf = weight * self.log_factor(grid[:, None], xs.reshape(1, -1))
+        top = lf.max(axis=0)
+        return np.asarray(top + np.log(np.mean(np.exp(lf - top), axis=0)), dtype=np.float64).reshape(xs.shape)
+
+    def sample(self, implied: Any, rng: np.random.Generator, x: Any = 0.0) -> FArray:
+        """Headings drawn from ``f(. | x)`` around each implied heading (radians)."""
+        mu = np.asarray(implied, dtype=np.float64).reshape(-1)
+        n = mu.size
+        g = np.broadcast_to(self.peak_share(x), (n,))
+        u = rng.uniform(0.0, 1.0, n)
+        flip = rng.uniform(0.0, 1.0, n) < self.reverse
+        peak = wrap(mu + np.where(flip, math.pi, 0.0) + rng.vonmises(0.0, self.kappa, n))
+        return np.where(u < g, peak, rng.uniform(-math.pi, math.pi, n))
+
+
+def fit_heading_model(
+    delta: Any,
+    x: Any = None,
+    *,
+    reverse: bool = True,
+    slope: bool = True,
+    cap: float = 0.95,
+    max_kappa: float = 400.0,
+) -> HeadingModel | None:
+    """Fit :class:`HeadingModel` to heading errors ``true - implied`` (radians) by maximum likelihood.
+
+    Meant for the mapping run: each held-out mapping view's heading implied
+    at its own place (by a front end fit on the other views) against the
+    view's recorded heading, with ``x`` the view's log-probability of that
+    place (default 0: no dependence). ``reverse`` / ``slope``: fit those
+    parts too (else 0). ``None`` when fewer than 10 finite errors are given
+    (no heading evidence).
+    """
+    from scipy.optimize import minimize
+
+    d = np.asarray(delta, dtype=np.float64).reshape(-1)
+    xx = np.zeros_like(d) if x is None else np.asarray(x, dtype=np.float64).reshape(-1)
+    if xx.shape != d.shape:
+        raise InvalidParameterError(f"x must have one entry per error ({d.size}), got {xx.size}")
+    ok = np.isfinite(d) & ~np.isnan(xx)
+    d, xx = wrap(d[ok]), np.maximum(xx[ok], -50.0)
+    if d.size < 10:
+        return None
+    cp = _finite("cap", cap)
+
+    def model(p: FArray) -> HeadingModel:
+        return HeadingModel(
+            kappa=float(min(math.exp(p[0]), max_kappa)),
+            intercept=float(p[1]),
+            slope=float(p[2]) if slope else 0.0,
+            reverse=float(1.0 / (1.0 + math.exp(-p[3]))) if reverse else 0.0,
+            cap=cp,
+        )
+
+    def nll(p: FArray) -> float:
+        return -float(np.sum(model(p).log_factor(d, xx)))
+
+    best = None
+    for k0 in (2.0, 10.0, 50.0):
+        r = minimize(nll, np.array([math.log(k0), 0.0, 0.5, -2.0]), method="L-BFGS-B",
+                     bounds=[(math.log(1e-2), math.log(max_kappa)), (-10, 10), (0, 10), (-10, 10)])  # fmt: skip
+        if best is None or r.fun < best.fun:
+            best = r
+    assert best is not None
+    return model(best.x)
+
+
 class PoseFilter:
     """Particle filter over the robot's pose, answering a posterior over places (module docstring).
 
@@ -278,6 +430,9 @@ class PoseFilter:
     heading_jitter : float, default 0.2
         Radians (one sigma) added to the headings of ``start`` and
         ``place_poses``.
+    heading : HeadingModel, optional
+        Weigh particles also by the heading an observation implies at their
+        place (``headings`` of :meth:`update`); ``None``: headings are ignored.
     random_state : int or Generator, optional
 
     Attributes
@@ -300,6 +455,7 @@ class PoseFilter:
         start: Any = None,
         place_poses: Any = None,
         heading_jitter: float = 0.2,
+        heading: HeadingModel | None = None,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -327,6 +483,9 @@ class PoseFilter:
             raise InvalidParameterError(f"start must be a finite array of shape (m >= 1, 2 or 3), got {st.shape}")
         self.start = st
         self.heading_jitter = _finite("heading_jitter", heading_jitter)
+        if heading is not None and not isinstance(heading, HeadingModel):
+            raise InvalidParameterError(f"heading must be a HeadingModel or None, got {heading!r}")
+        self.heading = heading
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
             pp = np.asarray(place_poses, dtype=np.float64)
@@ -456,8 +615,41 @@ class PoseFilter:
             return np.full(self.n_places, -math.log(self.n_places))
         return np.logaddexp(math.log1p(-self.outlier) + soft, math.log(self.outlier / self.n_places))
 
+    def _headings(self, headings: Any) -> FArray | None:
+        """The checked implied headings of one observation, shape (P,) (None: no heading evidence)."""
+        if headings is None or self.heading is None:
+            return None
+        h = np.asarray(headings, dtype=np.float64).reshape(-1)
+        if h.size != self.n_places or np.any(np.isinf(h)):
+            raise InvalidParameterError(f"headings must be {self.n_places} angles in radians (NaN = none), without inf")
+        return None if np.all(np.isnan(h)) else h
+
+    @staticmethod
+    def _place_confidence(log_likelihood: Any) -> FArray:
+        """``x``: the row's log-probability of each place (softmax; -50 at most below), shape (P,)."""
+        row = np.asarray(log_likelihood, dtype=np.float64).reshape(-1)
+        if not np.any(np.isfinite(row)):
+            return np.full(row.size, -math.log(max(row.size, 1)))
+        return np.maximum(row - logsumexp(row), -50.0)
+
+    def _heading_log_factor(self, d: FArray, near: IArray, h: FArray, x: FArray) -> FArray:
+        """Each particle's ``log 2 pi f(theta - implied | x)`` at its place (0 at no place or no implied heading)."""
+        assert self.heading is not None
+        out = np.zeros(d.shape[0])
+        hh = h[near]
+        at = (d <= self.radius) & np.isfinite(hh)
+        if np.any(at):
+            out[at] = self.heading.log_factor(self.particles_[at, 2] - hh[at], x[near[at]])
+        return out
+
     def update(
-        self, log_likelihood: Any, weight: float = 1.0, kidnap_prior: Any = None, kidnap: float | None = None
+        self,
+        log_likelihood: Any,
+        weight: float = 1.0,
+        kidnap_prior: Any = None,
+        kidnap: float | None = None,
+        headings: Any = None,
+        heading_weight: float | None = None,
     ) -> FArray:
         """Weigh the particles by one observation, apply the kidnapping term, resample; the place log-posterior.
 
@@ -470,6 +662,14 @@ class PoseFilter:
         probability of this observation, untempered (1 = the particles are
         forgotten and re-drawn from ``kidnap_prior`` times the likelihood:
         a global (re)initialisation from the sensor).
+        ``headings`` (radians, shape (P,), NaN = none): the robot's heading
+        the observation implies at each place; with the filter's
+        :class:`HeadingModel` a particle at place ``j`` is also weighed by
+        ``(2 pi f(theta - headings[j])) ** weight``, and fresh particles at
+        ``j`` draw their heading from ``f``. ``heading_weight`` (in ``(0,
+        1]``, default ``weight``): the exponent of the heading factor, when
+        the heading evidence is tempered on its own (its errors repeat over
+        longer stretches than the place's).
         """
         w_obs = _finite("weight", weight)
         if kidnap is not None and not 0 <= _finite("kidnap", kidnap) <= 1:
@@ -484,6 +684,21 @@ class PoseFilter:
         d, near = self._particles_nearest()
         w = np.empty(d.shape[0])
         any_finite = observation_weights_at(d, near, lp, self.radius, float(floor), self.log_weights_, w)
+        hd = self._headings(headings)
+        conf = log_mean = None
+        w_head = w_obs if heading_weight is None else _finite("heading_weight", heading_weight)
+        if not 0 < w_head <= 1:
+            raise InvalidParameterError(f"heading_weight must be in (0, 1], got {heading_weight!r}")
+        if hd is not None:
+            assert self.heading is not None
+            conf = self._place_confidence(log_likelihood)
+            w += w_head * self._heading_log_factor(d, near, hd, conf)
+            # the kidnapped component integrates the (tempered) heading factor over a uniform heading
+            log_mean = np.zeros(P)
+            if w_head != 1.0:
+                has = np.isfinite(hd)
+                log_mean[has] = self.heading.log_mean_tempered(w_head, conf[has])
+                lp = lp + log_mean
         tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
@@ -513,13 +728,70 @@ class PoseFilter:
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
-            fresh = self._sample_at_places(kid, m, lse_kid)
+            fresh, corr = self._sample_at_places(
+                kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
+            )
             parts.append(fresh)
-            logw.append(np.full(m, comp_kid - math.log(m)))
+            logw.append(comp_kid - math.log(m) + corr)
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
 
-    def _sample_at_places(self, log_p: FArray, m: int, log_total: float | None = None) -> FArray:
+    @overload
+    def _sample_at_places(
+        self, log_p: FArray, m: int, log_total: float | None = ..., *, headings: FArray | None = ...,
+        confidence: FArray | None = ..., log_mean: FArray | None = ..., weight: float = ...,
+        correction: Literal[False] = ...,
+    ) -> FArray: ...  # fmt: skip
+
+    @overload
+    def _sample_at_places(
+        self, log_p: FArray, m: int, log_total: float | None = ..., *, headings: FArray | None = ...,
+        confidence: FArray | None = ..., log_mean: FArray | None = ..., weight: float = ...,
+        correction: Literal[True],
+    ) -> tuple[FArray, FArray]: ...  # fmt: skip
+
+    def _sample_at_places(
+        self,
+        log_p: FArray,
+        m: int,
+        log_total: float | None = None,
+        *,
+        headings: FArray | None = None,
+        confidence: FArray | None = None,
+        log_mean: FArray | None = None,
+        weight: float = 1.0,
+        correction: bool = False,
+    ) -> FArray | tuple[FArray, FArray]:
+        """``m`` particles at the places by ``log_p``; with ``headings``, headings drawn from the heading model.
+
+        ``confidence``: each place's ``x`` (:class:`HeadingModel`); ``log_mean``:
+        each place's :meth:`HeadingModel.log_mean_tempered` at ``weight``, if
+        already known.
+
+        With ``correction``, also each particle's log importance weight: a
+        heading drawn from ``f`` stands for the tempered target
+        ``(2 pi f) ** weight / mean((2 pi f) ** weight)``.
+        """
+        out = self._sample_places_only(log_p, m, log_total)
+        corr = np.zeros(m)
+        if headings is not None and self.heading is not None:
+            _, j = self._nearest(out[:, :2])
+            hh = headings[j]
+            has = np.isfinite(hh)
+            if np.any(has):
+                x = np.zeros(m) if confidence is None else confidence[j]
+                th = self.heading.sample(hh[has], self._rng, x[has])
+                out[has, 2] = th
+                if weight != 1.0:
+                    lm = (
+                        log_mean[j[has]]
+                        if log_mean is not None
+                        else self.heading.log_mean_tempered(weight, x[has])
+                    )
+                    corr[has] = (weight - 1.0) * self.heading.log_factor(th - hh[has], x[has]) - lm
+        return (out, corr) if correction else out
+
+    def _sample_places_only(self, log_p: FArray, m: int, log_total: float | None = None) -> FArray:
         rng = self._rng
         pr = np.exp(log_p - (logsumexp(log_p) if log_total is None else log_total))
         j = rng.choice(self.n_places, size=m, p=pr / pr.sum())
@@ -573,7 +845,7 @@ class PoseFilter:
             self._place_log_posterior = self._particle_places()
         return self.place_log_posterior()
 
-    def log_evidence(self, log_likelihood: Any, weight: float = 1.0) -> float:
+    def log_evidence(self, log_likelihood: Any, weight: float = 1.0, headings: Any = None) -> float:
         """Log predictive likelihood of one observation under the tracked particles (no kidnapping; state unchanged).
 
         ``log sum_i w_i l_i``: the particles' normalised weights times the
@@ -586,6 +858,9 @@ class PoseFilter:
         floor = w_obs * math.log(self.off_place / self.n_places) if self.off_place > 0 else -np.inf
         d, near = self._particles_nearest()
         w = self.log_weights_ + np.where(d <= self.radius, lp[near], floor)
+        hd = self._headings(headings)
+        if hd is not None:
+            w = w + w_obs * self._heading_log_factor(d, near, hd, self._place_confidence(log_likelihood))
         return float(logsumexp(w)) if np.any(np.isfinite(w)) else -math.inf
 
     def spawn(self, n_particles: int | None = None) -> PoseFilter:
@@ -673,6 +948,9 @@ class _ReplayGenerator(np.random.Generator):
         self._own = False  # diverged from the record: every draw is this generator's
 
     def _draw(self, name: str, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
+        if self._own and self._synced == self._i:  # diverged and in step: a plain draw (the same as below)
+            self._i = self._synced = self._i + 1
+            return getattr(np.random.Generator, name)(self, *args, **kwargs)
         key = (name, args, tuple(sorted(kwargs.items())))
         log = self._shared.log
         i = self._i
@@ -711,6 +989,9 @@ class _ReplayGenerator(np.random.Generator):
 
     def integers(self, *args: Any, **kwargs: Any) -> Any:
         return self._draw("integers", args, kwargs)
+
+    def vonmises(self, *args: Any, **kwargs: Any) -> Any:
+        return self._draw("vonmises", args, kwargs)
 
     def choice(self, a: Any, size: Any = None, replace: bool = True, p: Any = None, **kwargs: Any) -> Any:  # type: ignore[override]
         if p is not None and replace and not kwargs and isinstance(a, (int, np.integer)) and isinstance(size, (int, np.integer)):
@@ -828,6 +1109,31 @@ def _run_inputs(
         raise InvalidParameterError(f"weights must have one entry per step ({n}), got {wts.size}")
     return ll, inc, wts
 
+def _update(
+    f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None,
+    heading_weight: float | None = None,
+) -> FArray:  # fmt: skip
+    """``f.update``, with ``headings`` only when there are some (a filter class without them keeps working)."""
+    if headings is None:
+        return f.update(row, weight, prior) if kidnap is None else f.update(row, weight, prior, kidnap=kidnap)
+    return f.update(row, weight, prior, kidnap=kidnap, headings=headings, heading_weight=heading_weight)
+
+
+def _evidence(f: PoseFilter, row: FArray, weight: float, headings: FArray | None) -> float:
+    """``f.log_evidence``, with ``headings`` only when there are some."""
+    return f.log_evidence(row, weight) if headings is None else f.log_evidence(row, weight, headings)
+
+
+def _run_headings(headings: Any, shape: tuple[int, ...]) -> FArray | None:
+    """The checked implied headings of a run, shape (n_steps, P), or None."""
+    if headings is None:
+        return None
+    h = np.asarray(headings, dtype=np.float64)
+    if h.shape != tuple(shape):
+        raise InvalidParameterError(f"headings must have the log-likelihood's shape {tuple(shape)}, got {h.shape}")
+    return h
+
+
 def run_pose_filter(
     log_likelihood: Any,
     increments: Any,
@@ -841,6 +1147,8 @@ def run_pose_filter(
     start_at_first_observation: bool = False,
     gap_metres: float | None = None,
     answer_untempered: bool = False,
+    headings: Any = None,
+    heading_weights: Any = None,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -902,6 +1210,13 @@ def run_pose_filter(
         tempering still governs what the particles keep for later): the
         weight discounts evidence that repeats earlier views, which the
         particles already carry, not the current view itself.
+    headings : array_like, shape (n_steps, P), optional
+        Row ``t``: the heading (radians, mapping frame) observation ``t``
+        implies at each place (NaN = none); used when the filter has a
+        :class:`HeadingModel` (:meth:`PoseFilter.update`).
+    heading_weights : array_like, shape (n_steps,), optional
+        The heading evidence's own weight per step (``heading_weight`` of
+        :meth:`PoseFilter.update`); default the observations' weights.
 
     Returns
     -------
@@ -911,6 +1226,10 @@ def run_pose_filter(
     """
     ll, inc, wts = _run_inputs(pose_filter, log_likelihood, increments, weights, temper)
     P, n = pose_filter.n_places, ll.shape[0]
+    hds = _run_headings(headings, ll.shape)
+    hws = None if heading_weights is None else np.asarray(heading_weights, dtype=np.float64).reshape(-1)
+    if hws is not None and hws.size != n:
+        raise InvalidParameterError(f"heading_weights must have one entry per step ({n}), got {hws.size}")
     if reset_threshold is not None:
         thr = _finite("reset_threshold", reset_threshold)
         frac = _finite("reset_fraction", reset_fraction)
@@ -950,12 +1269,13 @@ def run_pose_filter(
             theirs = alt + lp
             r = float(wts[t]) * (float(logsumexp(mine)) - float(logsumexp(theirs)))
             cusum = min(0.0, cusum + r)
+        hd = None if hds is None else hds[t]
         if lost:
-            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd)
             lost, cusum = False, 0.0
             continue
         predicted = pose_filter.place_log_posterior() if answer_untempered else None
-        out[t] = pose_filter.update(row, float(wts[t]), prior)
+        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]))
         if predicted is not None:
             full = predicted + pose_filter.place_likelihood(row)
             if np.any(np.isfinite(full)):
@@ -1032,6 +1352,7 @@ def run_challenged_pose_filter(
     place_filter: MarkovFilter | None = None,
     start_at_first_observation: bool = False,
     gap_metres: float | None = None,
+    headings: Any = None,
 ) -> FilterResult:
     """:func:`run_pose_filter` with a challenger: a second filter started from the sensor, adopted when its trajectory fits better.
 
@@ -1056,7 +1377,7 @@ def run_challenged_pose_filter(
 
     Parameters
     ----------
-    log_likelihood, increments, pose_filter, weights, temper, place_filter, start_at_first_observation, gap_metres
+    log_likelihood, increments, pose_filter, weights, temper, place_filter, start_at_first_observation, gap_metres, headings
         As :func:`run_pose_filter`.
     challenger : Challenger, optional
         Default ``Challenger()``.
@@ -1072,6 +1393,7 @@ def run_challenged_pose_filter(
     ch = Challenger() if challenger is None else challenger
     ll, inc, wts = _run_inputs(pose_filter, log_likelihood, increments, weights, temper)
     P, n = pose_filter.n_places, ll.shape[0]
+    hds = _run_headings(headings, ll.shape)
     pose_filter.reset()
     if place_filter is not None:
         if place_filter.transition.n_places != P:
@@ -1104,19 +1426,20 @@ def run_challenged_pose_filter(
         if not observed:
             out[t] = pose_filter.place_log_posterior()
             continue
+        hd = None if hds is None else hds[t]
         if lost:
-            out[t] = pose_filter.update(row, 1.0, prior, kidnap=1.0)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd)
             lost = False
             continue
         w = float(wts[t])
         we = w if ch.tempered_evidence else 1.0
-        mine = pose_filter.log_evidence(row, we)
+        mine = _evidence(pose_filter, row, we, hd)
         if rival is not None:
-            factor += rival.log_evidence(row, we) - mine
-            rival.update(row, w, prior)
+            factor += _evidence(rival, row, we, hd) - mine
+            _update(rival, row, w, prior, None, hd)
             age += 1
             trace.append((t, "compare", factor))
-        out[t] = pose_filter.update(row, w, prior)
+        out[t] = _update(pose_filter, row, w, prior, None, hd)
         if rival is not None:
             if factor > ch.switch_nats:
                 out[t] = pose_filter.adopt(rival)
@@ -1135,7 +1458,7 @@ def run_challenged_pose_filter(
         anywhere = float(logsumexp(alt + we * pose_filter.place_likelihood(row)))
         if anywhere - mine > ch.spawn_nats:
             rival = pose_filter.spawn(ch.n_particles)
-            rival.update(row, 1.0, prior, kidnap=1.0)
+            _update(rival, row, 1.0, prior, 1.0, hd)
             factor, age = anywhere - mine, 0
             trace.append((t, "spawn", factor))
     pose_filter.resets_ = len(switches)

@@ -22,9 +22,18 @@ from ..errors import InvalidParameterError
 from ..map.graph import PlaceGraph
 from ..observation import Observation
 from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
-from .presets import ResolvedPreset, resolve_preset
+from .presets import ResolvedPreset, model_from_options, resolve_preset
 from .readers import Run
-from .tracker import Calibration, Tracker, held_out_calibration, mapping_graph, model_fit_score, tune_pose_filter
+from .tracker import (
+    Calibration,
+    Tracker,
+    held_out_calibration,
+    held_out_headings,
+    mapping_graph,
+    model_fit_score,
+    tune_pose_filter,
+    with_heading_model,
+)
 
 __all__ = ["LoadedMap", "PlaceMap", "load_map", "make_map", "save_map"]
 
@@ -97,6 +106,7 @@ def make_map(
     radius: float = PLACE_RADIUS_M,
     calibrate: bool = True,
     odometry_error: float | None = None,
+    heading: bool = True,
     on_step: Callable[[str], None] | None = None,
 ) -> PlaceMap:
     """Places from a run's poses, learned with a preset, with the filters' calibration.
@@ -119,6 +129,14 @@ def make_map(
         Factor of the simulated wheel-odometry errors used while choosing them:
         by default 1 for CARMEN logs (their poses are corrected ones, as
         ``fingerloc track`` and the benchmark assume), else 0.
+    heading : bool, default True
+        With ``calibrate``: fit the pose filter's heading model on the
+        mapping part (:func:`~fingerloc.pipeline.tracker.with_heading_model`:
+        each held-out training view's heading implied at its own place by
+        the model fit on the other views, against its recorded heading; two
+        more fits) so that ``track --filter pose`` weighs the particles by
+        the heading each view implies (the tuning of ``rho`` and the
+        tempering then runs with it). Skipped when the views have no poses.
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -163,12 +181,24 @@ def make_map(
         n_train=split.n_train,
         calibration_rows=rows,
     )
+    headings = None
+    if held is not None and heading and all(o.pose is not None for o in raw):
+        note("fitting the heading model on the mapping part")
+        opts = resolved.options
+
+        def fit_model(tr: Any, y: Any) -> Any:
+            return model_from_options(opts).fit([raw[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
+
+        headings = held_out_headings(fit_model, raw, split.train_labels, held, split.n_places)
+        if headings is not None:
+            cal = with_heading_model(cal, held, headings, poses[split.train_idx[held.index], 2])
     if held is not None:
         note("choosing the pose filter's reliability and tempering on the mapping part")
         factor = (1.0 if run.kind == "carmen" else 0.0) if odometry_error is None else odometry_error
         cal, _ = tune_pose_filter(
-            Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor
-        )
+            Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
+            headings=headings,
+        )  # fmt: skip
     name = " ".join(str(p) for p in run.paths)
     return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key)
 

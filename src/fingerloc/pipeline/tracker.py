@@ -49,13 +49,17 @@ from ..map.graph import PlaceGraph, nearest_place_sequence
 from .places import visit_folds
 
 if TYPE_CHECKING:
-    from ..map.pose_filter import Challenger, PoseFilter
+    from ..map.pose_filter import Challenger, HeadingModel, PoseFilter
+    from ..map.relocalize import Augmented
     from ..observation import Observation
 
 __all__ = [
     "FILTERS",
+    "HEADING_TEMPER_M",
+    "HOLD_MARGIN",
     "MIN_CALIBRATION_ROWS",
     "POSE_PARTICLES",
+    "TIE_BREAK",
     "Calibration",
     "FitScore",
     "HeldOut",
@@ -63,9 +67,12 @@ __all__ = [
     "calibrate_labelled",
     "challenger_of",
     "fit_scale",
+    "heading_of",
     "held_out_calibration",
+    "held_out_headings",
     "held_out_rows",
     "held_out_scores",
+    "implied_headings",
     "mapping_graph",
     "model_fit_score",
     "posterior_columns",
@@ -73,6 +80,7 @@ __all__ = [
     "step_distances",
     "tune_grid",
     "tune_pose_filter",
+    "with_heading_model",
 ]
 
 
@@ -80,6 +88,13 @@ __all__ = [
 MIN_CALIBRATION_ROWS = 10
 #: Particles of the pose filter (:class:`Tracker` and the benchmark's pose-filtered methods).
 POSE_PARTICLES = 3000
+#: Metres after which the pose filter's heading evidence counts fully (issue 15: on the shared logs'
+#: mapping passes a held-out view's heading error stays correlated with the previous views' up to 8 m).
+HEADING_TEMPER_M = 8.0
+#: The pose filter's answer between observations: held unless another place leads by this (issue 15).
+HOLD_MARGIN = 0.05
+#: ... and near-ties within this broken by the discrete place filter (issue 15).
+TIE_BREAK = 0.02
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -129,6 +144,22 @@ class Calibration:
         (:func:`~fingerloc.map.pose_filter.run_challenged_pose_filter`).
     challenger_switch_nats : float
         The challenger's log Bayes factor that makes the switch.
+    heading_kappa, heading_intercept, heading_slope, heading_reverse, heading_cap : float
+        Pose filter: the :class:`~fingerloc.map.pose_filter.HeadingModel`
+        of the headings the observations imply (fitted on the mapping part);
+        ``heading_kappa == 0`` (the default): headings are not used.
+    heading_temper_metres : float
+        Pose filter: the heading evidence counts fully after this much
+        travel (or the field of view's turn); 0: as the observations.
+    hold_margin : float or None
+        Pose filter, between observations: the previous best place stays
+        the answer unless another place's probability exceeds it by this
+        much (:func:`~fingerloc.map.relocalize.held_best`; None: the argmax).
+    tie_break : float or None
+        Pose filter, between observations: among the places within this
+        probability of the answer, the one the discrete place filter believes
+        most (:func:`~fingerloc.map.relocalize.tie_broken_best`; None: off).
+        Neither changes the posterior nor the answers at observed steps.
     """
 
     beta: float = 1.0
@@ -147,6 +178,14 @@ class Calibration:
     gap_metres: float | None = None
     challenger: bool = False
     challenger_switch_nats: float = 3.0
+    heading_kappa: float = 0.0
+    heading_intercept: float = 0.0
+    heading_slope: float = 0.0
+    heading_reverse: float = 0.0
+    heading_cap: float = 0.0
+    heading_temper_metres: float = 0.0
+    hold_margin: float | None = HOLD_MARGIN
+    tie_break: float | None = TIE_BREAK
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready dict of every field."""
@@ -247,6 +286,8 @@ class HeldOut:
     labels : ndarray of int, shape (n,)
     index : ndarray of int, shape (n,)
         Position of each row among the training rows.
+    fold : ndarray of int, shape (n_train,), optional
+        The fold (0 / 1) of every training row the scores were computed with.
     """
 
     beta: float
@@ -254,6 +295,7 @@ class HeldOut:
     scores: FArray
     labels: IArray
     index: IArray
+    fold: IArray | None = None
 
 
 def held_out_calibration(
@@ -269,7 +311,7 @@ def held_out_calibration(
         s, yy = held_out_scores(fit_score, y, fold, n_places)
         usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
     beta = fit_likelihood_scale(s, yy) if usable else 1.0
-    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64))
+    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64), fold)
 
 
 def fit_scale(
@@ -326,6 +368,112 @@ def posterior_columns(model: Any, observations: Sequence[Observation], n_places:
     return out
 
 
+def implied_headings(model: Any, observations: Sequence[Observation], labels: Sequence[str]) -> FArray:
+    """The robot's heading each observation implies at each place, radians in the views' frame, shape (n, P).
+
+    For place ``labels[j]``, :meth:`~fingerloc.model.PlaceModel.headings_with_reference`
+    gives the heading ``h`` (degrees) of the observation against the place's
+    best-matching training view (the fingerprint's cyclic alignment, or the
+    profile's); that view's recorded pose ``(x, y, theta)`` (the mapping
+    run's) makes it absolute. The model's convention is *bearing in the
+    view = bearing in the observation - h* (``localize --json`` reports
+    ``-h`` as ``heading_deg``: the README's *b + heading_deg*), so the
+    robot's heading is ``theta - h`` (on the shared logs' mapping passes: median error 3-6 deg
+    at the true place on aces and intel with this sign, 25-37 deg with the
+    other; docs/RESULTS.md). NaN where a place is unknown to the model, has no estimate, or
+    its view has no pose.
+    """
+    obs = list(observations)
+    out = np.full((len(obs), len(labels)), np.nan)
+    if not obs:
+        return out
+    places = getattr(model, "places_", {})
+    by_name = {str(k): k for k in places}
+    for j, lab in enumerate(labels):
+        key = by_name.get(str(lab))
+        if key is None:
+            continue
+        views = places[key].observations
+        theta = np.array([np.nan if o.pose is None else float(o.pose[2]) for o in views])
+        h, v = model.headings_with_reference(obs, [key] * len(obs))
+        ok = (v >= 0) & (v < theta.size) & np.isfinite(h)
+        if np.any(ok):
+            out[ok, j] = np.mod(theta[v[ok]] - np.radians(h[ok]) + math.pi, 2 * math.pi) - math.pi
+    return out
+
+
+def held_out_headings(
+    fit_model: Callable[[IArray, IArray], Any],
+    observations: Sequence[Observation],
+    labels: Any,
+    held: HeldOut,
+    n_places: int,
+) -> FArray | None:
+    """Implied headings (:func:`implied_headings`) of the held-out rows of ``held``, rows as ``held.scores``; None without folds.
+
+    ``fit_model(train_rows, train_labels)`` fits the same recogniser as the
+    calibration's ``fit_score`` on those training rows (labels ``0 .. k -
+    1``, as :func:`held_out_scores` remaps them) and returns a model with
+    :meth:`~fingerloc.model.PlaceModel.headings_with_reference` whose
+    training observations carry their poses.
+    """
+    if held.fold is None or held.index.size == 0:
+        return None
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    parts: list[FArray] = []
+    for f in (0, 1):
+        tr, te = np.flatnonzero(held.fold != f), np.flatnonzero(held.fold == f)
+        if tr.size == 0 or te.size == 0:
+            continue
+        present = np.unique(y[tr])
+        remap = np.full(n_places, -1, dtype=np.int64)
+        remap[present] = np.arange(present.size)
+        model = fit_model(tr, remap[y[tr]])
+        full = np.full((te.size, n_places), np.nan)
+        full[:, present] = implied_headings(model, [observations[i] for i in te.tolist()], [str(k) for k in range(present.size)])
+        parts.append(full)
+    return np.concatenate(parts) if parts else None
+
+
+def with_heading_model(
+    calibration: Calibration,
+    held: HeldOut,
+    headings: Any,
+    headings_true: Any,
+    *,
+    reverse: bool = True,
+    slope: bool = True,
+    temper_metres: float = HEADING_TEMPER_M,
+) -> Calibration:
+    """The calibration with the pose filter's heading model fitted on the mapping part's held-out rows.
+
+    ``headings`` (rows as ``held.scores``): :func:`held_out_headings`;
+    ``headings_true``: each held-out row's recorded heading (radians). The
+    error at the row's own place and the row's log-probability of it
+    (``beta``-scaled softmax) fit :func:`~fingerloc.map.pose_filter.fit_heading_model`.
+    ``temper_metres``: the heading evidence's own tempering
+    (``heading_temper_metres``). Unchanged when there are too few estimates.
+    """
+    from ..map.pose_filter import fit_heading_model
+
+    h = np.asarray(headings, dtype=np.float64)
+    rows = np.arange(held.labels.size)
+    if h.shape != held.scores.shape or rows.size == 0:
+        return calibration
+    s = calibration.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
+    with np.errstate(invalid="ignore"):
+        top = np.max(s, axis=1, keepdims=True)
+        x = (s - top - np.log(np.sum(np.exp(s - top), axis=1, keepdims=True)))[rows, held.labels]
+    true = np.asarray(headings_true, dtype=np.float64).reshape(-1)
+    hm = fit_heading_model(true - h[rows, held.labels], x if slope else None, reverse=reverse, slope=slope)
+    if hm is None:
+        return calibration
+    return replace(
+        calibration, heading_kappa=hm.kappa, heading_intercept=hm.intercept, heading_slope=hm.slope,
+        heading_reverse=hm.reverse, heading_cap=hm.cap, heading_temper_metres=float(temper_metres),
+    )  # fmt: skip
+
+
 def run_pose_steps(
     log_likelihood: Any,
     increments: Any,
@@ -339,6 +487,11 @@ def run_pose_steps(
     reset_threshold: float | None = None,
     challenger: Challenger | None = None,
     place_steps: SharedPlaceSteps | None = None,
+    headings: Any = None,
+    heading_temper: tuple[float, float] | None = None,
+    augmented: Augmented | None = None,
+    hold_margin: float | None = None,
+    tie_break: float | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -362,13 +515,79 @@ def run_pose_steps(
     place_steps : SharedPlaceSteps, optional
         The discrete filter's beliefs shared with other runs on the same
         steps (:func:`tune_pose_filter`); the same results.
+    headings : array_like, shape (n_steps, P), optional
+        The heading each observation implies at each place (radians, NaN =
+        none), used when the pose filter has a heading model.
+    heading_temper : (metres, radians), optional
+        The heading evidence's own tempering (default: the observations').
+    augmented : Augmented, optional
+        Run :func:`~fingerloc.map.relocalize.run_augmented_pose_filter`
+        (Augmented MCL) instead (``reset_threshold`` and ``headings`` are
+        then not used; not with ``challenger``).
+    hold_margin, tie_break : float, optional
+        The answers between observations
+        (:func:`~fingerloc.map.relocalize.answer_between`; ``None``: off).
     """
+    from ..map.pose_filter import observation_weights
+
+    hw = None
+    if headings is not None and heading_temper is not None:
+        lls = np.asarray(log_likelihood, dtype=np.float64)
+        hw = observation_weights(
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:], ~np.all(np.isnan(lls), axis=1),
+            metres=heading_temper[0], radians=heading_temper[1],
+        )  # fmt: skip
+    res = _run_pose_steps(log_likelihood, increments, pose_filter, transition, temper=temper, relocalize=relocalize,
+                          start_at_first_observation=start_at_first_observation, gap_metres=gap_metres,
+                          reset_threshold=reset_threshold, challenger=challenger, place_steps=place_steps,
+                          augmented=augmented, headings=headings, heading_weights=hw)  # fmt: skip
+    if hold_margin is None and tie_break is None:
+        return res
+    from ..map.relocalize import answer_between
+
+    return answer_between(res, log_likelihood, increments, transition, hold_margin=hold_margin, tie_break=tie_break)
+
+
+def _run_pose_steps(
+    log_likelihood: Any,
+    increments: Any,
+    pose_filter: PoseFilter,
+    transition: TransitionModel,
+    *,
+    temper: tuple[float, float] | None,
+    relocalize: bool,
+    start_at_first_observation: bool,
+    gap_metres: float | None,
+    reset_threshold: float | None,
+    challenger: Challenger | None,
+    place_steps: SharedPlaceSteps | None,
+    augmented: Augmented | None,
+    headings: Any,
+    heading_weights: Any,
+) -> FilterResult:
+    """:func:`run_pose_steps` before the answers between observations (Augmented MCL runs without headings)."""
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
 
     def places() -> MarkovFilter | None:
         if not relocalize:
             return None
         return MarkovFilter(transition) if place_steps is None else place_steps.filter(transition)
+
+    if augmented is not None:
+        if challenger is not None:
+            raise InvalidParameterError("the challenger and Augmented MCL are not run together")
+        from ..map.relocalize import run_augmented_pose_filter
+
+        return run_augmented_pose_filter(
+            log_likelihood,
+            np.asarray(increments, dtype=np.float64).reshape(-1, 3)[1:],
+            pose_filter,
+            augmented,
+            temper=temper,
+            place_filter=places(),
+            start_at_first_observation=start_at_first_observation,
+            gap_metres=gap_metres,
+        )
 
     if challenger is not None:
         return run_challenged_pose_filter(
@@ -380,6 +599,7 @@ def run_pose_steps(
             place_filter=places(),
             start_at_first_observation=start_at_first_observation,
             gap_metres=gap_metres,
+            headings=headings,
         )
 
     return run_pose_filter(
@@ -391,6 +611,8 @@ def run_pose_steps(
         start_at_first_observation=start_at_first_observation,
         gap_metres=gap_metres,
         reset_threshold=reset_threshold,
+        headings=headings,
+        heading_weights=heading_weights,
     )
 
 
@@ -401,6 +623,16 @@ def challenger_of(calibration: Calibration) -> Challenger | None:
     if not calibration.challenger:
         return None
     return Challenger(switch_nats=calibration.challenger_switch_nats)
+
+
+def heading_of(calibration: Calibration) -> HeadingModel | None:
+    """The calibration's heading model (None: headings not used)."""
+    from ..map.pose_filter import HeadingModel
+
+    c = calibration
+    if c.heading_kappa <= 0 or c.heading_cap <= 0:
+        return None
+    return HeadingModel(c.heading_kappa, c.heading_intercept, c.heading_slope, c.heading_reverse, c.heading_cap)
 
 
 def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
@@ -419,6 +651,7 @@ def tune_pose_filter(
     temper: bool = True,
     relocalize: bool = True,
     share_draws: bool = True,
+    headings: Any = None,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -438,6 +671,10 @@ def tune_pose_filter(
     :class:`~fingerloc.map.filter.SharedPlaceSteps`; a run whose calls
     differ computes its own from there), which changes no result.
 
+    ``headings`` (shape (n_held, P), radians, NaN = none): the heading each
+    held-out row implies at each place (rows as ``held.scores``); with the
+    calibration's heading model, the runs use them.
+
     Returns
     -------
     Calibration
@@ -456,6 +693,10 @@ def tune_pose_filter(
     ll = np.full((poses.shape[0], tracker.centres.shape[0]), np.nan)
     ll[rows] = cal.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
     truth = held.labels
+    hd = None
+    if headings is not None and heading_of(cal) is not None:
+        hd = np.full(ll.shape, np.nan)
+        hd[rows] = np.asarray(headings, dtype=np.float64).reshape(rows.size, -1)
     inc = np.vstack([np.zeros((1, 3)), wheel_odometry(poses, odometry_error, random_state=seed + 2)])
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
@@ -466,7 +707,7 @@ def tune_pose_filter(
         trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles)
         f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
-        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps)
+        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps, headings=hd)
         top1 = float(np.mean(res.best[rows] == truth))
         tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
         if top1 > best[0]:
@@ -544,6 +785,7 @@ class Tracker:
             kidnap=self.calibration.kidnap if kidnap is None else kidnap,
             outlier=self.calibration.outlier,
             off_place=self.calibration.off_place,
+            heading=heading_of(self.calibration),
             random_state=seed if rng is None else rng,
         )
 
@@ -568,8 +810,9 @@ class Tracker:
         relocalize: bool = True,
         reset_threshold: float | None = None,
         place_steps: SharedPlaceSteps | None = None,
+        headings: Any = None,
     ) -> FilterResult:
-        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused)."""
+        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused); ``headings``: :func:`run_pose_steps`."""
         c = self.calibration
         return run_pose_steps(
             log_likelihood,
@@ -583,6 +826,10 @@ class Tracker:
             reset_threshold=reset_threshold,
             challenger=challenger_of(c),
             place_steps=place_steps,
+            headings=headings,
+            heading_temper=(c.heading_temper_metres, c.temper_radians) if temper and c.heading_temper_metres > 0 else None,
+            hold_margin=c.hold_margin,
+            tie_break=c.tie_break,
         )
 
     def run(
@@ -595,6 +842,7 @@ class Tracker:
         seed: int = 0,
         temper: bool = True,
         relocalize: bool = True,
+        headings: Any = None,
     ) -> FilterResult:
         """Track along a run.
 
@@ -612,6 +860,10 @@ class Tracker:
             increments, times this factor (0 = the poses' own increments).
         seed : int, default 0
             Seeds the particles (``seed``) and the simulated odometry (``seed + 1``).
+        headings : array_like, shape (n_steps, P), optional
+            Pose filter: the heading (radians, the poses' frame) each
+            observation implies at each place (NaN = none); used when the
+            calibration has a heading model (:func:`heading_of`).
 
         Returns
         -------
@@ -631,5 +883,6 @@ class Tracker:
 
         inc = wheel_odometry(p, odometry_error, random_state=seed + 1)
         return self.run_pose(
-            ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize
-        )
+            ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize,
+            headings=headings,
+        )  # fmt: skip

@@ -2,9 +2,9 @@
 
 The camera's analogue of the laser's range term ``R``: each observation may
 carry a heading-free appearance descriptor (``Observation.appearance``, e.g.
-the colour histograms and layout spectrum of
-:func:`fingerloc.features.vision.appearance_descriptor`). The term compares it
-with the descriptors of every training view of every place:
+the square roots of the colour and gradient histograms of three strips of
+elevation of :func:`fingerloc.features.vision.appearance_descriptor`). The
+term compares it with the descriptors of every training view of every place:
 
     d(o, place)        = min over the place's training views v of D(o.appearance, v.appearance)
     log P(A | place)   = -lambda * d(o, place)          (up to a constant shared by the places)
@@ -20,6 +20,9 @@ view to the nearest *other* place.
 
 Observations without a descriptor get a zero row (the term says nothing); a
 place whose training views have none gets the row's largest distance.
+Descriptors of different lengths cannot be compared: when the lengths are
+those of two versions of fingerloc's own descriptor (94 numbers: version 1,
+222: version 2), the error names both versions.
 """
 
 from __future__ import annotations
@@ -41,6 +44,21 @@ __all__ = ["METRICS", "AppearanceTerm", "fit_lambda"]
 #: Distances between appearance descriptors.
 METRICS: tuple[str, ...] = ("l1", "hellinger")
 
+
+#: Descriptor lengths of fingerloc's own panorama descriptor versions (kept in step with
+#: ``fingerloc.features.vision.APPEARANCE_VERSIONS``; not imported, so that this module stays light).
+_DESCRIPTOR_VERSIONS: dict[int, int] = {94: 1, 222: 2}
+
+
+def _versions_hint(a: int, b: int) -> str:
+    """What to do when two descriptor lengths differ because fingerloc's descriptor changed."""
+    va, vb = _DESCRIPTOR_VERSIONS.get(a), _DESCRIPTOR_VERSIONS.get(b)
+    if va is None or vb is None:
+        return ""
+    return (
+        f" (appearance descriptor versions {va} and {vb}: the features were extracted by different fingerloc "
+        "versions; extract the references and the queries again with one version and learn again)"
+    )
 
 
 class AppearanceTerm(DistanceTerm):
@@ -112,6 +130,7 @@ class AppearanceTerm(DistanceTerm):
                 elif o.appearance.size != size:
                     raise InvalidParameterError(
                         f"appearance: every descriptor must have the same length, got {o.appearance.size} and {size}"
+                        f"{_versions_hint(o.appearance.size, size)}"
                     )
                 rows.append(o.appearance)
                 owner.append(j)
@@ -177,7 +196,7 @@ class AppearanceTerm(DistanceTerm):
         if q.shape[1] != self.refs_.shape[1]:
             raise InvalidParameterError(
                 f"appearance: the observations' descriptors have length {q.shape[1]}, "
-                f"the learned places' {self.refs_.shape[1]}"
+                f"the learned places' {self.refs_.shape[1]}{_versions_hint(q.shape[1], self.refs_.shape[1])}"
             )
         per = self._per_place(self._pairwise(q, self.refs_))
         worst = np.max(np.where(np.isfinite(per), per, -np.inf), axis=1, keepdims=True)

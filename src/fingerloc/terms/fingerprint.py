@@ -191,6 +191,27 @@ class FingerprintTerm(DistanceTerm):
             self._recent = ({id(o): (o, f, -1) for o, f in zip(obs, qfps, strict=True)}, None)
         return out
 
+    def remember(self, observations: Sequence[Observation]) -> None:
+        """Align the observations against every training view in one batch, for the next :meth:`heading_at` calls.
+
+        :meth:`heading_at` then reuses each observation's fingerprint and
+        its cyclic costs to every view (the same numbers it would compute
+        one place at a time). Nothing is kept when the batch would be too
+        large; observations already held by the latest batch are not
+        aligned again.
+        """
+        from ..align import alignment_costs
+
+        obs = list(observations)
+        recent, d = self.__dict__.get("_recent", ({}, None))
+        if self.reference != "all" or not obs or not self._refs or len(obs) * len(self._refs) > _KEEP_COSTS:
+            return  # (with medoid or consensus references the batch does not hold every view)
+        if d is not None and all((hit := recent.get(id(o))) is not None and hit[0] is o and hit[2] >= 0 for o in obs):
+            return
+        qfps = [self.fingerprint(o) for o in obs]
+        d = alignment_costs(qfps, self._references_for(FULL_FOV), cyclic=True, costs=self.costs)
+        self._recent = ({id(o): (o, f, r) for r, (o, f) in enumerate(zip(obs, qfps, strict=True))}, d)
+
     def _query(self, obs: Observation) -> tuple[Fingerprint, FArray | None]:
         """The fingerprint of a query and its costs to every reference, from the latest batch when it held it."""
         recent, d = self.__dict__.get("_recent", ({}, None))
@@ -235,7 +256,7 @@ class FingerprintTerm(DistanceTerm):
         within 1e-9 of the least are aligned again with their alignment, so
         the answer is that of aligning every view.
         """
-        from ..align import alignment_costs, cyclic_alignment
+        from ..align import alignment_costs, cyclic_heading
 
         q, row = self._query(obs)
         fps = self.fingerprints_[place]
@@ -250,9 +271,9 @@ class FingerprintTerm(DistanceTerm):
             candidates = np.flatnonzero(costs <= least + 1e-9 * max(1.0, abs(least))).tolist()
         best: tuple[float, float | None, int] | None = None
         for v in candidates:
-            r = cyclic_alignment(q, fps[v], costs=self.costs)
-            if best is None or r.cost < best[0]:
-                best = (r.cost, r.heading_deg, v)
+            cost, heading = cyclic_heading(q, fps[v], costs=self.costs)
+            if best is None or cost < best[0]:
+                best = (cost, heading, v)
         return (None, -1) if best is None else (best[1], best[2])
 
     # -- state -----------------------------------------------------------------
