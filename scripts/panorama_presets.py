@@ -33,6 +33,7 @@ CONFIGS = {
     ),
     "K": dict(terms=("K",)),
     "A+K weights=fit": dict(terms=("A", "K"), weights="fit"),
+    "A+K": dict(terms=("A", "K")),
     "Fp+A+AP+K weights=fit (panorama preset)": dict(
         terms=("Fp", "A", "AP", "K"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
     ),
