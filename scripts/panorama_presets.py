@@ -34,6 +34,10 @@ CONFIGS = {
     "K": dict(terms=("K",)),
     "A+K weights=fit": dict(terms=("A", "K"), weights="fit"),
     "A+K": dict(terms=("A", "K")),
+    "Fp+A+AP+K weights A=K=1 Fp=AP=0": dict(
+        terms=("Fp", "A", "AP", "K"), cyclic=True, costs=FEATURE, fp_likelihood="exp",
+        weights={"Fp": 0.0, "A": 1.0, "AP": 0.0, "K": 1.0},
+    ),
     "Fp+A+AP+K weights=fit (panorama preset)": dict(
         terms=("Fp", "A", "AP", "K"), cyclic=True, costs=FEATURE, fp_likelihood="exp", weights="fit"
     ),

@@ -65,15 +65,15 @@ PRESETS: dict[str, dict[str, Any]] = {
         "features": {},
     },
     "panorama": {
-        "description": "panoramic camera: the fingerprint string matched over every rotation + the appearance "
-        "term A + the aligned-profile term AP + the local-feature term K (all heading-free; AP also gives the "
-        "heading), per-term weights fit on held-out training views",
+        "description": "panoramic camera: the appearance term A + the local-feature term K, each calibrated "
+        "leave-one-out, weight 1 each (both heading-free); the aligned-profile term AP gives the heading and the "
+        "fingerprint string (matched over every rotation) its fallback, both with weight 0",
         "model": {
             "terms": ["Fp", "A", "AP", "K"],
             "cyclic": True,
             "costs": "feature",
             "fp_likelihood": "exp",
-            "weights": "fit",
+            "weights": {"Fp": 0.0, "A": 1.0, "AP": 0.0, "K": 1.0},
         },
         "features": {},
     },
