@@ -66,6 +66,7 @@ from ..pipeline.tracker import (
     HOLD_MARGIN,
     POSE_PARTICLES,
     TIE_BREAK,
+    TUNE_WITH_HEADING,
     Calibration,
     FitScore,
     HeldOut,
@@ -375,7 +376,7 @@ class PoseFilteredMethod(FilteredMethod):
         (:func:`implied_headings`). The heading model is fitted on the
         mapping pass (:func:`~fingerloc.map.pose_filter.fit_heading_model`
         on the held-out rows of ``beta``: each at its own place, from the
-        fold model that did not see it) and the tuning runs with it. A base
+        fold model that did not see it); the tuning runs with it when ``tune_heading``. A base
         method without headings (the baselines) leaves it off. The default
         since the third session of issue 15 (docs/RESULTS.md: +2 to +6
         points pooled at each of five seeds on the shared logs); method
@@ -388,6 +389,10 @@ class PoseFilteredMethod(FilteredMethod):
         :data:`fingerloc.pipeline.tracker.HEADING_TEMPER_M` (8 m): on the
         shared logs' mapping passes a held-out view's heading error stays
         correlated with the previous ones' up to 8 m of travel.
+    tune_heading : bool, default TUNE_WITH_HEADING (False)
+        Run ``tune`` (on the mapping pass) with the heading evidence too
+        (:data:`fingerloc.pipeline.tracker.TUNE_WITH_HEADING`: as good
+        without, in half the time).
     heading_slope : bool, default True
         Let the heading estimate's reliability grow with the view's
         probability of the place (:class:`~fingerloc.map.pose_filter.HeadingModel`).
@@ -447,6 +452,7 @@ class PoseFilteredMethod(FilteredMethod):
         heading_reverse: bool = True,
         heading_slope: bool = True,
         heading_temper_metres: float = HEADING_TEMPER_M,
+        tune_heading: bool = TUNE_WITH_HEADING,
         augmented: Augmented | None = None,
         hold_margin: float | None = HOLD_MARGIN,
         tie_break: float | None = TIE_BREAK,
@@ -456,6 +462,7 @@ class PoseFilteredMethod(FilteredMethod):
         self.heading_reverse = bool(heading_reverse)
         self.heading_slope = bool(heading_slope)
         self.heading_temper_metres = float(heading_temper_metres)
+        self.tune_heading = bool(tune_heading)
         if tie_break is not None and (math.isnan(tie_break) or tie_break < 0):
             raise InvalidParameterError(f"tie_break must be >= 0, got {tie_break!r}")
         self.tie_break = tie_break
@@ -540,7 +547,8 @@ class PoseFilteredMethod(FilteredMethod):
         if self.tune and self.observe and held is not None:
             self.calibration_, self.tuning_ = tune_pose_filter(
                 self.tracker_, held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
-                seed=self.seed, temper=self.temper, relocalize=self.relocalize, headings=self.held_headings_,
+                seed=self.seed, temper=self.temper, relocalize=self.relocalize,
+                headings=self.held_headings_ if self.tune_heading else None,
             )  # fmt: skip
             self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.outlier_ = self.calibration_.outlier

@@ -25,6 +25,7 @@ from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, pl
 from .presets import ResolvedPreset, model_from_options, resolve_preset
 from .readers import Run
 from .tracker import (
+    TUNE_WITH_HEADING,
     Calibration,
     Tracker,
     held_out_calibration,
@@ -197,7 +198,7 @@ def make_map(
         factor = (1.0 if run.kind == "carmen" else 0.0) if odometry_error is None else odometry_error
         cal, _ = tune_pose_filter(
             Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
-            headings=headings,
+            headings=headings if TUNE_WITH_HEADING else None,
         )  # fmt: skip
     name = " ".join(str(p) for p in run.paths)
     return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key)
