@@ -253,3 +253,27 @@ def test_the_heading_evidence_can_be_tempered_on_its_own():
     assert shares[0.25] == pytest.approx(r**0.25 / (1 + r**0.25), abs=0.02)
     with pytest.raises(InvalidParameterError):
         f.update(row, 1.0, headings=np.array([0.0, np.nan]), heading_weight=0.0)
+
+
+def test_prepared_headings_are_those_aligned_place_by_place():
+    """PlaceModel.prepare_headings (one batch against every view) changes no heading and no reference view."""
+    from fingerloc.experiments.carmen import FingerprintMethod, best_fingerprint_params
+
+    from ._logs import box_scan
+
+    train = [box_scan(5, 12, 2.5, 6, 0.0, noise=0.005), box_scan(5, 12, 2.5, 6.2, 0.05, noise=0.005),
+             box_scan(8, 3, 3, 1.5, 0.0), box_scan(8, 3, 3.2, 1.5, 0.0), box_scan(6, 6, 2.0, 3.0, 0.2)]  # fmt: skip
+    fm = FingerprintMethod(**best_fingerprint_params()).fit(train, np.array([0, 0, 1, 1, 2]))
+    queries = [box_scan(8, 3, 3.1, 1.5, 0.3, noise=0.005), box_scan(5, 12, 2.4, 6.1, -0.2, noise=0.005),
+               box_scan(6, 6, 2.1, 3.1, 1.0, noise=0.005)]  # fmt: skip
+    model = fm.model_
+    obs = fm._observations(queries)
+    labels = list(model.places_)
+    alone = [model.headings_with_reference(obs, [lab] * len(obs)) for lab in labels]
+    model.prepare_headings(obs)
+    fp = model.terms_["Fp"]
+    assert all(fp._query(o)[1] is not None for o in obs)  # the batch is held
+    for lab, (h0, v0) in zip(labels, alone, strict=True):
+        h1, v1 = model.headings_with_reference(obs, [lab] * len(obs))
+        np.testing.assert_array_equal(h1, h0)
+        np.testing.assert_array_equal(v1, v0)

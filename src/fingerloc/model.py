@@ -514,6 +514,21 @@ class PlaceModel(ParamsMixin):
         """
         return self.headings_with_reference(observations, places)[0]
 
+    def prepare_headings(self, observations: Sequence[Observation]) -> None:
+        """Align the observations against every training view in one batch, for headings at many places.
+
+        :meth:`headings_with_reference` for these observations at every
+        place (one call per place) then reuses the batch: the same headings,
+        without aligning each observation again per place. Worth it when
+        headings at most places are wanted (:func:`fingerloc.pipeline.tracker.implied_headings`);
+        for one place per observation it would align against every view
+        for nothing.
+        """
+        self._check_fitted()
+        fp = self.terms_.get("Fp")
+        if isinstance(fp, FingerprintTerm):
+            fp.remember(_observations(observations))
+
     def headings_with_reference(
         self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
     ) -> tuple[FArray, NDArray[np.int64]]:
@@ -541,8 +556,6 @@ class PlaceModel(ParamsMixin):
         labs = list(self.predict(obs)) if places is None else list(places)
         out = np.full(len(obs), np.nan)
         ref = np.full(len(obs), -1, dtype=np.int64)
-        if len(obs) > 1 and any(not (isinstance(ap, ProfileTerm) and o.profile is not None) for o in obs):
-            fp.remember(obs)  # one batch of alignments instead of one a view (the same costs)
         for i, (o, lab) in enumerate(zip(obs, labs, strict=True)):
             if isinstance(ap, ProfileTerm) and o.profile is not None:
                 hp, v = ap.heading_at(o, self.column_of(lab))

@@ -395,6 +395,9 @@ def implied_headings(model: Any, observations: Sequence[Observation], labels: Se
         return out
     places = getattr(model, "places_", {})
     by_name = {str(k): k for k in places}
+    prepare = getattr(model, "prepare_headings", None)
+    if prepare is not None and len(obs) > 1 and len(labels) > 1:
+        prepare(obs)  # one batch of alignments for every place below (the same headings)
     for j, lab in enumerate(labels):
         key = by_name.get(str(lab))
         if key is None:
