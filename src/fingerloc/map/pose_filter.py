@@ -1134,6 +1134,19 @@ def _run_headings(headings: Any, shape: tuple[int, ...]) -> FArray | None:
     return h
 
 
+def _place_step(place_filter: MarkovFilter | None, row: FArray, inc: FArray, t: int, observed: bool) -> FArray | None:
+    """One step of the discrete place filter run beside a pose filter: its predicted belief at step ``t``
+    (the kidnapping prior of the pose filter's update; None without a place filter), then its update by
+    the observation ``row`` when ``observed``. ``inc``: the run's odometry increments (row ``t - 1`` leads
+    to step ``t``)."""
+    if place_filter is None:
+        return None
+    prior = place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
+    if observed:
+        place_filter.update(np.where(np.isnan(row), -np.inf, row))
+    return prior
+
+
 def run_pose_filter(
     log_likelihood: Any,
     increments: Any,
@@ -1248,13 +1261,7 @@ def run_pose_filter(
     for t in range(n):
         row = ll[t]
         observed = not np.all(np.isnan(row))
-        prior = None
-        if place_filter is not None:
-            prior = (
-                place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
-            )
-            if observed:
-                place_filter.update(np.where(np.isnan(row), -np.inf, row))
+        prior = _place_step(place_filter, row, inc, t, observed)
         if t > 0:
             pose_filter.predict(inc[t - 1])
             if math.hypot(inc[t - 1, 0], inc[t - 1, 1]) > gap:
@@ -1410,13 +1417,7 @@ def run_challenged_pose_filter(
     for t in range(n):
         row = ll[t]
         observed = not np.all(np.isnan(row))
-        prior = None
-        if place_filter is not None:
-            prior = (
-                place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
-            )
-            if observed:
-                place_filter.update(np.where(np.isnan(row), -np.inf, row))
+        prior = _place_step(place_filter, row, inc, t, observed)
         if t > 0:
             pose_filter.predict(inc[t - 1])
             if rival is not None:

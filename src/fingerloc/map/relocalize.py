@@ -34,7 +34,7 @@ import numpy as np
 from .._lse import logsumexp
 from ..errors import InvalidParameterError
 from .filter import FilterResult, MarkovFilter, TransitionModel, run_filter
-from .pose_filter import PoseFilter, _run_inputs
+from .pose_filter import PoseFilter, _place_step, _run_inputs
 
 __all__ = ["Augmented", "answer_between", "held_best", "run_augmented_pose_filter", "tie_broken_best"]
 
@@ -270,13 +270,7 @@ def run_augmented_pose_filter(
     for t in range(n):
         row = ll[t]
         observed = not np.all(np.isnan(row))
-        prior = None
-        if place_filter is not None:
-            prior = (
-                place_filter.predict(math.hypot(inc[t - 1, 0], inc[t - 1, 1])) if t > 0 else place_filter.log_belief_
-            )
-            if observed:
-                place_filter.update(np.where(np.isnan(row), -np.inf, row))
+        prior = _place_step(place_filter, row, inc, t, observed)
         if t > 0:
             pose_filter.predict(inc[t - 1])
             if math.hypot(inc[t - 1, 0], inc[t - 1, 1]) > gap:
