@@ -20,6 +20,8 @@ _LAZY = {
     "load_graph": ".graph",
     "PoseFilter": ".pose_filter",
     "run_pose_filter": ".pose_filter",
+    "ScanMap": ".scan_map",
+    "scan_points": ".scan_map",
 }
 
 __all__ = [
@@ -27,12 +29,14 @@ __all__ = [
     "MarkovFilter",
     "PlaceGraph",
     "PoseFilter",
+    "ScanMap",
     "TransitionModel",
     "load_graph",
     "load_model",
     "run_filter",
     "run_pose_filter",
     "save_model",
+    "scan_points",
 ]
 
 if TYPE_CHECKING:
@@ -40,6 +44,7 @@ if TYPE_CHECKING:
     from .filter import MarkovFilter, TransitionModel, run_filter
     from .graph import PlaceGraph, load_graph
     from .pose_filter import PoseFilter, run_pose_filter
+    from .scan_map import ScanMap, scan_points
 
 
 def __getattr__(name: str) -> Any:

@@ -69,6 +69,7 @@ from ..angles import wrap
 from ..errors import InvalidParameterError
 from ..validation import check_random_state
 from .filter import FilterResult, MarkovFilter
+from .scan_map import ScanMap
 
 __all__ = [
     "Challenger",
@@ -433,6 +434,16 @@ class PoseFilter:
     heading : HeadingModel, optional
         Weigh particles also by the heading an observation implies at their
         place (``headings`` of :meth:`update`); ``None``: headings are ignored.
+    scan_map : ScanMap, optional
+        Weigh particles also by how well the observation's laser end points
+        (``points`` of :meth:`update`) fit the mapping run's
+        (:class:`~fingerloc.map.scan_map.ScanMap`): a particle at pose ``x``
+        is weighed by ``exp(scan_gamma * L(x))``, ``L`` the mean end-point
+        log-likelihood, tempered as the observation. ``None``: end points
+        are ignored.
+    scan_gamma : float, default 0
+        The power of the scan evidence (0: off; chosen on the mapping part
+        by :func:`fingerloc.pipeline.tracker.tune_pose_filter`).
     random_state : int or Generator, optional
 
     Attributes
@@ -456,6 +467,8 @@ class PoseFilter:
         place_poses: Any = None,
         heading_jitter: float = 0.2,
         heading: HeadingModel | None = None,
+        scan_map: ScanMap | None = None,
+        scan_gamma: float = 0.0,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -486,6 +499,10 @@ class PoseFilter:
         if heading is not None and not isinstance(heading, HeadingModel):
             raise InvalidParameterError(f"heading must be a HeadingModel or None, got {heading!r}")
         self.heading = heading
+        if scan_map is not None and not isinstance(scan_map, ScanMap):
+            raise InvalidParameterError(f"scan_map must be a ScanMap or None, got {scan_map!r}")
+        self.scan_map = scan_map
+        self.scan_gamma = _finite("scan_gamma", scan_gamma)
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
             pp = np.asarray(place_poses, dtype=np.float64)
@@ -650,6 +667,7 @@ class PoseFilter:
         kidnap: float | None = None,
         headings: Any = None,
         heading_weight: float | None = None,
+        points: Any = None,
     ) -> FArray:
         """Weigh the particles by one observation, apply the kidnapping term, resample; the place log-posterior.
 
@@ -670,6 +688,11 @@ class PoseFilter:
         1]``, default ``weight``): the exponent of the heading factor, when
         the heading evidence is tempered on its own (its errors repeat over
         longer stretches than the place's).
+        ``points`` (shape (m, 2), robot frame, metres): the observation's
+        laser end points; with the filter's ``scan_map`` and ``scan_gamma >
+        0`` every particle, the fresh ones included, is also weighed by
+        ``exp(weight * scan_gamma * L(pose))``, and the place posterior is
+        then the weighted particles' (an importance-sampling estimate).
         """
         w_obs = _finite("weight", weight)
         if kidnap is not None and not 0 <= _finite("kidnap", kidnap) <= 1:
@@ -699,6 +722,9 @@ class PoseFilter:
                 has = np.isfinite(hd)
                 log_mean[has] = self.heading.log_mean_tempered(w_head, conf[has])
                 lp = lp + log_mean
+        scan = self._scan_points(points)
+        if scan is not None:
+            w += (w_obs * self.scan_gamma) * self._scan(self.particles_, scan)
         tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
@@ -732,9 +758,30 @@ class PoseFilter:
                 kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
-            logw.append(comp_kid - math.log(m) + corr)
+            extra = 0.0 if scan is None else (w_obs * self.scan_gamma) * self._scan(fresh, scan)
+            logw.append(comp_kid - math.log(m) + corr + extra)
+        if scan is not None:  # the fresh particles' scan weights are not in the analytic posterior: the particles'
+            allp, alw = np.concatenate(parts), np.concatenate(logw)
+            _, at = self._nearest(allp[:, :2])
+            top = float(np.max(alw))
+            with np.errstate(divide="ignore"):
+                post = np.log(bincount_weights(at, np.exp(alw - top), P))
+            self._place_log_posterior = post - logsumexp(post)
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
+
+    def _scan_points(self, points: Any) -> FArray | None:
+        """The checked end points of one observation, shape (m, 2), or None when the scan evidence is off."""
+        if points is None or self.scan_map is None or self.scan_gamma == 0:
+            return None
+        q = np.asarray(points, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != 2 or not np.all(np.isfinite(q)):
+            raise InvalidParameterError(f"points must be a finite array of shape (m, 2), got {q.shape}")
+        return q if q.shape[0] else None
+
+    def _scan(self, particles: FArray, points: FArray) -> FArray:
+        assert self.scan_map is not None
+        return self.scan_map.log_likelihood(particles, points)
 
     @overload
     def _sample_at_places(
@@ -1111,12 +1158,16 @@ def _run_inputs(
 
 def _update(
     f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None,
-    heading_weight: float | None = None,
+    heading_weight: float | None = None, points: FArray | None = None,
 ) -> FArray:  # fmt: skip
-    """``f.update``, with ``headings`` only when there are some (a filter class without them keeps working)."""
+    """``f.update``, with ``headings`` and ``points`` only when there are some (a filter class without them
+    keeps working)."""
+    extra: dict[str, Any] = {} if points is None else {"points": points}
     if headings is None:
-        return f.update(row, weight, prior) if kidnap is None else f.update(row, weight, prior, kidnap=kidnap)
-    return f.update(row, weight, prior, kidnap=kidnap, headings=headings, heading_weight=heading_weight)
+        if kidnap is None:
+            return f.update(row, weight, prior, **extra)
+        return f.update(row, weight, prior, kidnap=kidnap, **extra)
+    return f.update(row, weight, prior, kidnap=kidnap, headings=headings, heading_weight=heading_weight, **extra)
 
 
 def _evidence(f: PoseFilter, row: FArray, weight: float, headings: FArray | None) -> float:
@@ -1132,6 +1183,16 @@ def _run_headings(headings: Any, shape: tuple[int, ...]) -> FArray | None:
     if h.shape != tuple(shape):
         raise InvalidParameterError(f"headings must have the log-likelihood's shape {tuple(shape)}, got {h.shape}")
     return h
+
+
+def _run_points(points: Any, n: int) -> list[FArray | None] | None:
+    """The checked end points of a run: one (m, 2) array or None per step, or None."""
+    if points is None:
+        return None
+    pts = list(points)
+    if len(pts) != n:
+        raise InvalidParameterError(f"points must have one entry per step ({n}), got {len(pts)}")
+    return [None if q is None else np.asarray(q, dtype=np.float64).reshape(-1, 2) for q in pts]
 
 
 def _place_step(place_filter: MarkovFilter | None, row: FArray, inc: FArray, t: int, observed: bool) -> FArray | None:
@@ -1162,6 +1223,7 @@ def run_pose_filter(
     answer_untempered: bool = False,
     headings: Any = None,
     heading_weights: Any = None,
+    points: Any = None,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -1230,6 +1292,10 @@ def run_pose_filter(
     heading_weights : array_like, shape (n_steps,), optional
         The heading evidence's own weight per step (``heading_weight`` of
         :meth:`PoseFilter.update`); default the observations' weights.
+    points : sequence of (m, 2) arrays or None, length n_steps, optional
+        Each step's laser end points (robot frame, metres; ``None``: none),
+        used when the filter has a scan map (``points`` of
+        :meth:`PoseFilter.update`).
 
     Returns
     -------
@@ -1243,6 +1309,7 @@ def run_pose_filter(
     hws = None if heading_weights is None else np.asarray(heading_weights, dtype=np.float64).reshape(-1)
     if hws is not None and hws.size != n:
         raise InvalidParameterError(f"heading_weights must have one entry per step ({n}), got {hws.size}")
+    pts = _run_points(points, n)
     if reset_threshold is not None:
         thr = _finite("reset_threshold", reset_threshold)
         frac = _finite("reset_fraction", reset_fraction)
@@ -1277,12 +1344,13 @@ def run_pose_filter(
             r = float(wts[t]) * (float(logsumexp(mine)) - float(logsumexp(theirs)))
             cusum = min(0.0, cusum + r)
         hd = None if hds is None else hds[t]
+        q = None if pts is None else pts[t]
         if lost:
-            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd, points=q)
             lost, cusum = False, 0.0
             continue
         predicted = pose_filter.place_log_posterior() if answer_untempered else None
-        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]))
+        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]), q)
         if predicted is not None:
             full = predicted + pose_filter.place_likelihood(row)
             if np.any(np.isfinite(full)):

@@ -51,6 +51,7 @@ from .places import visit_folds
 if TYPE_CHECKING:
     from ..map.pose_filter import Challenger, HeadingModel, PoseFilter
     from ..map.relocalize import Augmented
+    from ..map.scan_map import ScanMap
     from ..observation import Observation
 
 __all__ = [
@@ -157,6 +158,11 @@ class Calibration:
     heading_temper_metres : float
         Pose filter: the heading evidence counts fully after this much
         travel (or the field of view's turn); 0: as the observations.
+    scan_gamma : float
+        Pose filter: the power of the laser end points' likelihood field
+        (``scan_gamma`` of :class:`~fingerloc.map.pose_filter.PoseFilter`,
+        with the map's :class:`~fingerloc.map.scan_map.ScanMap`); 0 (the
+        default, and a map without one): not used.
     hold_margin : float or None
         Pose filter, between observations: the previous best place stays
         the answer unless another place's probability exceeds it by this
@@ -190,6 +196,7 @@ class Calibration:
     heading_reverse: float = 0.0
     heading_cap: float = 0.0
     heading_temper_metres: float = 0.0
+    scan_gamma: float = 0.0
     hold_margin: float | None = HOLD_MARGIN
     tie_break: float | None = TIE_BREAK
 
@@ -501,6 +508,7 @@ def run_pose_steps(
     augmented: Augmented | None = None,
     hold_margin: float | None = None,
     tie_break: float | None = None,
+    points: Any = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -536,6 +544,9 @@ def run_pose_steps(
     hold_margin, tie_break : float, optional
         The answers between observations
         (:func:`~fingerloc.map.relocalize.answer_between`; ``None``: off).
+    points : sequence of (m, 2) arrays or None, length n_steps, optional
+        Each step's laser end points (robot frame), used when the pose
+        filter has a scan map (the challenger and Augmented MCL runs ignore them).
     """
     from ..map.pose_filter import observation_weights
 
@@ -549,7 +560,7 @@ def run_pose_steps(
     res = _run_pose_steps(log_likelihood, increments, pose_filter, transition, temper=temper, relocalize=relocalize,
                           start_at_first_observation=start_at_first_observation, gap_metres=gap_metres,
                           reset_threshold=reset_threshold, challenger=challenger, place_steps=place_steps,
-                          augmented=augmented, headings=headings, heading_weights=hw)  # fmt: skip
+                          augmented=augmented, headings=headings, heading_weights=hw, points=points)  # fmt: skip
     if hold_margin is None and tie_break is None:
         return res
     from ..map.relocalize import answer_between
@@ -573,6 +584,7 @@ def _run_pose_steps(
     augmented: Augmented | None,
     headings: Any,
     heading_weights: Any,
+    points: Any = None,
 ) -> FilterResult:
     """:func:`run_pose_steps` before the answers between observations (Augmented MCL runs without headings)."""
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
@@ -622,6 +634,7 @@ def _run_pose_steps(
         reset_threshold=reset_threshold,
         headings=headings,
         heading_weights=heading_weights,
+        points=points,
     )
 
 
@@ -755,6 +768,10 @@ class Tracker:
     uniform_mix : float, optional
         Uniform mixing per step of the transition model (default
         ``1 / (counted steps + 2)``, :meth:`~fingerloc.map.filter.TransitionModel.from_graph`).
+    scan_map : ScanMap, optional
+        The mapping run's laser end points: with ``calibration.scan_gamma >
+        0`` the pose filter weighs its particles by them too (``points`` of
+        :meth:`run_pose` / :meth:`run`).
 
     Attributes
     ----------
@@ -769,8 +786,10 @@ class Tracker:
         *,
         n_particles: int = POSE_PARTICLES,
         uniform_mix: float | None = None,
+        scan_map: ScanMap | None = None,
     ) -> None:
         self.centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+        self.scan_map = scan_map
         self.graph = graph
         self.calibration = calibration
         self.n_particles = n_particles
@@ -795,6 +814,8 @@ class Tracker:
             outlier=self.calibration.outlier,
             off_place=self.calibration.off_place,
             heading=heading_of(self.calibration),
+            scan_map=self.scan_map,
+            scan_gamma=self.calibration.scan_gamma if self.scan_map is not None else 0.0,
             random_state=seed if rng is None else rng,
         )
 
@@ -820,8 +841,10 @@ class Tracker:
         reset_threshold: float | None = None,
         place_steps: SharedPlaceSteps | None = None,
         headings: Any = None,
+        points: Any = None,
     ) -> FilterResult:
-        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused); ``headings``: :func:`run_pose_steps`."""
+        """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused);
+        ``headings``, ``points``: :func:`run_pose_steps`."""
         c = self.calibration
         return run_pose_steps(
             log_likelihood,
@@ -839,6 +862,7 @@ class Tracker:
             heading_temper=(c.heading_temper_metres, c.temper_radians) if temper and c.heading_temper_metres > 0 else None,
             hold_margin=c.hold_margin,
             tie_break=c.tie_break,
+            points=points,
         )
 
     def run(
@@ -852,6 +876,7 @@ class Tracker:
         temper: bool = True,
         relocalize: bool = True,
         headings: Any = None,
+        points: Any = None,
     ) -> FilterResult:
         """Track along a run.
 
@@ -873,6 +898,10 @@ class Tracker:
             Pose filter: the heading (radians, the poses' frame) each
             observation implies at each place (NaN = none); used when the
             calibration has a heading model (:func:`heading_of`).
+        points : sequence of (m, 2) arrays or None, length n_steps, optional
+            Pose filter: each observation's laser end points (robot frame,
+            metres, :func:`~fingerloc.map.scan_map.scan_points`; None: none);
+            used with the tracker's ``scan_map`` and ``calibration.scan_gamma > 0``.
 
         Returns
         -------
@@ -893,5 +922,5 @@ class Tracker:
         inc = wheel_odometry(p, odometry_error, random_state=seed + 1)
         return self.run_pose(
             ll, np.vstack([np.zeros((1, 3)), inc]), self.pose_filter(seed), temper=temper, relocalize=relocalize,
-            headings=headings,
+            headings=headings, points=points,
         )  # fmt: skip
