@@ -43,7 +43,7 @@ def test_log_likelihood_matches_brute_force(seed):
     smap = ScanMap.from_points(pts, resolution=float(rng.choice([0.05, 0.1, 0.25])))
     poses = np.column_stack([rng.uniform(-8, 8, (20, 2)), rng.uniform(-math.pi, math.pi, 20)])
     q = rng.uniform(-6, 6, (int(rng.integers(1, 30)), 2))
-    np.testing.assert_allclose(smap.log_likelihood(poses, q), _oracle(smap, poses, q), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(smap.log_likelihood(poses, q), _oracle(smap, poses, q), rtol=1e-6, atol=1e-6)  # a float32 table
 
 
 def test_the_true_pose_scores_best():

@@ -206,7 +206,7 @@ class ScanMap:
         return cls.from_points(np.vstack(world), **options)
 
     def table(self) -> FArray:
-        """Each cell's end-point log-likelihood ``log(exp(-d^2 / 2 sigma^2) + floor)``, shape ``shape`` (float64)."""
+        """Each cell's end-point log-likelihood ``log(exp(-d^2 / 2 sigma^2) + floor)``, shape ``shape`` (float32)."""
         if not self._table:
             from scipy import ndimage
 
@@ -217,7 +217,7 @@ class ScanMap:
             else:
                 d = np.full(self.shape, self.clip)
             t = np.log(np.exp(-0.5 * (d / self.sigma) ** 2) + self.floor)
-            self._table.append(np.ascontiguousarray(t))
+            self._table.append(np.ascontiguousarray(t, dtype=np.float32))
         return self._table[0]
 
     @property
