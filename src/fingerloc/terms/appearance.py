@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 
 from .._types import IArray
-from ..errors import InvalidParameterError, NotFittedError
+from ..errors import InvalidParameterError
 from ..observation import Observation
 from .base import FArray
-from .distance import DistanceTerm, fit_lambda
+from .distance import fit_lambda
+from .indexed import IndexedTerm, _first_mismatch
 
 __all__ = ["METRICS", "AppearanceTerm", "fit_lambda"]
 
@@ -61,7 +62,7 @@ def _versions_hint(a: int, b: int) -> str:
     )
 
 
-class AppearanceTerm(DistanceTerm):
+class AppearanceTerm(IndexedTerm[FArray]):
     """The heading-free appearance term ``A`` of the Bayesian program.
 
     Parameters
@@ -91,6 +92,7 @@ class AppearanceTerm(DistanceTerm):
     name = "A"
     heading_free = True
     likelihood = "exp"
+    _label = "appearance"
 
     def __init__(
         self,
@@ -109,48 +111,23 @@ class AppearanceTerm(DistanceTerm):
     def _validate(self) -> None:
         if self.metric not in METRICS:
             raise InvalidParameterError(f"metric must be one of {', '.join(METRICS)}, got {self.metric!r}")
-        mq = self.max_queries
-        if isinstance(mq, bool) or not isinstance(mq, (int, np.integer)) or mq < 1:
-            raise InvalidParameterError(f"max_queries must be an integer >= 1, got {mq!r}")
+        super()._validate()
         lo, hi = (float(v) for v in self.lambda_bounds)
         if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
             raise InvalidParameterError(f"lambda_bounds must satisfy 0 < low < high, got {self.lambda_bounds!r}")
 
     # -- fitting -----------------------------------------------------------------
-    def _index(self, groups: Sequence[Sequence[Observation]]) -> None:
-        rows: list[FArray] = []
-        owner: list[int] = []
-        size: int | None = None
-        for j, group in enumerate(groups):
-            for o in group:
-                if o.appearance is None:
-                    continue
-                if size is None:
-                    size = o.appearance.size
-                elif o.appearance.size != size:
-                    raise InvalidParameterError(
-                        f"appearance: every descriptor must have the same length, got {o.appearance.size} and {size}"
-                        f"{_versions_hint(o.appearance.size, size)}"
-                    )
-                rows.append(o.appearance)
-                owner.append(j)
-        self.n_places_ = len(groups)
-        self.refs_ = np.stack(rows) if rows else np.zeros((0, 0))
-        self.owner_ = np.asarray(owner, dtype=np.int64)
-        self._has = np.array([o.appearance is not None for g in groups for o in g], dtype=bool)
+    def _feature(self, o: Observation) -> FArray | None:
+        return o.appearance
 
-    def fit(self, groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
-        """Store every training descriptor and fit ``lambda_`` / ``unknown_cost_`` by leave-one-out."""
-        self._validate()
-        self._index(groups)
-        self.calibrate(groups)
-        return self
-
-    def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> AppearanceTerm:
-        """Re-index the descriptors of every place; ``lambda_`` and ``unknown_cost_`` are kept."""
-        self._check_fitted()
-        self._index(groups)
-        return self
+    def _store(self, features: list[FArray]) -> None:
+        bad = _first_mismatch([a.size for a in features])
+        if bad is not None:
+            raise InvalidParameterError(
+                f"appearance: every descriptor must have the same length, got {bad[0]} and {bad[1]}"
+                f"{_versions_hint(*bad)}"
+            )
+        self.refs_ = np.stack(features) if features else np.zeros((0, 0))
 
     def _loo_matrix(self, rows: IArray) -> FArray | None:
         """Distances between training views; views without a descriptor are never anyone's neighbour."""
@@ -164,25 +141,12 @@ class AppearanceTerm(DistanceTerm):
         return d
 
     # -- inference ---------------------------------------------------------------
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "refs_"):
-            raise NotFittedError("this AppearanceTerm is not fitted yet; call fit() first")
-
     def _pairwise(self, a: FArray, b: FArray) -> FArray:
         from scipy.spatial.distance import cdist
 
         if self.metric == "hellinger":
             return cdist(np.sqrt(a), np.sqrt(b), metric="euclidean")
         return cdist(a, b, metric="cityblock")
-
-    def _per_place(self, d: FArray) -> FArray:
-        """Least distance to each place, shape ``(n, P)``; inf for a place without descriptors."""
-        out = np.full((d.shape[0], self.n_places_), np.inf)
-        has = np.bincount(self.owner_, minlength=self.n_places_) > 0
-        if d.shape[0] and has.any():
-            starts = np.searchsorted(self.owner_, np.flatnonzero(has))
-            out[:, has] = np.minimum.reduceat(d, starts, axis=1)
-        return out
 
     def distances(self, observations: Sequence[Observation]) -> FArray:
         """Distance of each observation to each place, shape ``(n, P)`` (see the module docstring)."""
@@ -203,36 +167,10 @@ class AppearanceTerm(DistanceTerm):
         out[idx] = np.where(np.isfinite(per), per, worst)
         return out
 
-    def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
-        """``-lambda_ * unknown_cost_`` for observations with a descriptor, 0 for the others, shape ``(n,)``."""
-        self._check_fitted()
-        has = np.array([o.appearance is not None for o in observations], dtype=np.float64)
-        return super().unknown_log_likelihood(observations) * has
-
     # -- state -------------------------------------------------------------------
-    def to_state(self) -> dict[str, Any]:
-        """``{"metric", "lambda", "unknown_cost"}``; the descriptors come back from the stored observations."""
-        self._check_fitted()
-        return {"metric": self.metric, **self._calibration_state()}
+    def _params_state(self) -> dict[str, Any]:
+        """``{"metric"}``, before ``"lambda"`` and ``"unknown_cost"`` in :meth:`to_state`."""
+        return {"metric": self.metric}
 
-    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
-        """Restore from :meth:`to_state` and the places' stored observations (``groups``)."""
-        try:
-            metric = state["metric"]
-            lam = float(state["lambda"])
-            unknown = state.get("unknown_cost")
-            unknown = None if unknown is None else float(unknown)
-        except (KeyError, TypeError, ValueError) as err:
-            raise InvalidParameterError(f"appearance term state is malformed: {state!r}") from err
-        if not (math.isfinite(lam) and lam > 0 and (unknown is None or (math.isfinite(unknown) and unknown >= 0))):
-            raise InvalidParameterError(f"appearance term state is malformed: {state!r}")
-        self.metric = metric
-        self._validate()
-        self._index(groups)
-        self._set_calibration_state(state)
-        return self
-
-    @classmethod
-    def from_state(cls, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> AppearanceTerm:
-        """A fitted term from :meth:`to_state` and the places' stored observations."""
-        return cls().set_state(state, groups)
+    def _params_from_state(self, state: dict[str, Any]) -> dict[str, Any]:
+        return {"metric": state["metric"]}

@@ -31,7 +31,6 @@ views (leave-one-out experiments, ``weights="fit"``) does not match them again.
 from __future__ import annotations
 
 import hashlib
-import math
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -39,11 +38,11 @@ from typing import Any
 import numpy as np
 
 from .._types import IArray
-from ..errors import InvalidParameterError, NotFittedError
+from ..errors import InvalidParameterError
 from ..features.keypoints import Keypoints
 from ..observation import Observation
 from .base import FArray
-from .distance import DistanceTerm
+from .indexed import IndexedTerm
 
 __all__ = ["CACHE_SIZE", "KeypointTerm", "keypoint_distance", "match_counts"]
 
@@ -154,7 +153,7 @@ def keypoint_distance(m: FArray | IArray, n_query: int, n_ref: FArray | IArray) 
     return np.where(norm > 0, d, np.inf)
 
 
-class KeypointTerm(DistanceTerm):
+class KeypointTerm(IndexedTerm[Keypoints]):
     """The local-feature term ``K`` of the Bayesian program (module docstring).
 
     Parameters
@@ -180,6 +179,7 @@ class KeypointTerm(DistanceTerm):
     name = "K"
     heading_free = True
     likelihood = "exp"
+    _label = "keypoint"
 
     def __init__(self, *, ratio: float = 0.8, max_elevation: float = 0.1, max_queries: int = 300) -> None:
         self.ratio = ratio
@@ -196,45 +196,15 @@ class KeypointTerm(DistanceTerm):
         e = self.max_elevation
         if isinstance(e, bool) or not isinstance(e, (int, float, np.floating)) or not (0 < e <= 1):
             raise InvalidParameterError(f"max_elevation must be a number in (0, 1], got {e!r}")
-        mq = self.max_queries
-        if isinstance(mq, bool) or not isinstance(mq, (int, np.integer)) or mq < 1:
-            raise InvalidParameterError(f"max_queries must be an integer >= 1, got {mq!r}")
+        super()._validate()
 
     # -- fitting -----------------------------------------------------------------
-    def _index(self, groups: Sequence[Sequence[Observation]]) -> None:
-        kps: list[Keypoints] = []
-        owner: list[int] = []
-        for j, group in enumerate(groups):
-            for o in group:
-                if o.keypoints is None or len(o.keypoints) == 0:
-                    continue
-                kps.append(o.keypoints)
-                owner.append(j)
-        self.n_places_ = len(groups)
-        self.refs_ = _Refs(kps)
-        self.owner_ = np.asarray(owner, dtype=np.int64)
-        self._kps = kps
-        self._digests = [_digest(k) for k in kps]
-        self._has = np.array(
-            [o.keypoints is not None and len(o.keypoints) > 0 for g in groups for o in g], dtype=bool
-        )
+    def _feature(self, o: Observation) -> Keypoints | None:
+        return o.keypoints if o.keypoints is not None and len(o.keypoints) > 0 else None
 
-    def fit(self, groups: Sequence[Sequence[Observation]]) -> KeypointTerm:
-        """Store every training view's keypoints and fit ``lambda_`` / ``unknown_cost_`` by leave-one-out."""
-        self._validate()
-        self._index(groups)
-        self.calibrate(groups)
-        return self
-
-    def update(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int]) -> KeypointTerm:
-        """Re-index the keypoints of every place; ``lambda_`` and ``unknown_cost_`` are kept."""
-        self._check_fitted()
-        self._index(groups)
-        return self
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "refs_"):
-            raise NotFittedError("this KeypointTerm is not fitted yet; call fit() first")
+    def _store(self, features: list[Keypoints]) -> None:
+        self.refs_ = _Refs(features)
+        self._digests = [_digest(k) for k in features]
 
     def _counts(self, query: Keypoints) -> IArray:
         """Match counts of ``query`` against every training view (memoised per pair)."""
@@ -257,70 +227,10 @@ class KeypointTerm(DistanceTerm):
     def _view_distances(self, query: Keypoints) -> FArray:
         return keypoint_distance(self._counts(query), len(query), self.refs_.sizes)
 
-    def _loo_matrix(self, rows: IArray) -> FArray | None:
-        """Distances between training views; views without keypoints are never anyone's neighbour."""
-        if len(self._kps) < 2:
-            return None
-        pos = np.cumsum(self._has) - 1
-        d = np.full((rows.size, self._has.size), np.inf)
-        for k, r in enumerate(rows):
-            if not self._has[r]:
-                continue
-            d[k, self._has] = self._view_distances(self._kps[int(pos[r])])
-        return d
-
-    # -- inference ---------------------------------------------------------------
-    def _per_place(self, d: FArray) -> FArray:
-        out = np.full(self.n_places_, np.inf)
-        np.minimum.at(out, self.owner_, d)
-        return out
-
-    def distances(self, observations: Sequence[Observation]) -> FArray:
-        """Distance of each observation to the nearest view of each place, shape ``(n, P)``."""
-        self._check_fitted()
-        obs = list(observations)
-        out = np.zeros((len(obs), self.n_places_))
-        if self.owner_.size == 0:
-            return out
-        for i, o in enumerate(obs):
-            if o.keypoints is None or len(o.keypoints) == 0:
-                continue
-            per = self._per_place(self._view_distances(o.keypoints))
-            fin = np.isfinite(per)
-            out[i] = np.where(fin, per, per[fin].max() if fin.any() else 0.0)
-        return out
-
-    def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
-        """``-lambda_ * unknown_cost_`` for observations with keypoints, 0 for the others, shape ``(n,)``."""
-        self._check_fitted()
-        has = np.array([o.keypoints is not None and len(o.keypoints) > 0 for o in observations], dtype=np.float64)
-        return super().unknown_log_likelihood(observations) * has
-
     # -- state -------------------------------------------------------------------
-    def to_state(self) -> dict[str, Any]:
-        """``{"ratio", "max_elevation", "lambda", "unknown_cost"}``; keypoints come back from the stored observations."""
-        self._check_fitted()
-        return {"ratio": float(self.ratio), "max_elevation": float(self.max_elevation), **self._calibration_state()}
+    def _params_state(self) -> dict[str, Any]:
+        """``{"ratio", "max_elevation"}``, before ``"lambda"`` and ``"unknown_cost"`` in :meth:`to_state`."""
+        return {"ratio": float(self.ratio), "max_elevation": float(self.max_elevation)}
 
-    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> KeypointTerm:
-        """Restore from :meth:`to_state` and the places' stored observations (``groups``)."""
-        try:
-            lam = float(state["lambda"])
-            unknown = state.get("unknown_cost")
-            unknown = None if unknown is None else float(unknown)
-            ratio = float(state.get("ratio", 0.8))
-            max_elev = float(state.get("max_elevation", 0.1))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InvalidParameterError(f"keypoint term state is malformed: {state!r}") from err
-        if not (math.isfinite(lam) and lam > 0 and (unknown is None or (math.isfinite(unknown) and unknown >= 0))):
-            raise InvalidParameterError(f"keypoint term state is malformed: {state!r}")
-        self.ratio, self.max_elevation = ratio, max_elev
-        self._validate()
-        self._index(groups)
-        self._set_calibration_state(state)
-        return self
-
-    @classmethod
-    def from_state(cls, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> KeypointTerm:
-        """A fitted term from :meth:`to_state` and the places' stored observations."""
-        return cls().set_state(state, groups)
+    def _params_from_state(self, state: dict[str, Any]) -> dict[str, Any]:
+        return {"ratio": float(state.get("ratio", 0.8)), "max_elevation": float(state.get("max_elevation", 0.1))}
