@@ -162,6 +162,19 @@ def test_rotation_gives_rotated_string(data, rot_deg):
     assert _is_rotation(a, b), (a, b)
 
 
+@pytest.mark.parametrize(
+    ("feats", "rot_deg"),
+    [({"VE": [116], "c": [120], "B": [118]}, 277), ({"VE": [116], "B": [116]}, 244), ({"c": [10], "B": [10]}, 350)],
+)
+def test_a_tie_at_one_bearing_keeps_its_order_under_rotation(feats, rot_deg):
+    # found by the property above: the f merged midway between a corner and an edge, and a beacon there,
+    # came out in either order after a rotation (round-off); also a tie that lands on 0 degrees
+    obs = Observation.from_degrees(feats)
+    a = make_fingerprint(obs).letters
+    b = make_fingerprint(obs.rotated(np.deg2rad(rot_deg))).letters
+    assert _is_rotation(a, b), (a, b)
+
+
 def test_rotation_property_can_fail():
     # a gap of 40 deg seen through a 39 deg fov differs from the full-view string
     a = make_fingerprint(Observation.from_degrees({"c": [0, 40]})).letters

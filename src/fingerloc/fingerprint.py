@@ -88,6 +88,26 @@ GAP_TOL_DEG = 1e-6
 _TIE_ORDER = {ch: i for i, ch in enumerate(ALPHABET)}
 
 
+def _tie_ordered(feats: list[tuple[float, str]]) -> list[tuple[float, str]]:
+    """Features by bearing (degrees, ``[0, 360)``); bearings within GAP_TOL_DEG of each other are a tie, in
+    :data:`_TIE_ORDER`.
+
+    A rotation of the view moves bearings by round-off: two features at one bearing (a merged ``f`` midway
+    between a corner and an edge, and a beacon there) must keep their order whichever comes out a hair
+    first, also when the tie straddles 0 (the features just below 360 then come first, 360 degrees lower).
+    """
+    feats = sorted(feats, key=lambda t: (t[0], _TIE_ORDER[t[1]]))
+    groups: list[list[tuple[float, str]]] = []
+    for f in feats:
+        if groups and f[0] - groups[-1][-1][0] <= GAP_TOL_DEG:
+            groups[-1].append(f)
+        else:
+            groups.append([f])
+    if len(groups) > 1 and groups[0][0][0] + 360.0 - groups[-1][-1][0] <= GAP_TOL_DEG:
+        groups[0] = [(b - 360.0, ch) for b, ch in groups.pop()] + groups[0]
+    return [f for g in groups for f in sorted(g, key=lambda t: _TIE_ORDER[t[1]])]
+
+
 def hue_letter(hue_deg: float) -> str:
     """The colour-patch letter of a hue in degrees, ``[0, 360)``."""
     h = float(hue_deg)
@@ -351,7 +371,7 @@ def make_fingerprint(
             (x, wall_letter(ln, r))
             for x, ln, r in zip(_degrees(obs.w), obs.w_length.tolist(), obs.w_range.tolist(), strict=True)
         ]
-    feats.sort(key=lambda t: (t[0], _TIE_ORDER[t[1]]))
+    feats = _tie_ordered(feats)
 
     pieces, full = _seen_pieces_cached(obs.fov)
 
