@@ -132,7 +132,7 @@ def test_map_stores_a_scan_map_and_track_uses_it(tmp_path, capsys, rooms_log):
     assert code == 0 and "scan map of" in err, err
     info = _places_json(capsys, db)["scan_map"]
     run_ = read_run(rooms_log)
-    expected = ScanMap.from_scans(run_end_points(run_, np.arange(11), stride=1), run_.poses[:11])
+    expected = ScanMap.from_scans(run_end_points(run_, np.arange(11)), run_.poses[:11])
     assert info["cells"] == expected.cells.shape[0] > 100 and info["resolution"] == pytest.approx(0.1)
     assert load_map(db).scan_map.cells.tobytes() == expected.cells.tobytes()
 
@@ -189,8 +189,9 @@ def test_run_end_points_of_scans_and_records(rooms_log):
 
 
 def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
-    """Once the tracker has ``fold_scan_maps`` (branch h-sbench), make_map gives tune_pose_filter the held-out
-    rows' end points and the two folds' scan maps; before, it gives neither (scan_gamma stays 0)."""
+    """Once the tracker has ``scan_folds`` and ``fold_scan_maps`` (branch h-sbench), make_map gives
+    tune_pose_filter the held-out rows' end points, the folds and the two folds' scan maps; before, none
+    (scan_gamma stays 0)."""
     import fingerloc.pipeline.mapping as mapping
     import fingerloc.pipeline.tracker as tracker
 
@@ -200,21 +201,30 @@ def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
         seen.update(kw, held=held)
         return dataclasses.replace(tr.calibration, scan_gamma=2.5), []
 
-    def fake_folds(points, poses, fold):
-        seen["fold_args"] = (len(points), np.asarray(poses).shape, np.asarray(fold).copy())
+    def fake_folds(points, poses, fold, *, travel=None):
+        seen["fold_args"] = (len(points), np.asarray(poses).shape, np.asarray(fold).copy(), np.asarray(travel))
         return (ScanMap.from_scans(points, poses), ScanMap.from_scans(points, poses))
+
+    def fake_scan_folds(train_idx, labels):
+        return np.arange(len(train_idx)) % 2
 
     monkeypatch.setattr(mapping, "tune_pose_filter", fake_tune)
     monkeypatch.delattr(tracker, "fold_scan_maps", raising=False)
+    monkeypatch.delattr(tracker, "scan_folds", raising=False)
     run_ = read_run(rooms_log)
     pm = make_map(run_, heading=False)
-    assert "scan_points" not in seen and "scan_maps" not in seen and pm.scan_map is not None
+    assert not {"scan_points", "scan_maps", "scan_fold"} & set(seen) and pm.scan_map is not None
     seen.clear()
     monkeypatch.setattr(tracker, "fold_scan_maps", fake_folds, raising=False)
+    monkeypatch.setattr(tracker, "scan_folds", fake_scan_folds, raising=False)
     pm = make_map(run_, heading=False)
     held = seen["held"]
     n_train = pm.split.n_train
-    assert seen["fold_args"][:2] == (n_train, (n_train, 3)) and seen["fold_args"][2].tolist() == held.fold.tolist()
+    fold = np.arange(n_train) % 2
+    assert seen["fold_args"][:2] == (n_train, (n_train, 3)) and seen["fold_args"][2].tolist() == fold.tolist()
+    assert seen["scan_fold"].tolist() == fold.tolist()
+    travel = seen["fold_args"][3]
+    assert travel.shape == (n_train,) and np.all(np.diff(travel) >= 0) and travel[-1] > 40  # metres along the run
     assert len(seen["scan_points"]) == held.scores.shape[0] and len(seen["scan_maps"]) == 2
     rows = pm.split.train_idx[held.index]
     assert np.array_equal(seen["scan_points"][0], run_end_points(run_, rows[:1])[0])

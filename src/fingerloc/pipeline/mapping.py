@@ -40,6 +40,7 @@ from .tracker import (
     held_out_headings,
     mapping_graph,
     model_fit_score,
+    step_distances,
     tune_pose_filter,
     with_heading_model,
 )
@@ -81,32 +82,40 @@ def run_end_points(run: Run, idx: Any = None, *, stride: int | None = None) -> l
 
 
 def _scan_map(run: Run, n_mapping: int, poses: Any) -> Any:
-    """The :class:`~fingerloc.map.scan_map.ScanMap` of the mapping part's end points (every beam), or None
-    (no ranges, or no return at all)."""
+    """The :class:`~fingerloc.map.scan_map.ScanMap` of the mapping part's end points (the pose filter's
+    stride, as the benchmark's), or None (no ranges, or no return at all)."""
     from ..map.scan_map import ScanMap
 
-    pts = run_end_points(run, np.arange(n_mapping), stride=1)
+    pts = run_end_points(run, np.arange(n_mapping))
     if pts is None or not any(q.shape[0] for q in pts):
         return None
     return ScanMap.from_scans(pts, poses[:n_mapping])
 
 
 def _scan_tuning(run: Run, split: PlaceSplit, held: Any, poses: Any) -> dict[str, Any]:
-    """The scan evidence's arguments of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`: each held-out
-    row's end points (``scan_points``, rows as ``held.scores``) and the two folds' scan maps of the training
-    scans (``scan_maps``, :func:`~fingerloc.pipeline.tracker.fold_scan_maps`).
+    """The scan evidence's arguments of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`, as the
+    benchmark passes them: each held-out row's end points (``scan_points``, rows as ``held.scores``), the
+    training scans' folds (``scan_fold``: alternate visits in time order, ``scan_folds``) and the two folds'
+    scan maps (``scan_maps``: ``fold_scan_maps``, the guard measured along the run).
 
-    Empty until the tracker's tuning takes them (no ``fold_scan_maps`` yet): ``scan_gamma`` then stays
-    the calibration's (0, off).
+    Empty (``scan_gamma`` stays 0, off) while the tracker has no ``scan_folds`` / ``fold_scan_maps``
+    (before branch h-sbench), or when a fold's complement has no end point.
     """
     fold_scan_maps = getattr(_tracker, "fold_scan_maps", None)
-    if fold_scan_maps is None or held.fold is None or held.index.size == 0:
+    scan_folds = getattr(_tracker, "scan_folds", None)
+    if fold_scan_maps is None or scan_folds is None or held.index.size == 0:
         return {}
-    train = run_end_points(run, split.train_idx, stride=1)
-    rows = run_end_points(run, split.train_idx[held.index])
-    if train is None or rows is None:
+    tr = split.train_idx
+    pts = run_end_points(run, tr)
+    if pts is None:
         return {}
-    return {"scan_points": rows, "scan_maps": fold_scan_maps(train, poses[split.train_idx], held.fold)}
+    fold = scan_folds(tr, split.train_labels)
+    travel = np.cumsum(step_distances(poses[: split.n_mapping, :2]))[tr]
+    try:
+        maps = fold_scan_maps(pts, poses[tr], fold, travel=travel)
+    except InvalidParameterError:  # a fold without end points: no map to score its rows against
+        return {}
+    return {"scan_points": [pts[i] for i in held.index.tolist()], "scan_maps": maps, "scan_fold": fold}
 
 
 @dataclass(slots=True)
