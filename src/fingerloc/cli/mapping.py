@@ -30,7 +30,7 @@ __all__ = ["map_cmd"]
 @app.command("map")
 def map_cmd(
     runs: list[Path] = typer.Argument(..., metavar="RUN", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
-    db: Path = typer.Option(..., "--db", help="Place database to write (schema 2)."),
+    db: Path = typer.Option(..., "--db", help="Place database to write (schema 4)."),
     preset: str = typer.Option("auto", "--preset", help="paper | laser2d | panorama | multimodal | auto (from the data)."),
     mapping_part: float | None = typer.Option(None, "--mapping-part", help="Fraction of the run that maps, from its start [0.5]."),
     until: float | None = typer.Option(None, "--until", help="The mapping part: scans within this many seconds of the first (instead of --mapping-part)."),
@@ -56,6 +56,11 @@ def map_cmd(
     heading: bool = typer.Option(
         True, "--heading/--no-heading",
         help="Fit the pose filter's heading model on the mapping part (two more fits), used by 'track --filter pose'.",
+    ),
+    scan: bool = typer.Option(
+        True, "--scan/--no-scan",
+        help="Store the mapping part's laser end points (a scan map; runs with ranges only) and choose the power of "
+        "their evidence on the mapping part, used by 'track --filter pose'.",
     ),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
@@ -104,6 +109,7 @@ def map_cmd(
             radius=radius,
             calibrate=not no_calibration,
             heading=heading,
+            scan=scan,
             on_step=lambda s: status.update(s),
         )
     err_console.print(pm.preset.reason, markup=False)
@@ -113,10 +119,12 @@ def map_cmd(
                           "places apart (see --preset / --terms)", markup=False)  # fmt: skip
     size = save_map(pm, db)
     sp, cal = pm.split, pm.calibration
+    sm = pm.scan_map
+    scan_note = "" if sm is None else f"; scan map of {sm.cells.shape[0]} cells, scan gamma {cal.scan_gamma:g}"
     err_console.print(
         f"{db}: {sp.n_places} place(s) from {sp.n_train} training scan(s) of the first {sp.n_mapping} of "
         f"{sp.n_scans}; preset {pm.preset.name}; beta {cal.beta:.3g}, {cal.metres_per_move:.2f} m per place "
-        f"change, kidnap {cal.kidnap:.3g}; {size} bytes",
+        f"change, kidnap {cal.kidnap:.3g}{scan_note}; {size} bytes",
         markup=False,
         soft_wrap=True,
     )

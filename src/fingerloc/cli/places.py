@@ -167,6 +167,7 @@ def learn_cmd(
                 calibration=old.calibration,
                 content_hashes=set(lm.content_hashes) | {hashes[i] for i in fresh},
                 runs=old.runs,
+                scan_map=old.scan_map,
             )
         else:
             resolved = resolve_preset("auto" if preset is None else preset, obs, given)
@@ -451,16 +452,20 @@ def places_cmd(
 
 
 def _map_info(db: Path) -> dict[str, Any]:
-    """``preset``, ``calibration``, ``positions`` (label -> [x, y] metres) and ``runs`` of a database (None / empty when absent)."""
+    """``preset``, ``calibration``, ``positions`` (label -> [x, y] metres), ``runs`` and ``scan_map`` (its grid:
+    ``cells`` occupied, ``shape``, ``resolution`` and ``origin`` in metres) of a database (None / empty when absent)."""
     from ..pipeline.mapping import load_map
 
     lm = load_map(db)
+    sm = lm.scan_map
     pos = {} if lm.positions is None else {lab: lm.positions[j].tolist() for j, lab in enumerate(lm.labels)}
     return {
         "preset": None if lm.preset is None else lm.preset.to_json(),
         "calibration": None if lm.calibration is None else lm.calibration.to_json(),
         "positions": pos,
         "runs": lm.runs,
+        "scan_map": None if sm is None else {"cells": int(sm.cells.shape[0]), "shape": list(sm.shape),
+                                             "resolution": float(sm.resolution), "origin": sm.origin.tolist()},
     }
 
 
@@ -486,6 +491,11 @@ def _print_map_info(db: Path, model: Any) -> None:
     for r in info["runs"]:
         console.print(f"mapped from: {r['name']} (first {r['n_mapping']} of {r['n_scans']} scans)", markup=False,
                       soft_wrap=True)  # fmt: skip
+    sm = info["scan_map"]
+    if sm is not None:
+        nx, ny = sm["shape"]
+        console.print(f"scan map: {sm['cells']} occupied cells of {nx} x {ny}, {sm['resolution']:g} m each",
+                      markup=False, soft_wrap=True)  # fmt: skip
 
 
 def _short(v: Any) -> str:

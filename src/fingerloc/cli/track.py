@@ -98,6 +98,16 @@ def track_cmd(
         "implies (the alignment against the place's best view, and that view's recorded heading), with the heading "
         "model the map fitted on its mapping part (when it has one: 'map' fits it by default).",
     ),
+    scan: bool = typer.Option(
+        True,
+        "--scan/--no-scan",
+        help="Pose filter with a database made by 'fingerloc map': weigh the particles also by how well each "
+        "scan's laser end points fit the map's (its scan map, with the power scan_gamma of its calibration; "
+        "with --map: store the scan map too).",
+    ),
+    scan_gamma: float | None = typer.Option(
+        None, "--scan-gamma", help="Pose filter: power of the scan evidence (0 = off) [the database's calibration]."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the summary."),
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) and its figures."
@@ -123,6 +133,8 @@ def track_cmd(
 
     check_report(report)
     _check_options(observe, filter_kind, odometry_error, radius, scale, metres_per_move, alpha, uniform_mix)
+    if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
+        raise InvalidParameterError(f"--scan-gamma must be a finite number >= 0, got {scan_gamma!r}")
     check_output(json_out, "--json")
     bag = bag_options(topic, pose_source, base_frame)
     raw_kind = _check_db_flags(data, db, kind, map_log, graph_from, overwrite)
@@ -132,7 +144,7 @@ def track_cmd(
         tr = _track_with_map(
             data, db, kind=kind, bag=bag, skip_bad=skip_bad, map_log=map_log, observe=observe, scale=scale,
             metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, odometry_error=odometry_error,
-            filter_kind=filter_kind, seed=seed, pending=pending, heading=heading,
+            filter_kind=filter_kind, seed=seed, pending=pending, heading=heading, scan=scan, scan_gamma=scan_gamma,
         )  # fmt: skip
     else:
         tr = _track_jsonl(
@@ -170,6 +182,7 @@ class _Tracked:
     result: Any
     odometry_error: float
     geo: dict[str, Any]
+    scan_gamma: float | None = None
 
 
 def _check_options(
@@ -223,13 +236,17 @@ def _track_with_map(
     data: Path, db: Path, *, filter_kind: str, seed: int, heading: bool = True, **options: Any
 ) -> _Tracked:
     """A raw run (or JSON Lines) against a database made by 'fingerloc map': the library's tracker."""
-    ll, truth, poses, classes, tracker, names, factor, hd = _run_steps(
+    ll, truth, poses, classes, tracker, names, factor, hd, pts = _run_steps(
         data, db, filter_kind=filter_kind, heading=heading, **options
     )
-    res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed, headings=hd)
+    res = tracker.run(ll, poses, filter=filter_kind, odometry_error=factor, seed=seed, headings=hd, points=pts)
     cal = tracker.calibration
     geo = {"poses": poses, "centres": tracker.centres}
-    return _Tracked(ll, truth, classes, names, cal.beta, cal.metres_per_move, tracker.transition_, res, factor, geo)
+    gamma = None
+    if filter_kind == "pose":
+        gamma = float(cal.scan_gamma) if tracker.scan_map is not None and pts is not None else 0.0
+    return _Tracked(ll, truth, classes, names, cal.beta, cal.metres_per_move, tracker.transition_, res, factor, geo,
+                    gamma)  # fmt: skip
 
 
 def _track_jsonl(
@@ -306,6 +323,7 @@ def _track_summary(tr: _Tracked, filter_kind: str) -> dict[str, Any]:
         "metres_per_move": tr.metres,
         "uniform_mix": tr.transition.uniform_mix,
         "filter": filter_kind,
+        **({} if tr.scan_gamma is None else {"scan_gamma": tr.scan_gamma}),
         "filtered": _summary(tr.result.best, tr.result.log_posterior, truth),
         "single_shot": _summary(np.argmax(single, axis=1), single, truth),
     }
@@ -321,7 +339,8 @@ def _print_summary(summary: dict[str, Any], tr: _Tracked, filter_kind: str) -> N
         )
     head = f"{summary['steps']} steps ({summary['observed_steps']} observed), {len(tr.classes)} places, beta {tr.beta:.3g}, "
     if filter_kind == "pose":
-        console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g})", soft_wrap=True)
+        scan = "" if not tr.scan_gamma else f", scan evidence gamma {tr.scan_gamma:g}"
+        console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g}{scan})", soft_wrap=True)
     else:
         odometry = "off" if tr.metres is None else f"{tr.metres:.2f} m per place change"
         console.print(head + f"uniform mixing {tr.transition.uniform_mix:.3g}, odometry {odometry}", soft_wrap=True)
@@ -421,7 +440,7 @@ def _has_map(db: Path) -> bool:
     """True when the database holds place positions and a calibration (made by 'fingerloc map')."""
     from ..map.database import read_map_info
 
-    info = read_map_info(db)
+    info = read_map_info(db, scan_map=False)
     return bool(info.positions) and info.calibration is not None
 
 
@@ -442,15 +461,20 @@ def _run_steps(
     filter_kind: str,
     pending: list[Any],
     heading: bool = True,
+    scan: bool = True,
+    scan_gamma: float | None = None,
 ) -> tuple[Any, ...]:
     """A run tracked with a map's stored places, positions and calibration (the library's tracker).
 
     With ``map_log``, the map is made from the run and its database write is
     appended to ``pending`` (done once the filter has run), not written here.
+    With ``scan`` and the pose filter, the map's scan map and each observed
+    step's laser end points (the last item; ``None`` without them) weigh the
+    particles; ``scan_gamma`` overrides the calibration's power.
     """
     import dataclasses
 
-    from ..pipeline.mapping import load_map, make_map, save_map
+    from ..pipeline.mapping import load_map, make_map, run_end_points, save_map
     from ..pipeline.places import nearest_within
     from ..pipeline.tracker import Tracker, heading_of, implied_headings, posterior_columns
 
@@ -458,7 +482,7 @@ def _run_steps(
     hd = None
     if map_log:
         with err_console.status("mapping...") as status:
-            pm = make_map(run, heading=heading, on_step=lambda s: status.update(s))
+            pm = make_map(run, heading=heading, scan=scan, on_step=lambda s: status.update(s))
         err_console.print(pm.preset.reason, markup=False)
 
         def store() -> None:
@@ -469,7 +493,9 @@ def _run_steps(
         pending.append(store)
         lm = pm.loaded()
     else:
-        lm = load_map(db)
+        lm = load_map(db, scan=scan and filter_kind == "pose")
+    use_scan = scan and filter_kind == "pose" and lm.scan_map is not None
+    pts: list[Any] | None = None
     if lm.positions is None or lm.calibration is None:
         raise InvalidParameterError(
             f"{db}: no place positions or calibration stored; make the database with 'fingerloc map' (or track "
@@ -483,6 +509,8 @@ def _run_steps(
         col = {lab: j for j, lab in enumerate(lm.labels)}
         truth = np.array([col.get(str(o.label), -1) if o.label else -1 for o in run.records], dtype=np.int64)
         ll = posterior_columns(lm.model, list(run.records), p, lm.labels)
+        if use_scan:
+            pts = run_end_points(run)
         if heading and filter_kind == "pose" and lm.calibration is not None and heading_of(lm.calibration) is not None:
             hd = implied_headings(lm.model, list(run.records), lm.labels)
         start = 0
@@ -505,6 +533,12 @@ def _run_steps(
         with err_console.status(f"scoring {observed.size} scans..."):
             obs = run.observations(observed + start, features=features)
             ll[observed] = posterior_columns(lm.model, obs, p, lm.labels)
+            if use_scan:
+                seen = run_end_points(run, observed + start)
+                if seen is not None:
+                    pts = [None] * n
+                    for k, i in enumerate(observed.tolist()):
+                        pts[i] = seen[k]
             if heading and filter_kind == "pose" and heading_of(lm.calibration) is not None:
                 hd = np.full((n, p), np.nan)
                 hd[observed] = implied_headings(lm.model, obs, lm.labels)
@@ -514,7 +548,9 @@ def _run_steps(
     if metres_per_move is not None:
         cal = dataclasses.replace(cal, metres_per_move=metres_per_move)
     cal = dataclasses.replace(cal, alpha=alpha)
-    tracker = Tracker(lm.positions, lm.graph, cal, uniform_mix=uniform_mix)
+    if scan_gamma is not None:
+        cal = dataclasses.replace(cal, scan_gamma=scan_gamma)
+    tracker = Tracker(lm.positions, lm.graph, cal, uniform_mix=uniform_mix, scan_map=lm.scan_map if use_scan else None)
     factor = odometry_error
     if factor is None:
         factor = 1.0 if run.kind == "carmen" and filter_kind == "pose" else 0.0
@@ -522,7 +558,7 @@ def _run_steps(
             err_console.print("CARMEN poses are corrected ones: simulating wheel-odometry errors (--odometry-error 1)",
                               markup=False)  # fmt: skip
     names = run.names[start:]
-    return ll, truth, poses, list(lm.labels), tracker, names, factor, hd
+    return ll, truth, poses, list(lm.labels), tracker, names, factor, hd, pts
 
 
 @bench_app.command("kidnap")

@@ -1,6 +1,6 @@
 """The place database: one SQLite file, versioned schema, atomic saves, never pickle.
 
-Layout (schema version 3, written now; docs/FORMATS.md §2)::
+Layout (schema version 4, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
                                                    -- params, lambdas, unknown_costs, fitted_weights,
@@ -18,11 +18,18 @@ Layout (schema version 3, written now; docs/FORMATS.md §2)::
                                                    -- beam counts per bin (|u1, <u2, <u4) or float64 rows (<f8)
     place_positions(label TEXT PRIMARY KEY, idx INTEGER, x REAL, y REAL)
     content_hashes(hash BLOB PRIMARY KEY) WITHOUT ROWID   -- SHA-256 digests of the stored observations
+    scan_map(id INTEGER PRIMARY KEY CHECK (id = 0), origin_x REAL, origin_y REAL, resolution REAL,
+             nx INTEGER, ny INTEGER, sigma REAL, floor REAL, clip REAL, n_cells INTEGER,
+             encoding TEXT, cells BLOB)        -- the mapping run's laser end points (at most one row):
+                                               -- the occupancy grid as a zlib'd bitmap
 
 Schema version 1 stored each observation as its JSON Lines record
 (``observations.record TEXT``) and every fingerprint; version 2 added the map
 of a recorded run (place positions, hex content hashes, float64 range
-descriptors, the meta keys preset, calibration and runs). Both still load.
+descriptors, the meta keys preset, calibration and runs); version 3 stored
+observations as binary records, digests as bytes and range counts as small
+integers; version 4 adds the ``scan_map`` table (a map without one, and every
+older file: no scan evidence). All still load.
 Learning an observation whose content hash is stored again does not duplicate it.
 
 Arrays are little-endian float64 blobs (radians) unless said otherwise. A save writes a complete new
@@ -78,9 +85,9 @@ __all__ = [
 ]
 
 FORMAT = "fingerloc-places"
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: Schema versions this fingerloc reads.
-READABLE_VERSIONS = ("1", "2", "3")
+READABLE_VERSIONS = ("1", "2", "3", "4")
 #: SQLite page size of a written database: small pages keep the tables of a small map small.
 PAGE_SIZE = 1024
 
@@ -100,11 +107,19 @@ CREATE TABLE range_descriptors(place_id INTEGER PRIMARY KEY REFERENCES places(id
                                data BLOB NOT NULL, encoding TEXT NOT NULL);
 """
 
-# The map of a recorded run (MapInfo), in its own tables (schema versions 2 and 3).
+# The map of a recorded run (MapInfo), in its own tables (schema versions 2 to 4; scan_map from version 4).
 _SCHEMA_MAP = """
 CREATE TABLE place_positions(label TEXT PRIMARY KEY, idx INTEGER NOT NULL, x REAL NOT NULL, y REAL NOT NULL);
 CREATE TABLE content_hashes(hash BLOB PRIMARY KEY) WITHOUT ROWID;
+CREATE TABLE scan_map(id INTEGER PRIMARY KEY CHECK (id = 0), origin_x REAL NOT NULL, origin_y REAL NOT NULL,
+                      resolution REAL NOT NULL, nx INTEGER NOT NULL, ny INTEGER NOT NULL, sigma REAL NOT NULL,
+                      floor REAL NOT NULL, clip REAL NOT NULL, n_cells INTEGER NOT NULL, encoding TEXT NOT NULL,
+                      cells BLOB NOT NULL);
 """
+
+#: ``scan_map.encoding``: the grid's cells ``(i, j)`` as bit ``i * ny + j`` of a bitmap, most significant bit
+#: first in each byte (``numpy.packbits``), compressed with zlib.
+SCAN_MAP_ENCODING = "bitmap-zlib"
 
 
 @dataclass(slots=True)
@@ -124,6 +139,10 @@ class MapInfo:
         :func:`observation_hash` of every stored observation.
     runs : list of dict
         The mapped runs: ``{"name", "key", "n_scans", "n_mapping"}``.
+    scan_map : ScanMap or None
+        The mapping run's laser end points
+        (:class:`~fingerloc.map.scan_map.ScanMap`, schema version 4); ``None``:
+        none stored (a run without ranges, ``map --no-scan``, older files).
     """
 
     preset: dict[str, Any] | None = None
@@ -131,6 +150,7 @@ class MapInfo:
     calibration: dict[str, Any] | None = None
     content_hashes: set[str] = field(default_factory=set)
     runs: list[dict[str, Any]] = field(default_factory=list)
+    scan_map: Any = None
 
 
 def observation_hash(obs: Any) -> str:
@@ -167,10 +187,87 @@ def _write_map_info(con: sqlite3.Connection, info: MapInfo | None) -> None:
     except ValueError as err:
         raise DatabaseError(f"a content hash is not hexadecimal ({err})") from err
     con.executemany("INSERT INTO content_hashes VALUES (?)", [(h,) for h in digests])
+    if info.scan_map is not None:
+        con.execute("INSERT INTO scan_map VALUES (0, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", _scan_map_row(info.scan_map))
 
 
-def read_map_info(path: str | Path) -> MapInfo:
+def _scan_map_row(sm: Any) -> tuple[Any, ...]:
+    """A :class:`~fingerloc.map.scan_map.ScanMap` as a ``scan_map`` row (without its id)."""
+    import zlib
+
+    from .scan_map import SCAN_MAX_CELLS, ScanMap
+
+    if not isinstance(sm, ScanMap):
+        raise DatabaseError(f"a scan map must be a ScanMap, got {type(sm).__name__}")
+    nx, ny = sm.shape
+    if nx * ny > SCAN_MAX_CELLS:
+        raise DatabaseError(f"cannot store a scan map of {nx} x {ny} cells (at most {SCAN_MAX_CELLS})")
+    grid = np.zeros((nx, ny), dtype=bool)
+    grid[sm.cells[:, 0], sm.cells[:, 1]] = True
+    blob = zlib.compress(np.packbits(grid.reshape(-1)).tobytes(), 9)
+    o = sm.origin
+    return (float(o[0]), float(o[1]), float(sm.resolution), nx, ny, float(sm.sigma), float(sm.floor),
+            float(sm.clip), int(sm.cells.shape[0]), SCAN_MAP_ENCODING, blob)  # fmt: skip
+
+
+def _scan_map_from_row(row: tuple[Any, ...]) -> Any:
+    """The :class:`~fingerloc.map.scan_map.ScanMap` of a ``scan_map`` row (without its id), checked."""
+    import zlib
+
+    from .scan_map import SCAN_MAX_CELLS, ScanMap
+
+    ox, oy, res, nx, ny, sigma, floor, clip, n_cells, encoding, blob = row
+    if encoding != SCAN_MAP_ENCODING:
+        raise DatabaseError(f"unknown encoding {encoding!r}")
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in (nx, ny, n_cells)):
+        raise DatabaseError(f"grid size {nx!r} x {ny!r} and cell count {n_cells!r} must be integers")
+    if not (1 <= nx and 1 <= ny and nx * ny <= SCAN_MAX_CELLS):
+        raise DatabaseError(f"grid of {nx} x {ny} cells (1 to {SCAN_MAX_CELLS})")
+    if not all(isinstance(v, float) and math.isfinite(v) for v in (ox, oy, res, sigma, floor, clip)):
+        raise DatabaseError("origin, resolution, sigma, floor and clip must be finite numbers")
+    if not isinstance(blob, bytes):
+        raise DatabaseError(f"cells must be a blob, got {type(blob).__name__}")
+    size = (nx * ny + 7) // 8
+    try:
+        z = zlib.decompressobj()
+        raw = z.decompress(blob, size)
+        if len(raw) != size or z.unconsumed_tail or not z.eof or z.unused_data:
+            raise DatabaseError(f"the cells' bitmap is not {size} bytes")
+    except zlib.error as err:
+        raise DatabaseError(f"the cells' bitmap is not zlib data ({err})") from err
+    bits = np.unpackbits(np.frombuffer(raw, dtype=np.uint8))
+    if np.any(bits[nx * ny :]):
+        raise DatabaseError("the cells' bitmap has bits beyond the grid")
+    cells = np.argwhere(bits[: nx * ny].reshape(nx, ny).astype(bool))
+    if cells.shape[0] != n_cells:
+        raise DatabaseError(f"{cells.shape[0]} occupied cells, the row says {n_cells}")
+    try:
+        return ScanMap(np.array([ox, oy]), res, (nx, ny), cells, sigma=sigma, floor=floor, clip=clip)
+    except FingerlocError as err:
+        raise DatabaseError(str(err)) from err
+
+
+def _read_scan_map(con: sqlite3.Connection, path: str | Path) -> Any:
+    """The stored scan map, or None (none stored, or a file older than schema version 4)."""
+    if not con.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name='scan_map'").fetchone():
+        return None
+    rows = con.execute(
+        "SELECT origin_x, origin_y, resolution, nx, ny, sigma, floor, clip, n_cells, encoding, cells FROM scan_map"
+    ).fetchall()
+    if not rows:
+        return None
+    if len(rows) > 1:
+        raise DatabaseError(f"{path}: corrupt scan map in the place database ({len(rows)} rows, at most 1)")
+    try:
+        return _scan_map_from_row(rows[0])
+    except DatabaseError as err:
+        raise DatabaseError(f"{path}: corrupt scan map in the place database ({err})") from err
+
+
+def read_map_info(path: str | Path, *, scan_map: bool = True) -> MapInfo:
     """The map information of a place database (empty for a schema version 1 file).
+
+    ``scan_map``: read the scan map too (False: ``info.scan_map`` is None).
 
     Raises
     ------
@@ -199,6 +296,8 @@ def read_map_info(path: str | Path) -> MapInfo:
                 raise DatabaseError(f"{path}: corrupt content hash in the place database ({h!r})")
             hashes.add(h)
         info.content_hashes = hashes
+        if scan_map:
+            info.scan_map = _read_scan_map(con, path)
     return info
 
 
@@ -407,7 +506,8 @@ def save_model(
     graph_edges : mapping (src, dst) -> count, optional
         Transitions of the place graph to store with the places.
     info : MapInfo, optional
-        Place positions, calibration, preset, content hashes (schema version 2).
+        Place positions, calibration, preset, content hashes (schema version
+        2), the scan map (schema version 4).
 
     Returns
     -------

@@ -5,8 +5,15 @@ to a run's poses, labels the training scans with their nearest place
 (:func:`~fingerloc.pipeline.places.place_label`), learns them with a preset,
 builds the place graph from the mapping part's visiting order and calibrates
 the filters on the mapping part (:mod:`fingerloc.pipeline.tracker`).
-:func:`save_map` writes it all to a place database (schema version 2);
+:func:`save_map` writes it all to a place database (schema version 4);
 :func:`load_map` reads it back.
+
+When the run's items carry laser ranges (a CARMEN log, a bag, JSON Lines
+with ``scan``), the map also keeps the mapping part's laser end points as a
+:class:`~fingerloc.map.scan_map.ScanMap` (:attr:`PlaceMap.scan_map`): the
+pose filter of ``track --filter pose`` weighs its particles by how well each
+observation's end points (:func:`run_end_points`) fit it, with the power
+``Calibration.scan_gamma`` chosen on the mapping part (0: off).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..map.graph import PlaceGraph
 from ..observation import Observation
+from . import tracker as _tracker
 from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
 from .presets import ResolvedPreset, model_from_options, resolve_preset
 from .readers import Run
@@ -32,11 +40,82 @@ from .tracker import (
     held_out_headings,
     mapping_graph,
     model_fit_score,
+    step_distances,
     tune_pose_filter,
     with_heading_model,
 )
 
-__all__ = ["LoadedMap", "PlaceMap", "load_map", "make_map", "save_map"]
+__all__ = ["LoadedMap", "PlaceMap", "load_map", "make_map", "run_end_points", "save_map"]
+
+
+def run_end_points(run: Run, idx: Any = None, *, stride: int | None = None) -> list[Any] | None:
+    """The laser end points of a run's items ``idx`` (default all): robot frame, shape (m, 2) each, metres.
+
+    A laser log's scans give theirs with the sensor's offset
+    (:meth:`~fingerloc.sensors.Scan.points`); a JSON Lines observation its
+    ``ranges`` at ``range_bearings`` (robot frame). An item without ranges
+    gives an empty (0, 2) array; ``None`` when no item has ranges.
+    ``stride``: every ``stride``-th beam with a return
+    (:func:`~fingerloc.map.scan_map.scan_points`; default
+    :data:`~fingerloc.map.scan_map.SCAN_STRIDE`, the pose filter's).
+    """
+    from ..map.scan_map import SCAN_STRIDE, scan_points
+
+    st = SCAN_STRIDE if stride is None else stride
+    sel = range(len(run)) if idx is None else [int(i) for i in np.asarray(idx, dtype=np.int64).reshape(-1)]
+    empty = np.zeros((0, 2))
+    out: list[Any] = []
+    if run.scans is not None:
+        for i in sel:
+            s = run.scans[i]
+            out.append(scan_points(s.ranges, s.bearings, stride=st, sensor_offset=s.sensor_offset))
+        return out
+    any_ranges = False
+    for i in sel:
+        o = (run.records or [])[i]
+        if o.ranges is None or o.range_bearings is None:
+            out.append(empty)
+        else:
+            any_ranges = True
+            out.append(scan_points(o.ranges, o.range_bearings, stride=st))
+    return out if any_ranges else None
+
+
+def _scan_map(run: Run, n_mapping: int, poses: Any) -> Any:
+    """The :class:`~fingerloc.map.scan_map.ScanMap` of the mapping part's end points (the pose filter's
+    stride, as the benchmark's), or None (no ranges, or no return at all)."""
+    from ..map.scan_map import ScanMap
+
+    pts = run_end_points(run, np.arange(n_mapping))
+    if pts is None or not any(q.shape[0] for q in pts):
+        return None
+    return ScanMap.from_scans(pts, poses[:n_mapping])
+
+
+def _scan_tuning(run: Run, split: PlaceSplit, held: Any, poses: Any) -> dict[str, Any]:
+    """The scan evidence's arguments of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`, as the
+    benchmark passes them: each held-out row's end points (``scan_points``, rows as ``held.scores``), the
+    training scans' folds (``scan_fold``: alternate visits in time order, ``scan_folds``) and the two folds'
+    scan maps (``scan_maps``: ``fold_scan_maps``, the guard measured along the run).
+
+    Empty (``scan_gamma`` stays 0, off) while the tracker has no ``scan_folds`` / ``fold_scan_maps``
+    (before branch h-sbench), or when a fold's complement has no end point.
+    """
+    fold_scan_maps = getattr(_tracker, "fold_scan_maps", None)
+    scan_folds = getattr(_tracker, "scan_folds", None)
+    if fold_scan_maps is None or scan_folds is None or held.index.size == 0:
+        return {}
+    tr = split.train_idx
+    pts = run_end_points(run, tr)
+    if pts is None:
+        return {}
+    fold = scan_folds(tr, split.train_labels)
+    travel = np.cumsum(step_distances(poses[: split.n_mapping, :2]))[tr]
+    try:
+        maps = fold_scan_maps(pts, poses[tr], fold, travel=travel)
+    except InvalidParameterError:  # a fold without end points: no map to score its rows against
+        return {}
+    return {"scan_points": [pts[i] for i in held.index.tolist()], "scan_maps": maps, "scan_fold": fold}
 
 
 @dataclass(slots=True)
@@ -59,6 +138,10 @@ class PlaceMap:
         Places in creation order.
     run_name, run_key : str
         The run's files and content hash (:attr:`Run.key`).
+    scan_map : ScanMap or None
+        The mapping part's laser end points
+        (:class:`~fingerloc.map.scan_map.ScanMap`); ``None``: the run has no
+        ranges, or ``make_map(scan=False)``.
     """
 
     model: Any
@@ -70,6 +153,7 @@ class PlaceMap:
     graph: PlaceGraph
     run_name: str
     run_key: str
+    scan_map: Any = None
 
     @property
     def positions(self) -> dict[str, tuple[float, float]]:
@@ -93,6 +177,7 @@ class PlaceMap:
             self.graph,
             [self.run_record()],
             {observation_hash(o) for o in self.training},
+            self.scan_map,
         )
 
 
@@ -108,6 +193,7 @@ def make_map(
     calibrate: bool = True,
     odometry_error: float | None = None,
     heading: bool = True,
+    scan: bool = True,
     on_step: Callable[[str], None] | None = None,
 ) -> PlaceMap:
     """Places from a run's poses, learned with a preset, with the filters' calibration.
@@ -138,6 +224,12 @@ def make_map(
         more fits) so that ``track --filter pose`` weighs the particles by
         the heading each view implies (the tuning of ``rho`` and the
         tempering then runs with it). Skipped when the views have no poses.
+    scan : bool, default True
+        When the run's items carry laser ranges: keep the mapping part's
+        end points as a :class:`~fingerloc.map.scan_map.ScanMap`
+        (:attr:`PlaceMap.scan_map`) and, with ``calibrate``, choose the pose
+        filter's ``scan_gamma`` with it on the mapping part. False, or a run
+        without ranges (panoramas): no scan map, no scan evidence.
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -164,6 +256,10 @@ def make_map(
     note(f"learning {split.n_places} places ({resolved.name})")
     model = resolved.model().fit(training)
     graph, metres = mapping_graph(poses[: split.n_mapping, :2], split.centres, labels)
+    scan_map = None
+    if scan:
+        note(f"mapping the laser end points of {split.n_mapping} scans")
+        scan_map = _scan_map(run, split.n_mapping, poses)
     held = None
     if calibrate:
         note("calibrating the filters on the mapping part")
@@ -196,12 +292,13 @@ def make_map(
     if held is not None:
         note("choosing the pose filter's reliability and tempering on the mapping part")
         factor = (1.0 if run.kind == "carmen" else 0.0) if odometry_error is None else odometry_error
+        scan_args = {} if scan_map is None else _scan_tuning(run, split, held, poses)
         cal, _ = tune_pose_filter(
             Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
-            headings=headings if TUNE_WITH_HEADING else None,
+            headings=headings if TUNE_WITH_HEADING else None, **scan_args,
         )  # fmt: skip
     name = " ".join(str(p) for p in run.paths)
-    return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key)
+    return PlaceMap(model, split, labels, training, resolved, cal, graph, name, run.key, scan_map)
 
 
 def save_map(place_map: PlaceMap, path: str | Path) -> int:
@@ -215,6 +312,7 @@ def save_map(place_map: PlaceMap, path: str | Path) -> int:
         calibration=pm.calibration.to_json(),
         content_hashes={observation_hash(o) for o in pm.training},
         runs=[pm.run_record()],
+        scan_map=pm.scan_map,
     )
     return save_model(pm.model, path, graph_edges=pm.graph.edges(), info=info)
 
@@ -237,6 +335,9 @@ class LoadedMap:
         Places in ``labels`` order.
     runs : list of dict
     content_hashes : set of str
+    scan_map : ScanMap or None
+        The mapping run's laser end points (schema version 4); ``None``: none
+        stored, or read with ``load_map(scan=False)``.
     """
 
     model: Any
@@ -247,11 +348,16 @@ class LoadedMap:
     graph: PlaceGraph
     runs: list[dict[str, Any]]
     content_hashes: set[str]
+    scan_map: Any = None
 
-    def tracker(self, **options: Any) -> Tracker:
-        """A :class:`Tracker` with the stored positions and calibration."""
+    def tracker(self, *, scan: bool = True, **options: Any) -> Tracker:
+        """A :class:`Tracker` with the stored positions, calibration and (``scan``) scan map.
+
+        ``options``: :class:`Tracker`'s (``n_particles``, ``uniform_mix``, ``scan_map``).
+        """
         if self.positions is None or self.calibration is None:
             raise InvalidParameterError("the database holds no place positions or calibration (make it with 'fingerloc map')")
+        options.setdefault("scan_map", self.scan_map if scan else None)
         return Tracker(self.positions, self.graph, self.calibration, **options)
 
     def mapped_run(self, key: str) -> dict[str, Any] | None:
@@ -259,13 +365,16 @@ class LoadedMap:
         return next((r for r in self.runs if r.get("key") == key), None)
 
 
-def load_map(path: str | Path) -> LoadedMap:
-    """Read a place database with its map information (any readable schema version)."""
+def load_map(path: str | Path, *, scan: bool = True) -> LoadedMap:
+    """Read a place database with its map information (any readable schema version).
+
+    ``scan``: read the stored scan map too (False: ``scan_map`` is None).
+    """
     from ..map.database import load_model, read_map_info
     from ..map.graph import load_graph
 
     model = load_model(path)
-    info = read_map_info(path)
+    info = read_map_info(path, scan_map=scan)
     classes = [str(c) for c in model.classes_]
     positions = None
     labels = classes
@@ -280,4 +389,4 @@ def load_map(path: str | Path) -> LoadedMap:
         from ..map.database import observation_hash
 
         hashes = {observation_hash(o) for p in model.places_.values() for o in p.observations}
-    return LoadedMap(model, labels, positions, preset, cal, graph, info.runs, hashes)
+    return LoadedMap(model, labels, positions, preset, cal, graph, info.runs, hashes, info.scan_map)
