@@ -39,7 +39,7 @@ def _world(n_places, rng):
         for c in cuts:  # the step's side wall
             pts.append(np.column_stack([np.full(9, c), side * (1.2 + np.linspace(0, 0.8, 9))]))
     pillars = np.column_stack([rng.uniform(x[0], x[-1], n_places // 2), rng.choice([-0.9, 0.9], n_places // 2)])
-    return np.vstack(pts + [pillars])
+    return np.vstack([*pts, pillars])
 
 
 def _scan(world, pose, rng, unique=None):
@@ -146,7 +146,7 @@ def test_fold_map_guard_leaves_out_the_same_pass_neighbours():
 
 
 def test_tuning_without_scan_points_is_the_former_tuning():
-    poses, centres, truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 3)
+    poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 3)
     cal = Calibration(radius=0.6, kidnap=0.01, start_at_first_observation=True, scan_gamma=2.0)
     tr = Tracker(centres, g, cal, n_particles=300)
     a, tried_a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3)
@@ -158,14 +158,14 @@ def test_tuning_without_scan_points_is_the_former_tuning():
     b, tried_b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, scan_points=[points[i] for i in rows])
     assert (b, tried_b) == (a, tried_a)  # points without maps: ignored
     # with the scan evidence the grid's first runs are the same runs (gamma 0), then one per power
-    c, tried_c = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3,
+    _c, tried_c = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3,
                                   scan_points=[points[i] for i in rows], scan_maps=maps, scan_fold=sfold)  # fmt: skip
     assert [t["top1"] for t in tried_c[: len(former)]] == former
     assert [t["scan_gamma"] for t in tried_c[len(former) :]] == list(SCAN_GAMMAS)
 
 
 def test_run_without_scan_maps_is_bit_identical():
-    poses, centres, truth, rows, held, points, g, sfold, maps = _tuning_inputs(6, 4)
+    poses, centres, truth, rows, held, points, _g, _sfold, maps = _tuning_inputs(6, 4)
     n = poses.shape[0]
     ll = np.full((n, centres.shape[0]), np.nan)
     ll[rows] = held.scores
@@ -224,7 +224,7 @@ def test_scan_evidence_is_chosen_and_helps_where_the_fingerprint_is_ambiguous():
 
 
 def test_tuning_with_scan_evidence_shares_draws_exactly():
-    poses, centres, truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 5)
+    poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 5)
     cal = Calibration(radius=0.6, kidnap=0.05, start_at_first_observation=True)
     tr = Tracker(centres, g, cal, n_particles=300)
     kw = {"odometry_error": 1.0, "seed": 3, "scan_points": [points[i] for i in rows], "scan_maps": maps, "scan_fold": sfold}
