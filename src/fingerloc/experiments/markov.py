@@ -1227,6 +1227,7 @@ def run_kidnap(
     kidnap: float | None = None,
     hold_margin: float | None = None,
     tie_break: float | None = None,
+    scan: bool = True,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -1238,7 +1239,9 @@ def run_kidnap(
     probability ``kidnap`` per observation if given; ``hold_margin`` and
     ``tie_break``, the answers between observations, if given, else the
     method's defaults: :func:`~fingerloc.map.relocalize.answer_between`)
-    instead of the discrete filter over places.
+    instead of the discrete filter over places; with ``scan`` (the default,
+    as ``fingerprint-odometry``) the pose filter also weighs the laser end
+    points, the power chosen on the mapping pass (:class:`PoseFilteredMethod`).
     """
     from .protocol import load_log_scans, log_name
 
@@ -1248,7 +1251,8 @@ def run_kidnap(
                                                   "odometry_error": odometry_error if pose else None,
                                                   "kidnap": kidnap if pose else None,
                                                   "hold_margin": hold_margin if pose else None,
-                                                  "tie_break": tie_break if pose else None}}  # fmt: skip
+                                                  "tie_break": tie_break if pose else None,
+                                                  "scan": scan if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -1258,7 +1262,9 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        opts: dict[str, Any] = (
+            {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap, "scan": scan} if pose else {}
+        )
         if pose:
             opts.update({k: v for k, v in (("hold_margin", hold_margin), ("tie_break", tie_break)) if v is not None})
         data = prepare_tracking(scans, base, pose=pose, **opts)
