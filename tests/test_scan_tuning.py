@@ -223,11 +223,13 @@ def test_scan_evidence_is_chosen_and_helps_where_the_fingerprint_is_ambiguous():
     assert min(top1["with"]) >= 0.9, (top1, chosen.scan_gamma)
 
 
-def test_tuning_with_scan_evidence_shares_draws_exactly():
+@pytest.mark.parametrize("starts", [1, 3])
+def test_tuning_with_scan_evidence_shares_draws_exactly(starts):
     poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 5)
     cal = Calibration(radius=0.6, kidnap=0.05, start_at_first_observation=True)
     tr = Tracker(centres, g, cal, n_particles=300)
-    kw = {"odometry_error": 1.0, "seed": 3, "scan_points": [points[i] for i in rows], "scan_maps": maps, "scan_fold": sfold}
+    kw = {"odometry_error": 1.0, "seed": 3, "scan_points": [points[i] for i in rows], "scan_maps": maps, "scan_fold": sfold,
+          "scan_starts": starts}
     a = tune_pose_filter(tr, held, rows, poses, **kw)
     b = tune_pose_filter(tr, held, rows, poses, share_draws=False, **kw)
     assert a == b

@@ -431,6 +431,10 @@ class PoseFilteredMethod(FilteredMethod):
     scan_gamma : float, optional
         A fixed power of the scan evidence instead of the tuned one (an
         ablation: not decided on the mapping pass).
+    scan_starts : int, default 1
+        The tuning of the scan evidence's power runs from this many starts
+        along the mapping pass (``scan_starts`` of
+        :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -475,9 +479,11 @@ class PoseFilteredMethod(FilteredMethod):
         tie_break: float | None = TIE_BREAK,
         scan: bool = False,
         scan_gamma: float | None = None,
+        scan_starts: int = 1,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         self.scan = bool(scan)
+        self.scan_starts = int(scan_starts)
         if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
             raise InvalidParameterError(f"scan_gamma must be a finite number >= 0, got {scan_gamma!r}")
         self.scan_gamma = scan_gamma
@@ -594,7 +600,7 @@ class PoseFilteredMethod(FilteredMethod):
                 seed=self.seed, temper=self.temper, relocalize=self.relocalize,
                 headings=self.held_headings_ if self.tune_heading else None,
                 scan_points=held_points if fold_maps is not None else None, scan_maps=fold_maps,
-                scan_fold=sfold if fold_maps is not None else None,
+                scan_fold=sfold if fold_maps is not None else None, scan_starts=self.scan_starts,
             )  # fmt: skip
         if self.scan and self.scan_gamma is not None:
             self.calibration_ = replace(self.calibration_, scan_gamma=float(self.scan_gamma))

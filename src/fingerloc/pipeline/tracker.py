@@ -788,6 +788,7 @@ def tune_pose_filter(
     scan_points: Sequence[FArray | None] | None = None,
     scan_maps: Sequence[ScanMap] | None = None,
     scan_fold: Any = None,
+    scan_starts: int = 1,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -820,7 +821,11 @@ def tune_pose_filter(
     ``scan_gamma`` in :data:`SCAN_GAMMAS`, each held-out row's end points
     scored against its fold's map (one that never saw them); the best top-1
     wins, 0 (the run above) on ties. Without them ``scan_gamma`` is 0 and
-    everything else as before, bit for bit.
+    everything else as before, bit for bit. ``scan_starts`` > 1: each power,
+    0 included, runs from that many starts along the mapping part (the
+    held-out rows at 0, 1/k, 2/k ... of them; each run to the end), and its
+    top-1 is pooled over the runs: a wrong global localization at a start
+    counts more than once (an ablation, docs/RESULTS.md).
 
     Returns
     -------
@@ -876,13 +881,25 @@ def tune_pose_filter(
         pts[r] = sp[k]
         maps[r] = scan_maps[int(row_fold[k])]
     chosen = best[1]
-    for gamma in SCAN_GAMMAS:
+    n_starts = int(scan_starts)
+    if n_starts < 1:
+        raise InvalidParameterError(f"scan_starts must be an integer >= 1, got {scan_starts!r}")
+    starts = [int(rows[(k * rows.size) // n_starts]) for k in range(n_starts)]
+    if n_starts > 1:  # the chosen pair without the scan evidence, from every start (start 0: the run above)
+        best = (-1.0, chosen)
+    for gamma in ((0.0,) if n_starts > 1 else ()) + SCAN_GAMMAS:
         trial = replace(chosen, scan_gamma=float(gamma))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles, scan_map=scan_maps[0])
-        f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
-        res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps, headings=hd,
-                         points=pts, scan_maps=maps)  # fmt: skip
-        top1 = float(np.mean(res.best[rows] == truth))
+        right = 0
+        counted = 0
+        for s0 in starts:
+            f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
+            res = t.run_pose(ll[s0:], inc[s0:], f, temper=temper, relocalize=relocalize, place_steps=steps,
+                             headings=None if hd is None else hd[s0:], points=pts[s0:], scan_maps=maps[s0:])  # fmt: skip
+            after = rows >= s0
+            right += int(np.sum(res.best[rows[after] - s0] == truth[after]))
+            counted += int(np.sum(after))
+        top1 = right / counted
         tried.append({"outlier": chosen.outlier, "temper_metres": chosen.temper_metres, "scan_gamma": float(gamma), "top1": top1})
         if top1 > best[0]:
             best = (top1, trial)
