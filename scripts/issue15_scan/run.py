@@ -2,7 +2,8 @@
 scripts/issue15_heading/cache.py (/tmp/heading/LOG.pkl) and the logs' scans (cached here once).
 
 usage: run.py NAME SEEDS [k=v ...] [--kidnap] [--log=LOG ...]
-Options are PoseFilteredMethod keywords (scan=True, observe=False, scan_gamma=3, odometry_error=2 ...).
+Options are PoseFilteredMethod keywords (scan=True, observe=False, scan_gamma=3, odometry_error=2 ...), and
+base=baseline-histogram (needs /tmp/filter/LOG-baseline-histogram.pkl of scripts/issue15_filter/cache.py).
 Writes /tmp/sbench/res-NAME.json; prints per log top-1, the chosen scan_gamma and the mapping-pass tuning.
 Shares scripts/issue15_heading/run.py's restore (the cached fits, the filter rerun as the benchmark runs it).
 """
@@ -61,7 +62,8 @@ R.load = load
 
 
 def prep(log, seed, opts):
-    data = R.prep(log, "fingerprint", seed, opts)
+    opts = dict(opts)
+    data = R.prep(log, opts.pop("base", "fingerprint"), seed, opts)
     data.points = data.method.step_points()
     return data
 

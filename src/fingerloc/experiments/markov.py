@@ -792,6 +792,12 @@ def _histogram_odometry() -> Method:
     return PoseFilteredMethod("baseline-histogram")
 
 
+@register_method("histogram-scan-odometry", default=False)
+def _histogram_scan_odometry() -> Method:
+    # The histogram baseline under the same filter as fingerprint-odometry, scan evidence included.
+    return PoseFilteredMethod("baseline-histogram", scan=True)
+
+
 @register_method("baseline-histogram-odometry", default=False)
 def _baseline_histogram_odometry() -> Method:
     # The former name of histogram-odometry, kept for scripts.
