@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +61,7 @@ from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger, HeadingModel
 from ..map.relocalize import Augmented
+from ..map.scan_map import ScanMap, scan_points
 from ..pipeline.tracker import (
     HEADING_TEMPER_M,
     HOLD_MARGIN,
@@ -72,10 +73,12 @@ from ..pipeline.tracker import (
     HeldOut,
     Tracker,
     challenger_of,
+    fold_scan_maps,
     heading_of,
     held_out_calibration,
     held_out_headings,
     run_pose_steps,
+    scan_folds,
     step_distances,
     tune_pose_filter,
     with_heading_model,
@@ -414,6 +417,24 @@ class PoseFilteredMethod(FilteredMethod):
         ``hold_margin``). ``None`` = off. Both defaults since issue 15's
         third session (docs/RESULTS.md): two runs with other random draws
         disagree less between places, tracking is unchanged.
+    scan : bool, default False
+        Weigh the particles also by the laser end points of each observed
+        scan against the mapping pass's
+        (:class:`~fingerloc.map.scan_map.ScanMap` of every mapping scan at
+        its corrected pose: the recorded run), with the power ``scan_gamma``
+        chosen along the mapping pass by ``tune`` (each held-out training
+        scan scored against a map of the other fold's training scans,
+        :func:`~fingerloc.pipeline.tracker.fold_scan_maps`; 0 = off when the
+        mapping pass does not favour it). On for ``fingerprint-odometry``
+        (docs/RESULTS.md, "Scan evidence"); without ``tune``, or with
+        ``observe=False`` and no tuning, ``scan_gamma`` is used as given.
+    scan_gamma : float, optional
+        A fixed power of the scan evidence instead of the tuned one (an
+        ablation: not decided on the mapping pass).
+    scan_starts : int, default 1
+        The tuning of the scan evidence's power runs from this many starts
+        along the mapping pass (``scan_starts`` of
+        :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -456,8 +477,16 @@ class PoseFilteredMethod(FilteredMethod):
         augmented: Augmented | None = None,
         hold_margin: float | None = HOLD_MARGIN,
         tie_break: float | None = TIE_BREAK,
+        scan: bool = False,
+        scan_gamma: float | None = None,
+        scan_starts: int = 1,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        self.scan = bool(scan)
+        self.scan_starts = int(scan_starts)
+        if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
+            raise InvalidParameterError(f"scan_gamma must be a finite number >= 0, got {scan_gamma!r}")
+        self.scan_gamma = scan_gamma
         self.heading = bool(heading)
         self.heading_reverse = bool(heading_reverse)
         self.heading_slope = bool(heading_slope)
@@ -544,13 +573,42 @@ class PoseFilteredMethod(FilteredMethod):
                 )  # fmt: skip
         self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
         self.tuning_: list[dict[str, float]] = []
-        if self.tune and self.observe and held is not None:
+        self.scan_map_: ScanMap | None = None
+        self.scan_points_: list[FArray] | None = None
+        held_points: list[FArray | None] | None = None
+        sfold: IArray | None = None
+        fold_maps: tuple[ScanMap, ScanMap] | None = None
+        if self.scan:
+            self.scan_points_ = [_end_points(s) for s in all_scans]
+            self.scan_map_ = ScanMap.from_scans(self.scan_points_[: split.n_mapping], poses[: split.n_mapping])
+            if self.scan_gamma is None and held is not None and held.index.size:
+                tr = split.train_idx
+                sfold = scan_folds(tr, labels)
+                try:
+                    travel = np.cumsum(step_distances(poses[: split.n_mapping, :2]))[tr]
+                    fold_maps = fold_scan_maps(
+                        [self.scan_points_[i] for i in tr.tolist()], poses[tr], sfold, travel=travel
+                    )
+                except InvalidParameterError:  # a fold without end points: no scan evidence (gamma 0)
+                    fold_maps = None
+                held_points = [self.scan_points_[i] for i in tr[held.index].tolist()]
+        if self.tune and held is not None and (self.observe or (self.scan and self.scan_gamma is None)):
+            # without the sensor (observe=False) the tuning runs on uniform rows: what the scan evidence adds alone
+            tuned_on = held if self.observe else replace(held, scores=np.zeros_like(held.scores))
             self.calibration_, self.tuning_ = tune_pose_filter(
-                self.tracker_, held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
+                self.tracker_, tuned_on, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
                 seed=self.seed, temper=self.temper, relocalize=self.relocalize,
                 headings=self.held_headings_ if self.tune_heading else None,
+                scan_points=held_points if fold_maps is not None else None, scan_maps=fold_maps,
+                scan_fold=sfold if fold_maps is not None else None, scan_starts=self.scan_starts,
             )  # fmt: skip
-            self.tracker_ = Tracker(split.centres, self.graph_, self.calibration_, n_particles=self.n_particles)
+        if self.scan and self.scan_gamma is not None:
+            self.calibration_ = replace(self.calibration_, scan_gamma=float(self.scan_gamma))
+        if self.tune or self.scan:
+            self.tracker_ = Tracker(
+                split.centres, self.graph_, self.calibration_, n_particles=self.n_particles, scan_map=self.scan_map_
+            )
+        self.scan_gamma_ = self.calibration_.scan_gamma if self.scan_map_ is not None else 0.0
         self.outlier_ = self.calibration_.outlier
         self.heading_model_: HeadingModel | None = heading_of(self.calibration_)
         self.temper_metres_ = self.calibration_.temper_metres
@@ -593,11 +651,25 @@ class PoseFilteredMethod(FilteredMethod):
                 self.step_headings_[split.query_idx - split.n_mapping] = h
         return super().score(scans)
 
-    def run_steps(self, log_likelihood: Any, increments: Any, headings: Any = None) -> FilterResult:
+    def step_points(self) -> list[FArray | None] | None:
+        """The laser end points (robot frame) of each query-pass step: at the observed steps (the queries), None
+        elsewhere; None without scan evidence."""
+        if getattr(self, "scan_points_", None) is None or getattr(self, "scan_map_", None) is None:
+            return None
+        _, split = self._need_context()
+        assert self.scan_points_ is not None
+        out: list[FArray | None] = [None] * (split.n_scans - split.n_mapping)
+        for i in split.query_idx.tolist():
+            out[i - split.n_mapping] = self.scan_points_[i]
+        return out
+
+    def run_steps(self, log_likelihood: Any, increments: Any, headings: Any = None, points: Any = None) -> FilterResult:
         """Run the pose filter along steps (NaN rows = prediction only); ``increments`` has one row per step (row 0 unused).
 
         ``headings`` (same shape as ``log_likelihood``): the implied headings
-        of the steps (used with a heading model).
+        of the steps (used with a heading model). ``points`` (one (m, 2)
+        array or None per step): the steps' laser end points (used with the
+        scan evidence, :meth:`step_points`).
         """
         ll = np.asarray(log_likelihood, dtype=np.float64)
         if not self.observe:  # the sensor switched off: uniform rows where it observed
@@ -618,6 +690,7 @@ class PoseFilteredMethod(FilteredMethod):
             augmented=self.augmented,
             hold_margin=self.hold_margin,
             tie_break=self.tie_break,
+            points=points if getattr(self, "scan_map_", None) is not None else None,
         )
 
     def _heading_temper(self) -> tuple[float, float] | None:
@@ -637,8 +710,9 @@ class PoseFilteredMethod(FilteredMethod):
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
         """The pose filter over the whole query pass, with the method's odometry increments."""
         return self.run_steps(
-            log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]), getattr(self, "step_headings_", None)
-        )
+            log_likelihood, np.vstack([np.zeros((1, 3)), self.increments_]), getattr(self, "step_headings_", None),
+            self.step_points(),
+        )  # fmt: skip
 
 
 def implied_headings(method: Any, scans: Sequence[Scan], n_places: int) -> FArray | None:
@@ -665,6 +739,11 @@ def field_of_view(scans: Sequence[Scan]) -> float:
     return float(np.median(fov)) if fov else math.pi
 
 
+def _end_points(scan: Scan) -> FArray:
+    """A scan's laser end points in the robot frame (:func:`~fingerloc.map.scan_map.scan_points`)."""
+    return scan_points(scan.ranges, scan.bearings, max_range=scan.max_range, sensor_offset=scan.sensor_offset)
+
+
 def _full_poses(scans: Sequence[Scan]) -> FArray:
     if any(s.pose is None for s in scans):
         raise InvalidParameterError("every scan needs a pose for the place graph and odometry")
@@ -673,13 +752,26 @@ def _full_poses(scans: Sequence[Scan]) -> FArray:
 
 @register_method("fingerprint-odometry")
 def _fingerprint_odometry() -> Method:
+    # With the scan evidence, its power chosen on the mapping pass (0 when the mapping pass does not favour it).
+    return PoseFilteredMethod("fingerprint", scan=True)
+
+
+@register_method("fingerprint-odometry-noscan", default=False)
+def _fingerprint_odometry_noscan() -> Method:
+    # The default before the scan evidence (issue 15): the fingerprint's place scores and implied headings only.
     return PoseFilteredMethod("fingerprint")
+
+
+@register_method("scan-odometry", default=False)
+def _scan_odometry() -> Method:
+    # The same filter with the scan evidence and uniform rows at the queries: what the scan adds without the fingerprint.
+    return PoseFilteredMethod("fingerprint", observe=False, scan=True)
 
 
 @register_method("fingerprint-odometry-exact", default=False)
 def _fingerprint_odometry_exact() -> Method:
     # Ablation: the corrected poses' increments as an error-free odometry.
-    return PoseFilteredMethod("fingerprint", odometry="exact")
+    return PoseFilteredMethod("fingerprint", odometry="exact", scan=True)
 
 
 @register_method("fingerprint-odometry-untempered", default=False)
@@ -698,6 +790,12 @@ def _odometry_only() -> Method:
 def _histogram_odometry() -> Method:
     # The histogram baseline's likelihood under the same pose filter.
     return PoseFilteredMethod("baseline-histogram")
+
+
+@register_method("histogram-scan-odometry", default=False)
+def _histogram_scan_odometry() -> Method:
+    # The histogram baseline under the same filter as fingerprint-odometry, scan evidence included.
+    return PoseFilteredMethod("baseline-histogram", scan=True)
 
 
 @register_method("baseline-histogram-odometry", default=False)
@@ -770,6 +868,9 @@ class TrackingData:
         The place whose centre is nearest to each step's (corrected) position
         (its Voronoi cell): the ground-truth place at *every* step, also
         between places, as the pose filter answers there.
+    points : list of (m, 2) arrays or None, length n_steps, optional
+        Each step's laser end points (robot frame) at the observed steps, for
+        a :class:`PoseFilteredMethod` with the scan evidence (:meth:`PoseFilteredMethod.step_points`).
     """
 
     method: FilteredMethod
@@ -780,6 +881,7 @@ class TrackingData:
     increments: FArray | None = None
     headings: FArray | None = None
     cells: IArray | None = None
+    points: list[FArray | None] | None = None
 
     def run(self, idx: Any = None) -> FilterResult:
         """The method's filter over the steps ``idx`` (default all), in that order.
@@ -795,7 +897,8 @@ class TrackingData:
             if self.increments is None:
                 raise InvalidParameterError("a pose filter needs the steps' odometry increments")
             hd = None if self.headings is None else self.headings[sel]
-            return self.method.run_steps(ll, self.increments[sel], hd)
+            pts = None if self.points is None else [self.points[i] for i in sel.tolist()]
+            return self.method.run_steps(ll, self.increments[sel], hd, pts)
         dist = self.distances[sel].copy()
         if dist.size:
             dist[0] = 0.0
@@ -825,7 +928,10 @@ def prepare_tracking(
         if h is not None:
             hd = np.full(ll.shape, np.nan)
             hd[split.query_idx - split.n_mapping] = h
-    return TrackingData(m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd, nearest_cells(pos[split.n_mapping :], split.centres))
+    pts = m.step_points() if isinstance(m, PoseFilteredMethod) else None
+    return TrackingData(
+        m, ll, dist, truth, pos[split.n_mapping :], steps_inc, hd, nearest_cells(pos[split.n_mapping :], split.centres), pts
+    )
 
 
 def nearest_cells(positions: Any, centres: Any) -> IArray:
@@ -1133,6 +1239,7 @@ def run_kidnap(
     kidnap: float | None = None,
     hold_margin: float | None = None,
     tie_break: float | None = None,
+    scan: bool = True,
     on_progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """:func:`kidnap_experiment` on each log (JSON-ready: per log summary and trials, pooled summary).
@@ -1144,7 +1251,9 @@ def run_kidnap(
     probability ``kidnap`` per observation if given; ``hold_margin`` and
     ``tie_break``, the answers between observations, if given, else the
     method's defaults: :func:`~fingerloc.map.relocalize.answer_between`)
-    instead of the discrete filter over places.
+    instead of the discrete filter over places; with ``scan`` (the default,
+    as ``fingerprint-odometry``) the pose filter also weighs the laser end
+    points, the power chosen on the mapping pass (:class:`PoseFilteredMethod`).
     """
     from .protocol import load_log_scans, log_name
 
@@ -1154,7 +1263,8 @@ def run_kidnap(
                                                   "odometry_error": odometry_error if pose else None,
                                                   "kidnap": kidnap if pose else None,
                                                   "hold_margin": hold_margin if pose else None,
-                                                  "tie_break": tie_break if pose else None}}  # fmt: skip
+                                                  "tie_break": tie_break if pose else None,
+                                                  "scan": scan if pose else None}}  # fmt: skip
     all_trials: list[dict[str, Any]] = []
     ranks_single: list[IArray] = []
     ranks_filtered: list[IArray] = []
@@ -1164,7 +1274,9 @@ def run_kidnap(
             on_progress(f"{name}: fitting")
         t0 = time.perf_counter()
         scans, _ = load_log_scans(path)
-        opts: dict[str, Any] = {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap} if pose else {}
+        opts: dict[str, Any] = (
+            {"seed": seed, "odometry_error": odometry_error, "kidnap": kidnap, "scan": scan} if pose else {}
+        )
         if pose:
             opts.update({k: v for k, v in (("hold_margin", hold_margin), ("tie_break", tie_break)) if v is not None})
         data = prepare_tracking(scans, base, pose=pose, **opts)
@@ -1203,7 +1315,8 @@ def tracking_ranks(data: TrackingData) -> tuple[IArray, IArray]:
 def _register_odometry_error_variants() -> None:
     """``fingerprint-odometry-x2`` / ``-x4`` and ``odometry-only-exact`` / ``-x2`` / ``-x4``: the simulated errors times 0, 2, 4."""
     def make(observe: bool, factor: float) -> Callable[[], Method]:
-        return lambda: PoseFilteredMethod("fingerprint", observe=observe, odometry_error=factor)
+        # the fingerprint's with the default's scan evidence; odometry-only stays odometry alone
+        return lambda: PoseFilteredMethod("fingerprint", observe=observe, odometry_error=factor, scan=observe)
 
     for factor in (2.0, 4.0):
         register_method(f"fingerprint-odometry-x{factor:g}", default=False)(make(True, factor))

@@ -57,6 +57,7 @@ Everything is in log space; a likelihood of zero never makes a NaN.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, Literal, overload
 
@@ -668,6 +669,7 @@ class PoseFilter:
         headings: Any = None,
         heading_weight: float | None = None,
         points: Any = None,
+        scan_map: ScanMap | None = None,
     ) -> FArray:
         """Weigh the particles by one observation, apply the kidnapping term, resample; the place log-posterior.
 
@@ -693,6 +695,9 @@ class PoseFilter:
         0`` every particle, the fresh ones included, is also weighed by
         ``exp(weight * scan_gamma * L(pose))``, and the place posterior is
         then the weighted particles' (an importance-sampling estimate).
+        ``scan_map`` scores this observation's ``points`` instead of the
+        filter's map (the mapping part's held-out runs, where each row has a
+        map that never saw it: :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
         """
         w_obs = _finite("weight", weight)
         if kidnap is not None and not 0 <= _finite("kidnap", kidnap) <= 1:
@@ -722,9 +727,10 @@ class PoseFilter:
                 has = np.isfinite(hd)
                 log_mean[has] = self.heading.log_mean_tempered(w_head, conf[has])
                 lp = lp + log_mean
-        scan = self._scan_points(points)
+        smap = self.scan_map if scan_map is None else scan_map
+        scan = self._scan_points(points, smap)
         if scan is not None:
-            w += (w_obs * self.scan_gamma) * self._scan(self.particles_, scan)
+            w += (w_obs * self.scan_gamma) * self._scan(self.particles_, scan, smap)
         tracked = float(logsumexp(w)) if any_finite else -np.inf
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
@@ -758,7 +764,7 @@ class PoseFilter:
                 kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
-            extra = 0.0 if scan is None else (w_obs * self.scan_gamma) * self._scan(fresh, scan)
+            extra = 0.0 if scan is None else (w_obs * self.scan_gamma) * self._scan(fresh, scan, smap)
             logw.append(comp_kid - math.log(m) + corr + extra)
         if scan is not None:  # the fresh particles' scan weights are not in the analytic posterior: the particles'
             allp, alw = np.concatenate(parts), np.concatenate(logw)
@@ -770,18 +776,20 @@ class PoseFilter:
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
 
-    def _scan_points(self, points: Any) -> FArray | None:
+    def _scan_points(self, points: Any, scan_map: ScanMap | None) -> FArray | None:
         """The checked end points of one observation, shape (m, 2), or None when the scan evidence is off."""
-        if points is None or self.scan_map is None or self.scan_gamma == 0:
+        if scan_map is not None and not isinstance(scan_map, ScanMap):
+            raise InvalidParameterError(f"scan_map must be a ScanMap or None, got {scan_map!r}")
+        if points is None or scan_map is None or self.scan_gamma == 0:
             return None
         q = np.asarray(points, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != 2 or not np.all(np.isfinite(q)):
             raise InvalidParameterError(f"points must be a finite array of shape (m, 2), got {q.shape}")
         return q if q.shape[0] else None
 
-    def _scan(self, particles: FArray, points: FArray) -> FArray:
-        assert self.scan_map is not None
-        return self.scan_map.log_likelihood(particles, points)
+    def _scan(self, particles: FArray, points: FArray, scan_map: ScanMap | None) -> FArray:
+        assert scan_map is not None
+        return scan_map.log_likelihood(particles, points)
 
     @overload
     def _sample_at_places(
@@ -1158,11 +1166,13 @@ def _run_inputs(
 
 def _update(
     f: PoseFilter, row: FArray, weight: float, prior: Any, kidnap: float | None, headings: FArray | None,
-    heading_weight: float | None = None, points: FArray | None = None,
+    heading_weight: float | None = None, points: FArray | None = None, scan_map: ScanMap | None = None,
 ) -> FArray:  # fmt: skip
-    """``f.update``, with ``headings`` and ``points`` only when there are some (a filter class without them
-    keeps working)."""
+    """``f.update``, with ``headings``, ``points`` and ``scan_map`` only when there are some (a filter class
+    without them keeps working)."""
     extra: dict[str, Any] = {} if points is None else {"points": points}
+    if scan_map is not None:
+        extra["scan_map"] = scan_map
     if headings is None:
         if kidnap is None:
             return f.update(row, weight, prior, **extra)
@@ -1224,6 +1234,7 @@ def run_pose_filter(
     headings: Any = None,
     heading_weights: Any = None,
     points: Any = None,
+    scan_maps: Sequence[ScanMap | None] | None = None,
 ) -> FilterResult:
     """Run a :class:`PoseFilter` (reset first) along a trajectory.
 
@@ -1296,6 +1307,10 @@ def run_pose_filter(
         Each step's laser end points (robot frame, metres; ``None``: none),
         used when the filter has a scan map (``points`` of
         :meth:`PoseFilter.update`).
+    scan_maps : sequence of ScanMap or None, length n_steps, optional
+        The map each step's ``points`` are scored against instead of the
+        filter's (``None`` entries: the filter's; ``scan_map`` of
+        :meth:`PoseFilter.update`).
 
     Returns
     -------
@@ -1310,6 +1325,9 @@ def run_pose_filter(
     if hws is not None and hws.size != n:
         raise InvalidParameterError(f"heading_weights must have one entry per step ({n}), got {hws.size}")
     pts = _run_points(points, n)
+    maps = None if scan_maps is None else list(scan_maps)
+    if maps is not None and len(maps) != n:
+        raise InvalidParameterError(f"scan_maps must have one entry per step ({n}), got {len(maps)}")
     if reset_threshold is not None:
         thr = _finite("reset_threshold", reset_threshold)
         frac = _finite("reset_fraction", reset_fraction)
@@ -1345,12 +1363,13 @@ def run_pose_filter(
             cusum = min(0.0, cusum + r)
         hd = None if hds is None else hds[t]
         q = None if pts is None else pts[t]
+        sm = None if maps is None else maps[t]
         if lost:
-            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd, points=q)
+            out[t] = _update(pose_filter, row, 1.0, prior, 1.0, hd, points=q, scan_map=sm)
             lost, cusum = False, 0.0
             continue
         predicted = pose_filter.place_log_posterior() if answer_untempered else None
-        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]), q)
+        out[t] = _update(pose_filter, row, float(wts[t]), prior, None, hd, None if hws is None else float(hws[t]), q, sm)
         if predicted is not None:
             full = predicted + pose_filter.place_likelihood(row)
             if np.any(np.isfinite(full)):

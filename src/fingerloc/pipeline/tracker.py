@@ -60,6 +60,8 @@ __all__ = [
     "HOLD_MARGIN",
     "MIN_CALIBRATION_ROWS",
     "POSE_PARTICLES",
+    "SCAN_GAMMAS",
+    "SCAN_GUARD_M",
     "TIE_BREAK",
     "TUNE_WITH_HEADING",
     "Calibration",
@@ -69,6 +71,7 @@ __all__ = [
     "calibrate_labelled",
     "challenger_of",
     "fit_scale",
+    "fold_scan_maps",
     "heading_of",
     "held_out_calibration",
     "held_out_headings",
@@ -79,6 +82,7 @@ __all__ = [
     "model_fit_score",
     "posterior_columns",
     "run_pose_steps",
+    "scan_folds",
     "step_distances",
     "tune_grid",
     "tune_pose_filter",
@@ -102,6 +106,12 @@ TUNE_WITH_HEADING = False
 HOLD_MARGIN = 0.05
 #: ... and near-ties within this broken by the discrete place filter (issue 15).
 TIE_BREAK = 0.02
+#: The powers of the scan evidence :func:`tune_pose_filter` tries after rho and the tempering (0, the
+#: filter without it, is always tried first and wins ties).
+SCAN_GAMMAS: tuple[float, ...] = (1.0, 3.0, 10.0)
+#: A fold's scan map holds no scan within this of one of the fold's rows, metres (the place radius):
+#: never a near-duplicate view of a held-out row (:func:`fold_scan_maps`).
+SCAN_GUARD_M = 1.0
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 
@@ -509,6 +519,7 @@ def run_pose_steps(
     hold_margin: float | None = None,
     tie_break: float | None = None,
     points: Any = None,
+    scan_maps: Sequence[ScanMap | None] | None = None,
 ) -> FilterResult:
     """The pose filter along steps, with the discrete filter alongside for relocalization.
 
@@ -547,6 +558,9 @@ def run_pose_steps(
     points : sequence of (m, 2) arrays or None, length n_steps, optional
         Each step's laser end points (robot frame), used when the pose
         filter has a scan map (the challenger and Augmented MCL runs ignore them).
+    scan_maps : sequence of ScanMap or None, length n_steps, optional
+        Per step, the map ``points`` are scored against instead of the
+        filter's (:func:`~fingerloc.map.pose_filter.run_pose_filter`).
     """
     from ..map.pose_filter import observation_weights
 
@@ -560,7 +574,8 @@ def run_pose_steps(
     res = _run_pose_steps(log_likelihood, increments, pose_filter, transition, temper=temper, relocalize=relocalize,
                           start_at_first_observation=start_at_first_observation, gap_metres=gap_metres,
                           reset_threshold=reset_threshold, challenger=challenger, place_steps=place_steps,
-                          augmented=augmented, headings=headings, heading_weights=hw, points=points)  # fmt: skip
+                          augmented=augmented, headings=headings, heading_weights=hw, points=points,
+                          scan_maps=scan_maps)  # fmt: skip
     if hold_margin is None and tie_break is None:
         return res
     from ..map.relocalize import answer_between
@@ -585,6 +600,7 @@ def _run_pose_steps(
     headings: Any,
     heading_weights: Any,
     points: Any = None,
+    scan_maps: Sequence[ScanMap | None] | None = None,
 ) -> FilterResult:
     """:func:`run_pose_steps` before the answers between observations (Augmented MCL runs without headings)."""
     from ..map.pose_filter import run_challenged_pose_filter, run_pose_filter
@@ -635,6 +651,7 @@ def _run_pose_steps(
         headings=headings,
         heading_weights=heading_weights,
         points=points,
+        scan_maps=scan_maps,
     )
 
 
@@ -662,6 +679,100 @@ def tune_grid(fitted_outlier: float) -> list[tuple[float, float]]:
     return [(rho, m) for rho in (0.1, 0.3, fitted_outlier) for m in (2.0, 1.0, 4.0)]
 
 
+def scan_folds(train_idx: Any, labels: Any) -> IArray:
+    """Fold (0 / 1) of each training scan for the scan maps: alternate visits *in time order*.
+
+    A visit is a run of consecutive scans (consecutive indices) of one place
+    (as :func:`~fingerloc.pipeline.places.visit_folds`), but the visits are
+    counted along the run, not per place: on a mapping pass that visits each
+    place once (the fingerprint's visit folds then put nearly every scan in
+    fold 0) the folds still alternate place by place, so each fold's map
+    covers the whole run from the neighbouring places.
+    """
+    idx = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    lab = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if idx.size != lab.size:
+        raise InvalidParameterError(f"train_idx and labels must have the same length, got {idx.size} and {lab.size}")
+    new = np.ones(idx.size, dtype=bool)
+    new[1:] = (lab[1:] != lab[:-1]) | (idx[1:] != idx[:-1] + 1)
+    return ((np.cumsum(new) - 1) % 2).astype(np.int64)
+
+
+def fold_scan_maps(
+    points: Sequence[Any], poses: Any, fold: Any, *, guard: float = SCAN_GUARD_M, travel: Any = None, **options: Any
+) -> tuple[ScanMap, ScanMap]:
+    """The two scan maps of the tuning on the mapping part: ``maps[f]`` from the training scans *not* in fold ``f``.
+
+    A held-out row of fold ``f`` is scored against ``maps[f]``, a map that
+    never saw its end points. Consecutive scans of one visit see the same
+    walls from nearly the same pose (the same people, the same noise), and
+    so do the last scan of a visit and the first of the next: ``maps[f]``
+    also leaves out every scan within ``guard`` metres of one of fold ``f``'s
+    (default the place radius): along the run when ``travel`` is given (the
+    same pass's neighbours go, another pass's scans of the same place stay,
+    as at query time), in the plane otherwise. So a row's map holds no
+    near-duplicate of it; it is a little poorer than the query-time one
+    (which holds the mapping scans of the query's own place), so the tuning
+    is, if anything, against the scan evidence. Only the training scans are
+    used: a mapping scan outside every place lies between two training scans
+    of one pass.
+    The folds: :func:`scan_folds` (alternate visits in time order), which
+    :func:`tune_pose_filter` takes as ``scan_fold``.
+
+    Parameters
+    ----------
+    points : sequence of (m, 2) arrays or None, length n_train
+        Each training scan's end points, robot frame (:func:`~fingerloc.map.scan_map.scan_points`).
+    poses : array_like, shape (n_train, 3)
+        The training scans' poses (mapping frame).
+    fold : array_like of int, shape (n_train,)
+        The fold of each training scan (:func:`scan_folds`).
+    guard : float, default SCAN_GUARD_M
+        Metres; 0 keeps every scan of the other fold.
+    travel : array_like, shape (n_train,), optional
+        The distance travelled along the run at each training scan (metres,
+        non-decreasing in the run's order; the cumulative sum of :func:`step_distances`):
+        the guard is measured along it.
+    **options
+        :meth:`~fingerloc.map.scan_map.ScanMap.from_scans`'s (resolution, sigma ...).
+
+    Raises
+    ------
+    InvalidParameterError
+        When a fold's complement has no end point (no map to score it against).
+    """
+    from ..map.scan_map import ScanMap
+
+    pts = list(points)
+    ps = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
+    if not len(pts) == ps.shape[0] == f_.size:
+        raise InvalidParameterError(f"points, poses and fold must have one entry per training scan, got {len(pts)}, {ps.shape[0]}, {f_.size}")
+    g = float(guard)
+    if not math.isfinite(g) or g < 0:
+        raise InvalidParameterError(f"guard must be a finite number >= 0 (metres), got {guard!r}")
+    from scipy.spatial import cKDTree
+
+    tv = None if travel is None else np.asarray(travel, dtype=np.float64).reshape(-1)
+    if tv is not None and tv.size != f_.size:
+        raise InvalidParameterError(f"travel must have one entry per training scan ({f_.size}), got {tv.size}")
+    maps: list[ScanMap] = []
+    for f in (0, 1):
+        near = np.zeros(f_.size, dtype=bool)
+        mine = np.flatnonzero(f_ == f)
+        if mine.size and g > 0:
+            if tv is None:
+                d, _ = cKDTree(ps[mine, :2]).query(ps[:, :2], k=1)
+            else:
+                d, _ = cKDTree(tv[mine, None]).query(tv[:, None], k=1)
+            near = np.asarray(d) <= g
+        keep = [i for i in range(f_.size) if f_[i] != f and not near[i] and pts[i] is not None and np.size(pts[i])]
+        if not keep:
+            raise InvalidParameterError(f"no end point outside fold {f}: no map to score its rows against")
+        maps.append(ScanMap.from_scans([pts[i] for i in keep], ps[keep], **options))
+    return maps[0], maps[1]
+
+
 def tune_pose_filter(
     tracker: Tracker,
     held: HeldOut,
@@ -674,6 +785,10 @@ def tune_pose_filter(
     relocalize: bool = True,
     share_draws: bool = True,
     headings: Any = None,
+    scan_points: Sequence[FArray | None] | None = None,
+    scan_maps: Sequence[ScanMap] | None = None,
+    scan_fold: Any = None,
+    scan_starts: int = 1,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -697,13 +812,30 @@ def tune_pose_filter(
     held-out row implies at each place (rows as ``held.scores``); with the
     calibration's heading model, the runs use them.
 
+    ``scan_points`` (one (m, 2) array or None per held-out row, rows as
+    ``held.scores``, robot frame) and ``scan_maps`` (:func:`fold_scan_maps`
+    of the training scans with the folds ``scan_fold``, one per training
+    row, default ``held.fold``; :func:`scan_folds` is what the benchmark and
+    ``fingerloc map`` should pass): then the power of the scan evidence is
+    chosen too. At the chosen pair, the filter runs again with
+    ``scan_gamma`` in :data:`SCAN_GAMMAS`, each held-out row's end points
+    scored against its fold's map (one that never saw them); the best top-1
+    wins, 0 (the run above) on ties. Without them ``scan_gamma`` is 0 and
+    everything else as before, bit for bit. ``scan_starts`` > 1: each power,
+    0 included, runs from that many starts along the mapping part (the
+    held-out rows at 0, 1/k, 2/k ... of them; each run to the end), and its
+    top-1 is pooled over the runs: a wrong global localization at a start
+    counts more than once (an ablation, docs/RESULTS.md).
+
     Returns
     -------
     Calibration
-        ``tracker.calibration`` with ``outlier`` and ``temper_metres`` chosen
-        (unchanged when there is no held-out row).
+        ``tracker.calibration`` with ``outlier``, ``temper_metres`` and
+        ``scan_gamma`` chosen (unchanged when there is no held-out row).
     list of dict
-        ``{"outlier", "temper_metres", "top1"}`` of every pair tried.
+        ``{"outlier", "temper_metres", "top1"}`` of every pair tried, then
+        ``{"outlier", "temper_metres", "scan_gamma", "top1"}`` of every
+        power of the scan evidence tried.
     """
     from ..map.pose_filter import SharedDraws, wheel_odometry
 
@@ -732,6 +864,43 @@ def tune_pose_filter(
         res = t.run_pose(ll, inc, f, temper=temper, relocalize=relocalize, place_steps=steps, headings=hd)
         top1 = float(np.mean(res.best[rows] == truth))
         tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
+        if top1 > best[0]:
+            best = (top1, trial)
+    if scan_points is None or scan_maps is None:
+        return replace(best[1], scan_gamma=0.0), tried
+    sfold = held.fold if scan_fold is None else np.asarray(scan_fold, dtype=np.int64).reshape(-1)
+    if sfold is None or len(scan_maps) != 2:
+        raise InvalidParameterError("scan evidence in the tuning needs the folds (scan_fold or held.fold) and two fold maps")
+    sp = list(scan_points)
+    if len(sp) != rows.size:
+        raise InvalidParameterError(f"scan_points must have one entry per held-out row ({rows.size}), got {len(sp)}")
+    pts: list[FArray | None] = [None] * poses.shape[0]
+    maps: list[ScanMap | None] = [None] * poses.shape[0]
+    row_fold = np.asarray(sfold, dtype=np.int64)[held.index]
+    for k, r in enumerate(rows.tolist()):
+        pts[r] = sp[k]
+        maps[r] = scan_maps[int(row_fold[k])]
+    chosen = best[1]
+    n_starts = int(scan_starts)
+    if n_starts < 1:
+        raise InvalidParameterError(f"scan_starts must be an integer >= 1, got {scan_starts!r}")
+    starts = [int(rows[(k * rows.size) // n_starts]) for k in range(n_starts)]
+    if n_starts > 1:  # the chosen pair without the scan evidence, from every start (start 0: the run above)
+        best = (-1.0, chosen)
+    for gamma in ((0.0,) if n_starts > 1 else ()) + SCAN_GAMMAS:
+        trial = replace(chosen, scan_gamma=float(gamma))
+        t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles, scan_map=scan_maps[0])
+        right = 0
+        counted = 0
+        for s0 in starts:
+            f = t.pose_filter(seed + 2, rng=None if shared is None else shared.generator())
+            res = t.run_pose(ll[s0:], inc[s0:], f, temper=temper, relocalize=relocalize, place_steps=steps,
+                             headings=None if hd is None else hd[s0:], points=pts[s0:], scan_maps=maps[s0:])  # fmt: skip
+            after = rows >= s0
+            right += int(np.sum(res.best[rows[after] - s0] == truth[after]))
+            counted += int(np.sum(after))
+        top1 = right / counted
+        tried.append({"outlier": chosen.outlier, "temper_metres": chosen.temper_metres, "scan_gamma": float(gamma), "top1": top1})
         if top1 > best[0]:
             best = (top1, trial)
     return best[1], tried
@@ -842,9 +1011,10 @@ class Tracker:
         place_steps: SharedPlaceSteps | None = None,
         headings: Any = None,
         points: Any = None,
+        scan_maps: Sequence[ScanMap | None] | None = None,
     ) -> FilterResult:
         """The pose filter (already scaled rows); ``increments`` has one row per step (row 0 unused);
-        ``headings``, ``points``: :func:`run_pose_steps`."""
+        ``headings``, ``points``, ``scan_maps``: :func:`run_pose_steps`."""
         c = self.calibration
         return run_pose_steps(
             log_likelihood,
@@ -863,6 +1033,7 @@ class Tracker:
             hold_margin=c.hold_margin,
             tie_break=c.tie_break,
             points=points,
+            scan_maps=scan_maps,
         )
 
     def run(
