@@ -189,11 +189,8 @@ def test_run_end_points_of_scans_and_records(rooms_log):
 
 
 def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
-    """Once the tracker has ``scan_folds`` and ``fold_scan_maps`` (branch h-sbench), make_map gives
-    tune_pose_filter the held-out rows' end points, the folds and the two folds' scan maps; before, none
-    (scan_gamma stays 0)."""
+    """make_map gives tune_pose_filter the held-out rows' end points, the folds and the two folds' scan maps."""
     import fingerloc.pipeline.mapping as mapping
-    import fingerloc.pipeline.tracker as tracker
 
     seen: dict[str, object] = {}
 
@@ -209,15 +206,11 @@ def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
         return np.arange(len(train_idx)) % 2
 
     monkeypatch.setattr(mapping, "tune_pose_filter", fake_tune)
-    monkeypatch.delattr(tracker, "fold_scan_maps", raising=False)
-    monkeypatch.delattr(tracker, "scan_folds", raising=False)
+    monkeypatch.setattr(mapping, "fold_scan_maps", fake_folds)
+    monkeypatch.setattr(mapping, "scan_folds", fake_scan_folds)
     run_ = read_run(rooms_log)
     pm = make_map(run_, heading=False)
-    assert not {"scan_points", "scan_maps", "scan_fold"} & set(seen) and pm.scan_map is not None
-    seen.clear()
-    monkeypatch.setattr(tracker, "fold_scan_maps", fake_folds, raising=False)
-    monkeypatch.setattr(tracker, "scan_folds", fake_scan_folds, raising=False)
-    pm = make_map(run_, heading=False)
+    assert pm.scan_map is not None
     held = seen["held"]
     n_train = pm.split.n_train
     fold = np.arange(n_train) % 2

@@ -28,7 +28,6 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..map.graph import PlaceGraph
 from ..observation import Observation
-from . import tracker as _tracker
 from .places import PLACE_RADIUS_M, PLACE_SPACING_M, PlaceSplit, place_label, places_from_trajectory
 from .presets import ResolvedPreset, model_from_options, resolve_preset
 from .readers import Run
@@ -36,10 +35,12 @@ from .tracker import (
     TUNE_WITH_HEADING,
     Calibration,
     Tracker,
+    fold_scan_maps,
     held_out_calibration,
     held_out_headings,
     mapping_graph,
     model_fit_score,
+    scan_folds,
     step_distances,
     tune_pose_filter,
     with_heading_model,
@@ -98,12 +99,9 @@ def _scan_tuning(run: Run, split: PlaceSplit, held: Any, poses: Any) -> dict[str
     training scans' folds (``scan_fold``: alternate visits in time order, ``scan_folds``) and the two folds'
     scan maps (``scan_maps``: ``fold_scan_maps``, the guard measured along the run).
 
-    Empty (``scan_gamma`` stays 0, off) while the tracker has no ``scan_folds`` / ``fold_scan_maps``
-    (before branch h-sbench), or when a fold's complement has no end point.
+    Empty (``scan_gamma`` stays 0, off) without held-out rows, or when a fold's complement has no end point.
     """
-    fold_scan_maps = getattr(_tracker, "fold_scan_maps", None)
-    scan_folds = getattr(_tracker, "scan_folds", None)
-    if fold_scan_maps is None or scan_folds is None or held.index.size == 0:
+    if held.index.size == 0:
         return {}
     tr = split.train_idx
     pts = run_end_points(run, tr)
