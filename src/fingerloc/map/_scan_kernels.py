@@ -99,4 +99,5 @@ def field_mean_parallel(  # pragma: no cover - compiled
     qy = np.ascontiguousarray(points[:, 1])
     n = poses.shape[0]
     for b in prange(n_chunks):
-        _field_rows(poses, c, s, qx, qy, table, ox, oy, inv_res, outside, out, b * n // n_chunks, (b + 1) * n // n_chunks)
+        lo, hi = b * n // n_chunks, (b + 1) * n // n_chunks
+        _field_rows(poses, c, s, qx, qy, table, ox, oy, inv_res, outside, out, lo, hi)

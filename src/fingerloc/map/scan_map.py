@@ -267,6 +267,6 @@ class ScanMap:
         """The kernel's view of the field: ``(table, origin x, origin y, 1 / resolution, outside)``, made once."""
         f = self._cache.get("field")
         if f is None:
-            o = self.origin
-            f = self._cache.setdefault("field", (self.table(), float(o[0]), float(o[1]), 1.0 / self.resolution, self.outside))
+            o, inv_res = self.origin, 1.0 / self.resolution
+            f = self._cache.setdefault("field", (self.table(), float(o[0]), float(o[1]), inv_res, self.outside))
         return f  # type: ignore[no-any-return]
