@@ -40,7 +40,6 @@ __all__ = [
     "SCAN_CLIP_M",
     "SCAN_FLOOR",
     "SCAN_MAX_CELLS",
-    "SCAN_PARALLEL_MIN_POINTS",
     "SCAN_RESOLUTION_M",
     "SCAN_SIGMA_M",
     "SCAN_STRIDE",
@@ -60,9 +59,6 @@ SCAN_FLOOR = 0.05
 SCAN_STRIDE = 3
 #: Largest grid: beyond it the cell grows (a 400 m square at 0.1 m is 16 million cells, 64 MB).
 SCAN_MAX_CELLS = 16_000_000
-#: From this many poses x end points on, :meth:`ScanMap.log_likelihood` spreads the poses over numba's
-#: threads (``NUMBA_NUM_THREADS``; a pose filter's 1000 particles x 60 points); the figures are the same.
-SCAN_PARALLEL_MIN_POINTS = 20_000
 
 
 def scan_points(
@@ -235,9 +231,7 @@ class ScanMap:
 
         ``poses``: shape (N, 3), mapping frame; ``points``: the scan's end
         points in the robot frame, shape (m, 2) (:func:`scan_points`). A scan
-        with no end point scores 0 everywhere (no evidence). From
-        :data:`SCAN_PARALLEL_MIN_POINTS` poses x points on, the poses are
-        spread over numba's threads (the same figures bit for bit).
+        with no end point scores 0 everywhere (no evidence).
         """
         p = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
         q = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
@@ -245,22 +239,12 @@ class ScanMap:
             return np.zeros(p.shape[0])
         if not np.all(np.isfinite(q)):
             raise InvalidParameterError("end points must be finite")
-        import numba
-
-        from .._numba_guard import try_parallel
-        from . import _scan_kernels as _k
+        from ._scan_kernels import field_mean
 
         table, ox, oy, inv_res, outside = self._field()
         out = np.empty(p.shape[0])
         c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-        threads = numba.get_num_threads()
-        # numba's default threading layer must not be entered by two Python threads at once:
-        # a caller that finds it busy runs the serial kernel instead (same results)
-        with try_parallel() as free:
-            if free and threads > 1 and p.shape[0] * q.shape[0] >= SCAN_PARALLEL_MIN_POINTS:
-                _k.field_mean_parallel(p, c, s, q, table, ox, oy, inv_res, outside, out, threads)
-            else:
-                _k.field_mean(p, c, s, q, table, ox, oy, inv_res, outside, out)
+        field_mean(p, c, s, q, table, ox, oy, inv_res, outside, out)
         return out
 
     def _field(self) -> tuple[FArray, float, float, float, float]:
