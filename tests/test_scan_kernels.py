@@ -66,3 +66,20 @@ def test_log_likelihood_of_non_contiguous_and_single_inputs():
     want = _plain(smap, poses, points)
     assert np.array_equal(smap.log_likelihood(np.asfortranarray(poses), points[::1].T.copy().T), want)
     assert np.array_equal(smap.log_likelihood(poses[7], points), want[7:8])
+
+
+def test_from_scans_and_cells_equal_the_scan_by_scan_construction_bit_for_bit():
+    from fingerloc.map.scan_map import _to_frame
+
+    rng = np.random.default_rng(7)
+    pts = [rng.uniform(-6, 6, (int(k), 2)) for k in rng.integers(0, 40, 30)]  # some scans without end points
+    pts[3] = np.zeros((0, 2))
+    poses = np.column_stack([rng.uniform(-20, 20, (30, 2)), rng.uniform(-math.pi, math.pi, 30)])
+    world = np.vstack([_to_frame(q, poses[i]) for i, q in enumerate(pts) if q.shape[0]])
+    want = ScanMap.from_points(world)
+    got = ScanMap.from_scans(pts, poses)
+    assert np.array_equal(got.origin, want.origin) and got.shape == want.shape
+    assert np.array_equal(got.cells, want.cells)
+    raw = np.clip(np.floor((world - want.origin) / want.resolution).astype(np.int64), 0, np.array(want.shape) - 1)
+    assert np.array_equal(got.cells, np.unique(raw, axis=0))
+    assert np.array_equal(got.table(), want.table())
