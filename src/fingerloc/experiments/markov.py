@@ -435,6 +435,13 @@ class PoseFilteredMethod(FilteredMethod):
         The tuning of the scan evidence's power runs from this many starts
         along the mapping pass (``scan_starts`` of
         :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
+    scan_fresh : int, default 1
+        With the scan evidence, a (re)initialisation from the sensor (the
+        first observation, a gap, a lost belief) draws this many times the
+        particles (``Calibration.scan_fresh``; also in the tuning).
+    lost : bool, default False
+        Lost detection by the scan fit, calibrated on the mapping pass
+        (``lost`` of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -480,8 +487,14 @@ class PoseFilteredMethod(FilteredMethod):
         scan: bool = False,
         scan_gamma: float | None = None,
         scan_starts: int = 1,
+        scan_fresh: int = 1,
+        lost: bool = False,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        if isinstance(scan_fresh, bool) or not isinstance(scan_fresh, (int, np.integer)) or scan_fresh < 1:
+            raise InvalidParameterError(f"scan_fresh must be an integer >= 1, got {scan_fresh!r}")
+        self.scan_fresh = int(scan_fresh)
+        self.lost = bool(lost)
         self.scan = bool(scan)
         self.scan_starts = int(scan_starts)
         if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
@@ -561,6 +574,7 @@ class PoseFilteredMethod(FilteredMethod):
             challenger_switch_nats=self.challenger_switch_nats,
             hold_margin=self.hold_margin,
             tie_break=self.tie_break,
+            scan_fresh=self.scan_fresh if self.scan else 1,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.held_headings_: FArray | None = None
@@ -601,6 +615,7 @@ class PoseFilteredMethod(FilteredMethod):
                 headings=self.held_headings_ if self.tune_heading else None,
                 scan_points=held_points if fold_maps is not None else None, scan_maps=fold_maps,
                 scan_fold=sfold if fold_maps is not None else None, scan_starts=self.scan_starts,
+                lost=self.lost and self.observe,
             )  # fmt: skip
         if self.scan and self.scan_gamma is not None:
             self.calibration_ = replace(self.calibration_, scan_gamma=float(self.scan_gamma))

@@ -470,6 +470,9 @@ class PoseFilter:
         heading: HeadingModel | None = None,
         scan_map: ScanMap | None = None,
         scan_gamma: float = 0.0,
+        fresh_factor: int = 1,
+        lost_fit: float | None = None,
+        lost_kidnap: float = 0.0,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -504,6 +507,16 @@ class PoseFilter:
             raise InvalidParameterError(f"scan_map must be a ScanMap or None, got {scan_map!r}")
         self.scan_map = scan_map
         self.scan_gamma = _finite("scan_gamma", scan_gamma)
+        if isinstance(fresh_factor, bool) or not isinstance(fresh_factor, (int, np.integer)) or fresh_factor < 1:
+            raise InvalidParameterError(f"fresh_factor must be an integer >= 1, got {fresh_factor!r}")
+        self.fresh_factor = int(fresh_factor)
+        self.lost_fit = None if lost_fit is None else float(lost_fit)
+        if self.lost_fit is not None and math.isnan(self.lost_fit):
+            raise InvalidParameterError("lost_fit must be a number or None, got NaN")
+        self.lost_kidnap = _finite("lost_kidnap", lost_kidnap)
+        if self.lost_kidnap > 1:
+            raise InvalidParameterError(f"lost_kidnap must be in [0, 1], got {lost_kidnap!r}")
+        self.scan_fit_ = math.nan
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
             pp = np.asarray(place_poses, dtype=np.float64)
@@ -540,6 +553,9 @@ class PoseFilter:
         self.log_weights_ = np.full(n, -math.log(n))
         self._place_log_posterior = self._particle_places()
         self.resets_ = 0
+        self.lost_steps_: list[int] = []
+        self.fit_trace_: list[float] = []
+        self._updates = 0
         self.switches_: list[int] = []
         self.challenger_trace_: list[tuple[int, str, float]] = []
         return self
@@ -729,9 +745,23 @@ class PoseFilter:
                 lp = lp + log_mean
         smap = self.scan_map if scan_map is None else scan_map
         scan = self._scan_points(points, smap)
+        fits: list[FArray] = []
+        self.scan_fit_ = math.nan
         if scan is not None:
-            w += (w_obs * self.scan_gamma) * self._scan(self.particles_, scan, smap)
+            fits.append(self._scan(self.particles_, scan, smap))
+            w += (w_obs * self.scan_gamma) * fits[0]
         tracked = float(logsumexp(w)) if any_finite else -np.inf
+        dense = kidnap is not None and scan is not None  # a (re)initialisation from the sensor: a denser proposal
+        fit = math.nan
+        if scan is not None and kidnap is None and math.isfinite(tracked):
+            # the tracked belief's fit: its weighted mean end-point log-likelihood (lost detection)
+            fit = float(np.dot(np.exp(w - tracked), fits[0]))
+        self.fit_trace_.append(fit)
+        self._updates += 1
+        if self.lost_fit is not None and fit < self.lost_fit and self.lost_kidnap > 0:
+            # the belief explains the view worse than the map usually does at the true pose: re-draw from the sensor
+            kidnap, dense = self.lost_kidnap, True
+            self.lost_steps_.append(self._updates - 1)
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):
@@ -760,14 +790,23 @@ class PoseFilter:
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
+            if dense:
+                m *= self.fresh_factor
             fresh, corr = self._sample_at_places(
                 kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
-            extra = 0.0 if scan is None else (w_obs * self.scan_gamma) * self._scan(fresh, scan, smap)
+            extra = 0.0
+            if scan is not None:
+                fits.append(self._scan(fresh, scan, smap))
+                extra = (w_obs * self.scan_gamma) * fits[-1]
             logw.append(comp_kid - math.log(m) + corr + extra)
         if scan is not None:  # the fresh particles' scan weights are not in the analytic posterior: the particles'
             allp, alw = np.concatenate(parts), np.concatenate(logw)
+            top = float(np.max(alw))
+            if math.isfinite(top):  # the belief's fit: the posterior mean of the end points' log-likelihood
+                pw = np.exp(alw - top)
+                self.scan_fit_ = float(np.dot(pw, np.concatenate(fits)) / pw.sum())
             _, at = self._nearest(allp[:, :2])
             top = float(np.max(alw))
             with np.errstate(divide="ignore"):
