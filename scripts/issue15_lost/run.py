@@ -2,7 +2,7 @@
 
 usage: run.py NAME SEEDS [k=v ...] [--kidnap] [--log=LOG ...]
 Besides PoseFilteredMethod keywords: q.ATTR=V sets ATTR of the query-pass filter only (after the fit, e.g.
-q.fresh_factor=10: a diagnosis, nothing tuned).
+q.fresh_factor=10: a diagnosis, nothing tuned); g.NAME=V sets fingerloc.pipeline.tracker.NAME (g.LOST_QUANTILE=0.01).
 """
 import importlib.util
 import os
@@ -19,6 +19,12 @@ _prep = S.prep
 
 def prep(log, seed, opts):
     opts = dict(opts)
+    from fingerloc.pipeline import tracker
+    from fingerloc.map.pose_filter import PoseFilter
+    for k in [k for k in opts if k.startswith("g.")]:
+        setattr(tracker, k[2:], opts.pop(k))
+    for k in [k for k in opts if k.startswith("c.")]:
+        setattr(PoseFilter, k[2:], opts.pop(k))
     q = {k[2:]: opts.pop(k) for k in list(opts) if k.startswith("q.")}
     data = _prep(log, seed, opts)
     for k, v in q.items():

@@ -442,6 +442,9 @@ class PoseFilteredMethod(FilteredMethod):
     lost : bool, default False
         Lost detection by the scan fit, calibrated on the mapping pass
         (``lost`` of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
+    lost_after : int, default 1
+        Observations in a row below the lost threshold before a re-draw
+        (``Calibration.lost_after``).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -489,12 +492,14 @@ class PoseFilteredMethod(FilteredMethod):
         scan_starts: int = 1,
         scan_fresh: int = 1,
         lost: bool = False,
+        lost_after: int = 1,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
         if isinstance(scan_fresh, bool) or not isinstance(scan_fresh, (int, np.integer)) or scan_fresh < 1:
             raise InvalidParameterError(f"scan_fresh must be an integer >= 1, got {scan_fresh!r}")
         self.scan_fresh = int(scan_fresh)
         self.lost = bool(lost)
+        self.lost_after = int(lost_after)
         self.scan = bool(scan)
         self.scan_starts = int(scan_starts)
         if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
@@ -575,6 +580,7 @@ class PoseFilteredMethod(FilteredMethod):
             hold_margin=self.hold_margin,
             tie_break=self.tie_break,
             scan_fresh=self.scan_fresh if self.scan else 1,
+            lost_after=self.lost_after,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.held_headings_: FArray | None = None

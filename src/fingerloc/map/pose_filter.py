@@ -454,6 +454,9 @@ class PoseFilter:
         Normalised (``logsumexp == 0``).
     """
 
+    lost_uniform = False  # experiment switches (h-lost), class-level for now
+    lost_stat = "mean"
+
     def __init__(
         self,
         centres: Any,
@@ -473,6 +476,7 @@ class PoseFilter:
         fresh_factor: int = 1,
         lost_fit: float | None = None,
         lost_kidnap: float = 0.0,
+        lost_after: int = 1,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -516,6 +520,9 @@ class PoseFilter:
         self.lost_kidnap = _finite("lost_kidnap", lost_kidnap)
         if self.lost_kidnap > 1:
             raise InvalidParameterError(f"lost_kidnap must be in [0, 1], got {lost_kidnap!r}")
+        if isinstance(lost_after, bool) or not isinstance(lost_after, (int, np.integer)) or lost_after < 1:
+            raise InvalidParameterError(f"lost_after must be an integer >= 1, got {lost_after!r}")
+        self.lost_after = int(lost_after)
         self.scan_fit_ = math.nan
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
@@ -556,6 +563,7 @@ class PoseFilter:
         self.lost_steps_: list[int] = []
         self.fit_trace_: list[float] = []
         self._updates = 0
+        self._low = 0
         self.switches_: list[int] = []
         self.challenger_trace_: list[tuple[int, str, float]] = []
         return self
@@ -754,14 +762,19 @@ class PoseFilter:
         dense = kidnap is not None and scan is not None  # a (re)initialisation from the sensor: a denser proposal
         fit = math.nan
         if scan is not None and kidnap is None and math.isfinite(tracked):
-            # the tracked belief's fit: its weighted mean end-point log-likelihood (lost detection)
-            fit = float(np.dot(np.exp(w - tracked), fits[0]))
+            if self.lost_stat == "max":  # the tracked particles' best fit: does any of them explain the view?
+                fit = float(np.max(np.where(np.isfinite(w), fits[0], -np.inf)))
+            else:  # the tracked belief's fit: its weighted mean end-point log-likelihood (lost detection)
+                fit = float(np.dot(np.exp(w - tracked), fits[0]))
         self.fit_trace_.append(fit)
         self._updates += 1
-        if self.lost_fit is not None and fit < self.lost_fit and self.lost_kidnap > 0:
+        self._low = self._low + 1 if self.lost_fit is not None and fit < self.lost_fit else 0
+        if self._low >= self.lost_after and self.lost_kidnap > 0:
             # the belief explains the view worse than the map usually does at the true pose: re-draw from the sensor
             kidnap, dense = self.lost_kidnap, True
             self.lost_steps_.append(self._updates - 1)
+            if self.lost_uniform:  # the belief is lost: so may be the prior that followed it (a place filter's)
+                kidnap_prior = None
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):

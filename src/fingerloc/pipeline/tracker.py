@@ -229,6 +229,7 @@ class Calibration:
     scan_fresh: int = 1
     lost_fit: float | None = None
     lost_kidnap: float = 0.0
+    lost_after: int = 1
     hold_margin: float | None = HOLD_MARGIN
     tie_break: float | None = TIE_BREAK
 
@@ -937,14 +938,16 @@ def tune_pose_filter(
     if lost and best[1].scan_gamma > 0 and starts[0] == int(rows[0]):
         trace, ok = traces[float(best[1].scan_gamma)]
         if len(trace) == rows.size:
-            thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), ok)
+            thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), ok, after=best[1].lost_after)
             if thr is not None:
                 best = (best[0], replace(best[1], lost_fit=thr, lost_kidnap=kap))
                 tried.append({"lost_fit": thr, "lost_kidnap": kap})
     return best[1], tried
 
 
-def calibrate_lost(fits: Any, right: Any, quantile: float = LOST_QUANTILE) -> tuple[float | None, float]:
+def calibrate_lost(
+    fits: Any, right: Any, quantile: float | None = None, *, after: int = 1
+) -> tuple[float | None, float]:
     """The lost detection's threshold and re-draw probability from a run along the mapping part.
 
     ``fits`` (one per observed row, NaN where there is none, e.g. at a
@@ -953,8 +956,8 @@ def calibrate_lost(fits: Any, right: Any, quantile: float = LOST_QUANTILE) -> tu
     ``right``: whether the filter's answer at the row was right. The
     threshold is the ``quantile`` of the fits at the right rows (below it,
     the belief explains the view worse than the map nearly always does when
-    it is right); the re-draw probability is how often the answer was wrong
-    at rows below the threshold, ``(wrong + 1) / (n + 2)`` (Laplace's rule).
+    it is right; default :data:`LOST_QUANTILE`); the re-draw probability is how often the answer was wrong
+    at rows below the threshold (``after`` rows in a row), ``(wrong + 1) / (n + 2)`` (Laplace's rule).
     ``(None, 0)`` without a right row with a fit.
     """
     f = np.asarray(fits, dtype=np.float64).reshape(-1)
@@ -964,8 +967,12 @@ def calibrate_lost(fits: Any, right: Any, quantile: float = LOST_QUANTILE) -> tu
     has = np.isfinite(f)
     if not np.any(has & ok):
         return None, 0.0
-    thr = float(np.quantile(f[has & ok], quantile))
+    thr = float(np.quantile(f[has & ok], LOST_QUANTILE if quantile is None else quantile))
     low = has & (f < thr)
+    run = np.zeros(f.size, dtype=np.int64)  # consecutive rows below the threshold, up to each row
+    for i in range(f.size):
+        run[i] = (run[i - 1] + 1 if i else 1) if low[i] else 0
+    low = run >= max(int(after), 1)
     return thr, float((np.sum(low & ~ok) + 1) / (np.sum(low) + 2))
 
 
@@ -1051,6 +1058,7 @@ class Tracker:
             fresh_factor=int(self.calibration.scan_fresh),
             lost_fit=self.calibration.lost_fit,
             lost_kidnap=self.calibration.lost_kidnap,
+            lost_after=int(self.calibration.lost_after),
             random_state=seed if rng is None else rng,
         )
 
