@@ -39,11 +39,12 @@ def _scan_at(world, pose, rng):
     return seen + 0.02 * rng.standard_normal(seen.shape)
 
 
+_TWIN = np.array([0.0, 10.0, 0.0])  # from corridor A to its twin B
 _WORLD = _world()
 _MAP = ScanMap.from_points(_WORLD, resolution=0.1)
 _POSES = polyline([(1.0, 0.0), (19.0, 0.0)], 0.25)  # the robot drives along corridor A
 _CA = np.column_stack([np.arange(1.0, 20.0, 2.0), np.zeros(10)])
-_CENTRES = np.vstack([_CA, _CA + [0.0, 10.0]])  # places 0-9 in A, their twins 10-19 in B
+_CENTRES = np.vstack([_CA, _CA + _TWIN[:2]])  # places 0-9 in A, their twins 10-19 in B
 _TRUTH = truth_places(_POSES, _CENTRES)
 
 
@@ -58,7 +59,7 @@ def _inputs(seed):
 
 
 def _filter(seed, start, **kw):
-    both = np.vstack([_POSES, _POSES + [0.0, 10.0, 0.0]])
+    both = np.vstack([_POSES, _POSES + _TWIN])
     return PoseFilter(_CENTRES, 1.0, n_particles=300, scan_map=_MAP, scan_gamma=10.0, kidnap=0.001, start=start,
                       place_poses=both, random_state=seed, **kw)  # fmt: skip
 
@@ -81,7 +82,7 @@ def _calibrated(seed):
 
 @pytest.mark.parametrize("seed", [3, 4])
 def test_a_belief_locked_in_the_twin_corridor_is_let_go_by_the_scan_fit(seed):
-    wrong = _POSES[:1] + [0.0, 10.0, 0.0]  # the belief starts in B, the corridor the fingerprint slightly prefers
+    wrong = _POSES[:1] + _TWIN  # the belief starts in B, the corridor the fingerprint slightly prefers
     late = np.arange(_TRUTH.size) >= _TRUTH.size // 2
     res, f = _run(seed, wrong)
     assert np.mean(res.best[late] == _TRUTH[late]) < 0.2  # without the rule the filter stays in B
@@ -95,7 +96,7 @@ def test_a_denser_proposal_finds_the_true_pose_at_the_first_observation():
     """Global localization from one view: 30 particles drawn at the places the fingerprint names (it confuses the
     twin corridors and neighbours) rarely hold one near the true pose; 30 times as many usually do."""
     ll, pts = _inputs(0)
-    both = np.vstack([_POSES, _POSES + [0.0, 10.0, 0.0]])
+    both = np.vstack([_POSES, _POSES + _TWIN])
     right = {1: 0, 30: 0}
     for seed in range(20):
         i = 4 + 3 * seed

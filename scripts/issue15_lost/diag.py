@@ -37,12 +37,10 @@ def main():
     opts.setdefault("scan", True)
     data = S.prep(log, seed, opts)
     d = S.R._cache["d"]
-    split = d["scans"], d["split"]
     scans, split = d["scans"], d["split"]
     rec.clear()
     full = data.run()
     m = data.method
-    q = np.flatnonzero(data.truth >= 0)
     obs = [t for t in range(len(data.points)) if data.points[t] is not None]
     assert len(obs) == len(rec), (len(obs), len(rec))
     print("gamma", m.scan_gamma_)

@@ -6,7 +6,6 @@ q.fresh_factor=10: a diagnosis, nothing tuned); g.NAME=V sets fingerloc.pipeline
 """
 import importlib.util
 import os
-import sys
 
 _spec = importlib.util.spec_from_file_location(
     "scan_run", os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "issue15_scan", "run.py"))
@@ -19,8 +18,8 @@ _prep = S.prep
 
 def prep(log, seed, opts):
     opts = dict(opts)
-    from fingerloc.pipeline import tracker
     from fingerloc.map.pose_filter import PoseFilter
+    from fingerloc.pipeline import tracker
     for k in [k for k in opts if k.startswith("g.")]:
         setattr(tracker, k[2:], opts.pop(k))
     for k in [k for k in opts if k.startswith("c.")]:

@@ -24,9 +24,9 @@ def seeds(names):
         ss = sorted(r["seeds"], key=int)
         for s in ss:
             d = r["seeds"][s]
-            cells = [f"{d[l]['top1']:.3f} ({d[l]['gamma']:g})" for l in LOGS]
+            cells = [f"{d[lg]['top1']:.3f} ({d[lg]['gamma']:g})" for lg in LOGS]
             print(f"| {n} | {s} | " + " | ".join(cells) + f" | {d['pooled']['pooled']:.3f} |")
-        mean = [np.mean([r["seeds"][s][l]["top1"] for s in ss]) for l in LOGS]
+        mean = [np.mean([r["seeds"][s][lg]["top1"] for s in ss]) for lg in LOGS]
         pooled = np.mean([r["seeds"][s]["pooled"]["pooled"] for s in ss])
         print(f"| **{n}** | mean | " + " | ".join(f"{m:.3f}" for m in mean) + f" | **{pooled:.3f}** |")
 
@@ -37,11 +37,11 @@ def rule(names):
         r = load(n)
         fails = []
         for s in sorted(r["seeds"], key=int):
-            for l, single in SINGLE.items():
-                bar = max(single, o["seeds"][s][l]["top1"]) - 0.02
-                v = r["seeds"][s][l]["top1"]
+            for lg, single in SINGLE.items():
+                bar = max(single, o["seeds"][s][lg]["top1"]) - 0.02
+                v = r["seeds"][s][lg]["top1"]
                 if v < bar - 1e-12:
-                    fails.append(f"{l} seed {s}: {v:.3f} < {bar:.3f}")
+                    fails.append(f"{lg} seed {s}: {v:.3f} < {bar:.3f}")
         print(n, "rule:", "; ".join(fails) if fails else "met on every log at every seed")
 
 
@@ -56,7 +56,7 @@ def kidnap(names):
         s = sorted(r["seeds"], key=int)[0]
         k = r["seeds"][s]["pooled"]["kidnap"]
         f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
-        per = " / ".join(f(r["seeds"][s][l]["kidnap"]["observed_within_10"]) for l in LOGS)
+        per = " / ".join(f(r["seeds"][s][lg]["kidnap"]["observed_within_10"]) for lg in LOGS)
         print(f"| {n} (seed {s}) | " + " | ".join(f"{f(k[a])} ({f(k[b])})" for a, b in cols)
               + f" | {k['median_recover_observations']} | {per} |")
 

@@ -445,6 +445,35 @@ class PoseFilter:
     scan_gamma : float, default 0
         The power of the scan evidence (0: off; chosen on the mapping part
         by :func:`fingerloc.pipeline.tracker.tune_pose_filter`).
+    fresh_factor : int, default 1
+        With the scan evidence, an update that re-draws particles from the
+        sensor on purpose (``kidnap`` given to :meth:`update`: the first
+        observation, a gap; or a lost belief, below) draws this many times
+        as many fresh particles (then resamples to ``n_particles``): the
+        scan likelihood is sharp, and a sparse draw may hold no particle
+        near the true pose, so the best-fitting wrong one wins outright.
+    lost_fit : float, optional
+        Lost detection (Augmented MCL's idea, Thrun, Burgard and Fox 2005,
+        8.3.5, with the scan likelihood, whose absolute value says how well
+        the belief explains the view): at an update with end points, the
+        tracked particles' fit (``lost_statistic``) is compared with this
+        threshold (calibrated on the mapping part,
+        :func:`fingerloc.pipeline.tracker.calibrate_lost`); after
+        ``lost_after`` updates in a row below it, that update re-draws
+        particles from the sensor with probability ``lost_kidnap`` (the
+        kidnapping component, ``fresh_factor`` times denser), and the
+        tracked particles keep the rest: they compete by their likelihood.
+        ``None``: off.
+    lost_kidnap : float, default 0
+        In ``[0, 1]``.
+    lost_after : int, default 1
+    lost_statistic : {"best", "mean"}, default "best"
+        The fit: the best end-point log-likelihood among the tracked
+        particles (does any of them explain the view?), or their mean
+        weighted by the observation (depends on how spread the belief is).
+    lost_uniform : bool, default False
+        A lost re-draw looks everywhere (uniform prior over the places)
+        instead of at ``kidnap_prior`` (e.g. a place filter's belief).
     random_state : int or Generator, optional
 
     Attributes
@@ -452,10 +481,14 @@ class PoseFilter:
     particles_ : ndarray, shape (N, 3)
     log_weights_ : ndarray, shape (N,)
         Normalised (``logsumexp == 0``).
+    fit_trace_ : list of float
+        The tracked particles' fit (``lost_statistic``) at each update since
+        :meth:`reset` (NaN without end points, or at a re-draw on purpose).
+    lost_steps_ : list of int
+        The updates (0-based, since :meth:`reset`) where the lost rule re-drew.
+    scan_fit_ : float
+        The last update's posterior mean end-point log-likelihood (NaN without end points).
     """
-
-    lost_uniform = False  # experiment switches (h-lost), class-level for now
-    lost_stat = "mean"
 
     def __init__(
         self,
@@ -477,6 +510,8 @@ class PoseFilter:
         lost_fit: float | None = None,
         lost_kidnap: float = 0.0,
         lost_after: int = 1,
+        lost_statistic: str = "best",
+        lost_uniform: bool = False,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -523,6 +558,10 @@ class PoseFilter:
         if isinstance(lost_after, bool) or not isinstance(lost_after, (int, np.integer)) or lost_after < 1:
             raise InvalidParameterError(f"lost_after must be an integer >= 1, got {lost_after!r}")
         self.lost_after = int(lost_after)
+        if lost_statistic not in ("best", "mean"):
+            raise InvalidParameterError(f"lost_statistic must be 'best' or 'mean', got {lost_statistic!r}")
+        self.lost_statistic = lost_statistic
+        self.lost_uniform = bool(lost_uniform)
         self.scan_fit_ = math.nan
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
@@ -762,7 +801,7 @@ class PoseFilter:
         dense = kidnap is not None and scan is not None  # a (re)initialisation from the sensor: a denser proposal
         fit = math.nan
         if scan is not None and kidnap is None and math.isfinite(tracked):
-            if self.lost_stat == "max":  # the tracked particles' best fit: does any of them explain the view?
+            if self.lost_statistic == "best":  # the tracked particles' best fit: does any of them explain the view?
                 fit = float(np.max(np.where(np.isfinite(w), fits[0], -np.inf)))
             else:  # the tracked belief's fit: its weighted mean end-point log-likelihood (lost detection)
                 fit = float(np.dot(np.exp(w - tracked), fits[0]))
@@ -809,7 +848,7 @@ class PoseFilter:
                 kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
-            extra = 0.0
+            extra: float | FArray = 0.0
             if scan is not None:
                 fits.append(self._scan(fresh, scan, smap))
                 extra = (w_obs * self.scan_gamma) * fits[-1]

@@ -186,12 +186,13 @@ class Calibration:
         Pose filter, with the scan evidence: a (re)initialisation from the
         sensor draws this many times its particles (``fresh_factor`` of
         :class:`~fingerloc.map.pose_filter.PoseFilter`); 1: as many.
-    lost_fit, lost_kidnap : float
-        Pose filter, with the scan evidence: when the tracked belief's scan
-        fit falls below ``lost_fit``, that observation re-draws particles from
-        the sensor with probability ``lost_kidnap`` (``lost_fit`` and
-        ``lost_kidnap`` of :class:`~fingerloc.map.pose_filter.PoseFilter`,
-        :func:`calibrate_lost`); None: off.
+    lost_fit, lost_kidnap, lost_after, lost_statistic, lost_uniform
+        Pose filter, with the scan evidence: when the tracked particles' scan
+        fit falls below ``lost_fit`` (``lost_after`` observations in a row),
+        the observation re-draws particles from the sensor with probability
+        ``lost_kidnap`` (the same names of
+        :class:`~fingerloc.map.pose_filter.PoseFilter`; ``lost_fit`` and
+        ``lost_kidnap`` from :func:`calibrate_lost`); ``lost_fit`` None: off.
     hold_margin : float or None
         Pose filter, between observations: the previous best place stays
         the answer unless another place's probability exceeds it by this
@@ -230,6 +231,8 @@ class Calibration:
     lost_fit: float | None = None
     lost_kidnap: float = 0.0
     lost_after: int = 1
+    lost_statistic: str = "best"
+    lost_uniform: bool = False
     hold_margin: float | None = HOLD_MARGIN
     tie_break: float | None = TIE_BREAK
 
@@ -812,7 +815,8 @@ def tune_pose_filter(
     scan_maps: Sequence[ScanMap] | None = None,
     scan_fold: Any = None,
     scan_starts: int = 1,
-    lost: bool = False,
+    scan_fresh: int = SCAN_FRESH,
+    lost: bool = True,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -851,10 +855,14 @@ def tune_pose_filter(
     top-1 is pooled over the runs: a wrong global localization at a start
     counts more than once (an ablation, docs/RESULTS.md).
 
-    ``lost``: with a power > 0 chosen, the lost detection's threshold and
-    re-draw probability are calibrated on the chosen power's run
-    (:func:`calibrate_lost`: the tracked belief's scan fit at each held-out
-    row, and whether the answer there was right).
+    With the scan evidence, every run (and the returned calibration) draws
+    ``scan_fresh`` times the particles at a (re)initialisation from the
+    sensor (``Calibration.scan_fresh``, :data:`SCAN_FRESH`); with ``lost``
+    and a power > 0 chosen, the lost detection's threshold and re-draw
+    probability are calibrated on the chosen power's run
+    (:func:`calibrate_lost`: the tracked particles' scan fit at each
+    held-out row, and whether the answer there was right; the runs
+    themselves are without it). ``scan_fresh=1, lost=False``: as before, bit for bit.
 
     Returns
     -------
@@ -909,7 +917,9 @@ def tune_pose_filter(
     for k, r in enumerate(rows.tolist()):
         pts[r] = sp[k]
         maps[r] = scan_maps[int(row_fold[k])]
-    chosen = best[1]
+    if isinstance(scan_fresh, bool) or not isinstance(scan_fresh, (int, np.integer)) or scan_fresh < 1:
+        raise InvalidParameterError(f"scan_fresh must be an integer >= 1, got {scan_fresh!r}")
+    chosen = replace(best[1], scan_fresh=int(scan_fresh), lost_fit=None, lost_kidnap=0.0)
     n_starts = int(scan_starts)
     if n_starts < 1:
         raise InvalidParameterError(f"scan_starts must be an integer >= 1, got {scan_starts!r}")
@@ -1059,6 +1069,8 @@ class Tracker:
             lost_fit=self.calibration.lost_fit,
             lost_kidnap=self.calibration.lost_kidnap,
             lost_after=int(self.calibration.lost_after),
+            lost_statistic=self.calibration.lost_statistic,
+            lost_uniform=bool(self.calibration.lost_uniform),
             random_state=seed if rng is None else rng,
         )
 
