@@ -89,10 +89,8 @@ def main():
             r = {"n": int(q.sum()), "top1": top1, "gamma": getattr(m, "scan_gamma_", 0.0), "outlier": m.outlier_,
                  "temper": m.temper_metres_,
                  "tuning": [[t.get("scan_gamma", 0.0), round(t["top1"], 4)] for t in tun if "scan_gamma" in t],
-                 "mapping_top1_noscan": max((t["top1"] for t in tun if "scan_gamma" not in t and "top1" in t), default=None),
-                 "fit_s": round(t1 - t0, 2), "run_s": round(time.time() - t1, 2),
-                 "lost": [[t["lost_fit"], t["lost_kidnap"]] for t in tun if "lost_fit" in t],
-                 "lost_steps": len(getattr(m.filter_, "lost_steps_", []))}
+                 "mapping_top1_noscan": max((t["top1"] for t in tun if "scan_gamma" not in t), default=None),
+                 "fit_s": round(t1 - t0, 2), "run_s": round(time.time() - t1, 2)}
             if kid:
                 k = kidnap_experiment(data, name=log, random_state=seed)
                 r["kidnap"] = k.summary()

@@ -951,7 +951,6 @@ def tune_pose_filter(
             thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), ok, after=best[1].lost_after)
             if thr is not None:
                 best = (best[0], replace(best[1], lost_fit=thr, lost_kidnap=kap))
-                tried.append({"lost_fit": thr, "lost_kidnap": kap})
     return best[1], tried
 
 
