@@ -66,6 +66,7 @@ from ..pipeline.tracker import (
     HEADING_TEMPER_M,
     HOLD_MARGIN,
     POSE_PARTICLES,
+    SCAN_FRESH,
     TIE_BREAK,
     TUNE_WITH_HEADING,
     Calibration,
@@ -435,6 +436,23 @@ class PoseFilteredMethod(FilteredMethod):
         The tuning of the scan evidence's power runs from this many starts
         along the mapping pass (``scan_starts`` of
         :func:`~fingerloc.pipeline.tracker.tune_pose_filter`).
+    scan_fresh : int, default SCAN_FRESH
+        With the scan evidence, a (re)initialisation from the sensor (the
+        first observation, a gap, a lost belief) draws this many times the
+        particles (``Calibration.scan_fresh``, also in the tuning;
+        :data:`fingerloc.pipeline.tracker.SCAN_FRESH`, 10: docs/RESULTS.md,
+        "A filter that does not stay locked"); 1: as before.
+    lost : bool, default True
+        With the scan evidence and its power tuned: lost detection by the
+        scan fit, calibrated on the mapping pass (``lost`` of
+        :func:`~fingerloc.pipeline.tracker.tune_pose_filter`); False: as before.
+    lost_after : int, default 1
+        Observations in a row below the lost threshold before a re-draw
+        (``Calibration.lost_after``).
+    lost_statistic : {"best", "mean"}, default "best"
+    lost_uniform : bool, default False
+        The fit statistic and the re-draw's prior
+        (:class:`~fingerloc.map.pose_filter.PoseFilter`).
 
     ``outlier="fit"`` fits ``rho`` to the front end's reliability on the
     mapping pass (:func:`~fingerloc.map.filter.fit_outlier_weight` on the
@@ -480,8 +498,20 @@ class PoseFilteredMethod(FilteredMethod):
         scan: bool = False,
         scan_gamma: float | None = None,
         scan_starts: int = 1,
+        scan_fresh: int = SCAN_FRESH,
+        lost: bool = True,
+        lost_after: int = 1,
+        lost_statistic: str = "best",
+        lost_uniform: bool = False,
     ) -> None:
         super().__init__(base, calibrate=calibrate)
+        if isinstance(scan_fresh, bool) or not isinstance(scan_fresh, (int, np.integer)) or scan_fresh < 1:
+            raise InvalidParameterError(f"scan_fresh must be an integer >= 1, got {scan_fresh!r}")
+        self.scan_fresh = int(scan_fresh)
+        self.lost = bool(lost)
+        self.lost_after = int(lost_after)
+        self.lost_statistic = lost_statistic
+        self.lost_uniform = bool(lost_uniform)
         self.scan = bool(scan)
         self.scan_starts = int(scan_starts)
         if scan_gamma is not None and not (math.isfinite(scan_gamma) and scan_gamma >= 0):
@@ -561,6 +591,10 @@ class PoseFilteredMethod(FilteredMethod):
             challenger_switch_nats=self.challenger_switch_nats,
             hold_margin=self.hold_margin,
             tie_break=self.tie_break,
+            scan_fresh=self.scan_fresh if self.scan else 1,
+            lost_after=self.lost_after,
+            lost_statistic=self.lost_statistic,
+            lost_uniform=self.lost_uniform,
         )
         factor = self.odometry_error if self.odometry_source == "simulated" else 0.0
         self.held_headings_: FArray | None = None
@@ -601,6 +635,7 @@ class PoseFilteredMethod(FilteredMethod):
                 headings=self.held_headings_ if self.tune_heading else None,
                 scan_points=held_points if fold_maps is not None else None, scan_maps=fold_maps,
                 scan_fold=sfold if fold_maps is not None else None, scan_starts=self.scan_starts,
+                scan_fresh=self.scan_fresh, lost=self.lost and self.observe,
             )  # fmt: skip
         if self.scan and self.scan_gamma is not None:
             self.calibration_ = replace(self.calibration_, scan_gamma=float(self.scan_gamma))

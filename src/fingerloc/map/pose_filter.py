@@ -445,6 +445,35 @@ class PoseFilter:
     scan_gamma : float, default 0
         The power of the scan evidence (0: off; chosen on the mapping part
         by :func:`fingerloc.pipeline.tracker.tune_pose_filter`).
+    fresh_factor : int, default 1
+        With the scan evidence, an update that re-draws particles from the
+        sensor on purpose (``kidnap`` given to :meth:`update`: the first
+        observation, a gap; or a lost belief, below) draws this many times
+        as many fresh particles (then resamples to ``n_particles``): the
+        scan likelihood is sharp, and a sparse draw may hold no particle
+        near the true pose, so the best-fitting wrong one wins outright.
+    lost_fit : float, optional
+        Lost detection (Augmented MCL's idea, Thrun, Burgard and Fox 2005,
+        8.3.5, with the scan likelihood, whose absolute value says how well
+        the belief explains the view): at an update with end points, the
+        tracked particles' fit (``lost_statistic``) is compared with this
+        threshold (calibrated on the mapping part,
+        :func:`fingerloc.pipeline.tracker.calibrate_lost`); after
+        ``lost_after`` updates in a row below it, that update re-draws
+        particles from the sensor with probability ``lost_kidnap`` (the
+        kidnapping component, ``fresh_factor`` times denser), and the
+        tracked particles keep the rest: they compete by their likelihood.
+        ``None``: off.
+    lost_kidnap : float, default 0
+        In ``[0, 1]``.
+    lost_after : int, default 1
+    lost_statistic : {"best", "mean"}, default "best"
+        The fit: the best end-point log-likelihood among the tracked
+        particles (does any of them explain the view?), or their mean
+        weighted by the observation (depends on how spread the belief is).
+    lost_uniform : bool, default False
+        A lost re-draw looks everywhere (uniform prior over the places)
+        instead of at ``kidnap_prior`` (e.g. a place filter's belief).
     random_state : int or Generator, optional
 
     Attributes
@@ -452,6 +481,13 @@ class PoseFilter:
     particles_ : ndarray, shape (N, 3)
     log_weights_ : ndarray, shape (N,)
         Normalised (``logsumexp == 0``).
+    fit_trace_ : list of float
+        The tracked particles' fit (``lost_statistic``) at each update since
+        :meth:`reset` (NaN without end points, or at a re-draw on purpose).
+    lost_steps_ : list of int
+        The updates (0-based, since :meth:`reset`) where the lost rule re-drew.
+    scan_fit_ : float
+        The last update's posterior mean end-point log-likelihood (NaN without end points).
     """
 
     def __init__(
@@ -470,6 +506,12 @@ class PoseFilter:
         heading: HeadingModel | None = None,
         scan_map: ScanMap | None = None,
         scan_gamma: float = 0.0,
+        fresh_factor: int = 1,
+        lost_fit: float | None = None,
+        lost_kidnap: float = 0.0,
+        lost_after: int = 1,
+        lost_statistic: str = "best",
+        lost_uniform: bool = False,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -504,6 +546,23 @@ class PoseFilter:
             raise InvalidParameterError(f"scan_map must be a ScanMap or None, got {scan_map!r}")
         self.scan_map = scan_map
         self.scan_gamma = _finite("scan_gamma", scan_gamma)
+        if isinstance(fresh_factor, bool) or not isinstance(fresh_factor, (int, np.integer)) or fresh_factor < 1:
+            raise InvalidParameterError(f"fresh_factor must be an integer >= 1, got {fresh_factor!r}")
+        self.fresh_factor = int(fresh_factor)
+        self.lost_fit = None if lost_fit is None else float(lost_fit)
+        if self.lost_fit is not None and math.isnan(self.lost_fit):
+            raise InvalidParameterError("lost_fit must be a number or None, got NaN")
+        self.lost_kidnap = _finite("lost_kidnap", lost_kidnap)
+        if self.lost_kidnap > 1:
+            raise InvalidParameterError(f"lost_kidnap must be in [0, 1], got {lost_kidnap!r}")
+        if isinstance(lost_after, bool) or not isinstance(lost_after, (int, np.integer)) or lost_after < 1:
+            raise InvalidParameterError(f"lost_after must be an integer >= 1, got {lost_after!r}")
+        self.lost_after = int(lost_after)
+        if lost_statistic not in ("best", "mean"):
+            raise InvalidParameterError(f"lost_statistic must be 'best' or 'mean', got {lost_statistic!r}")
+        self.lost_statistic = lost_statistic
+        self.lost_uniform = bool(lost_uniform)
+        self.scan_fit_ = math.nan
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
             pp = np.asarray(place_poses, dtype=np.float64)
@@ -540,6 +599,10 @@ class PoseFilter:
         self.log_weights_ = np.full(n, -math.log(n))
         self._place_log_posterior = self._particle_places()
         self.resets_ = 0
+        self.lost_steps_: list[int] = []
+        self.fit_trace_: list[float] = []
+        self._updates = 0
+        self._low = 0
         self.switches_: list[int] = []
         self.challenger_trace_: list[tuple[int, str, float]] = []
         return self
@@ -729,9 +792,28 @@ class PoseFilter:
                 lp = lp + log_mean
         smap = self.scan_map if scan_map is None else scan_map
         scan = self._scan_points(points, smap)
+        fits: list[FArray] = []
+        self.scan_fit_ = math.nan
         if scan is not None:
-            w += (w_obs * self.scan_gamma) * self._scan(self.particles_, scan, smap)
+            fits.append(self._scan(self.particles_, scan, smap))
+            w += (w_obs * self.scan_gamma) * fits[0]
         tracked = float(logsumexp(w)) if any_finite else -np.inf
+        dense = kidnap is not None and scan is not None  # a (re)initialisation from the sensor: a denser proposal
+        fit = math.nan
+        if scan is not None and kidnap is None and math.isfinite(tracked):
+            if self.lost_statistic == "best":  # the tracked particles' best fit: does any of them explain the view?
+                fit = float(np.max(np.where(np.isfinite(w), fits[0], -np.inf)))
+            else:  # the tracked belief's fit: its weighted mean end-point log-likelihood (lost detection)
+                fit = float(np.dot(np.exp(w - tracked), fits[0]))
+        self.fit_trace_.append(fit)
+        self._updates += 1
+        self._low = self._low + 1 if self.lost_fit is not None and fit < self.lost_fit else 0
+        if self._low >= self.lost_after and self.lost_kidnap > 0:
+            # the belief explains the view worse than the map usually does at the true pose: re-draw from the sensor
+            kidnap, dense = self.lost_kidnap, True
+            self.lost_steps_.append(self._updates - 1)
+            if self.lost_uniform:  # the belief is lost: so may be the prior that followed it (a place filter's)
+                kidnap_prior = None
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):
@@ -760,14 +842,23 @@ class PoseFilter:
         logw = [w - tracked + comp_trk] if math.isfinite(comp_trk) else [np.full(w.size, -np.inf)]
         if math.isfinite(comp_kid):
             m = self.n_particles if not math.isfinite(comp_trk) else max(self.n_particles // 3, 1)
+            if dense:
+                m *= self.fresh_factor
             fresh, corr = self._sample_at_places(
                 kid, m, lse_kid, headings=hd, confidence=conf, log_mean=log_mean, weight=w_head, correction=True
             )
             parts.append(fresh)
-            extra = 0.0 if scan is None else (w_obs * self.scan_gamma) * self._scan(fresh, scan, smap)
+            extra: float | FArray = 0.0
+            if scan is not None:
+                fits.append(self._scan(fresh, scan, smap))
+                extra = (w_obs * self.scan_gamma) * fits[-1]
             logw.append(comp_kid - math.log(m) + corr + extra)
         if scan is not None:  # the fresh particles' scan weights are not in the analytic posterior: the particles'
             allp, alw = np.concatenate(parts), np.concatenate(logw)
+            top = float(np.max(alw))
+            if math.isfinite(top):  # the belief's fit: the posterior mean of the end points' log-likelihood
+                pw = np.exp(alw - top)
+                self.scan_fit_ = float(np.dot(pw, np.concatenate(fits)) / pw.sum())
             _, at = self._nearest(allp[:, :2])
             top = float(np.max(alw))
             with np.errstate(divide="ignore"):

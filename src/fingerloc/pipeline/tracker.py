@@ -109,6 +109,15 @@ TIE_BREAK = 0.02
 #: The powers of the scan evidence :func:`tune_pose_filter` tries after rho and the tempering (0, the
 #: filter without it, is always tried first and wins ties).
 SCAN_GAMMAS: tuple[float, ...] = (1.0, 3.0, 10.0)
+
+#: With the scan evidence, a (re)initialisation of the pose filter from the sensor draws this many times
+#: its particles (then resamples to ``n_particles``): the scan likelihood is sharp, and the first draw must
+#: hold a particle near the true pose (docs/RESULTS.md, "A filter that does not stay locked", issue 15).
+SCAN_FRESH = 10
+
+#: Lost detection: the belief is taken for lost when its scan fit falls below this quantile of the fits
+#: the filter had on the mapping pass's held-out rows when it was right (:func:`calibrate_lost`).
+LOST_QUANTILE = 0.05
 #: A fold's scan map holds no scan within this of one of the fold's rows, metres (the place radius):
 #: never a near-duplicate view of a held-out row (:func:`fold_scan_maps`).
 SCAN_GUARD_M = 1.0
@@ -173,6 +182,17 @@ class Calibration:
         (``scan_gamma`` of :class:`~fingerloc.map.pose_filter.PoseFilter`,
         with the map's :class:`~fingerloc.map.scan_map.ScanMap`); 0 (the
         default, and a map without one): not used.
+    scan_fresh : int
+        Pose filter, with the scan evidence: a (re)initialisation from the
+        sensor draws this many times its particles (``fresh_factor`` of
+        :class:`~fingerloc.map.pose_filter.PoseFilter`); 1: as many.
+    lost_fit, lost_kidnap, lost_after, lost_statistic, lost_uniform
+        Pose filter, with the scan evidence: when the tracked particles' scan
+        fit falls below ``lost_fit`` (``lost_after`` observations in a row),
+        the observation re-draws particles from the sensor with probability
+        ``lost_kidnap`` (the same names of
+        :class:`~fingerloc.map.pose_filter.PoseFilter`; ``lost_fit`` and
+        ``lost_kidnap`` from :func:`calibrate_lost`); ``lost_fit`` None: off.
     hold_margin : float or None
         Pose filter, between observations: the previous best place stays
         the answer unless another place's probability exceeds it by this
@@ -207,6 +227,12 @@ class Calibration:
     heading_cap: float = 0.0
     heading_temper_metres: float = 0.0
     scan_gamma: float = 0.0
+    scan_fresh: int = 1
+    lost_fit: float | None = None
+    lost_kidnap: float = 0.0
+    lost_after: int = 1
+    lost_statistic: str = "best"
+    lost_uniform: bool = False
     hold_margin: float | None = HOLD_MARGIN
     tie_break: float | None = TIE_BREAK
 
@@ -789,6 +815,8 @@ def tune_pose_filter(
     scan_maps: Sequence[ScanMap] | None = None,
     scan_fold: Any = None,
     scan_starts: int = 1,
+    scan_fresh: int = SCAN_FRESH,
+    lost: bool = True,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part.
 
@@ -826,6 +854,15 @@ def tune_pose_filter(
     held-out rows at 0, 1/k, 2/k ... of them; each run to the end), and its
     top-1 is pooled over the runs: a wrong global localization at a start
     counts more than once (an ablation, docs/RESULTS.md).
+
+    With the scan evidence, every run (and the returned calibration) draws
+    ``scan_fresh`` times the particles at a (re)initialisation from the
+    sensor (``Calibration.scan_fresh``, :data:`SCAN_FRESH`); with ``lost``
+    and a power > 0 chosen, the lost detection's threshold and re-draw
+    probability are calibrated on the chosen power's run
+    (:func:`calibrate_lost`: the tracked particles' scan fit at each
+    held-out row, and whether the answer there was right; the runs
+    themselves are without it). ``scan_fresh=1, lost=False``: as before, bit for bit.
 
     Returns
     -------
@@ -880,13 +917,16 @@ def tune_pose_filter(
     for k, r in enumerate(rows.tolist()):
         pts[r] = sp[k]
         maps[r] = scan_maps[int(row_fold[k])]
-    chosen = best[1]
+    if isinstance(scan_fresh, bool) or not isinstance(scan_fresh, (int, np.integer)) or scan_fresh < 1:
+        raise InvalidParameterError(f"scan_fresh must be an integer >= 1, got {scan_fresh!r}")
+    chosen = replace(best[1], scan_fresh=int(scan_fresh), lost_fit=None, lost_kidnap=0.0)
     n_starts = int(scan_starts)
     if n_starts < 1:
         raise InvalidParameterError(f"scan_starts must be an integer >= 1, got {scan_starts!r}")
     starts = [int(rows[(k * rows.size) // n_starts]) for k in range(n_starts)]
     if n_starts > 1:  # the chosen pair without the scan evidence, from every start (start 0: the run above)
         best = (-1.0, chosen)
+    traces: dict[float, tuple[list[float], Any]] = {}
     for gamma in ((0.0,) if n_starts > 1 else ()) + SCAN_GAMMAS:
         trial = replace(chosen, scan_gamma=float(gamma))
         t = Tracker(tracker.centres, tracker.graph, trial, n_particles=tracker.n_particles, scan_map=scan_maps[0])
@@ -897,13 +937,52 @@ def tune_pose_filter(
             res = t.run_pose(ll[s0:], inc[s0:], f, temper=temper, relocalize=relocalize, place_steps=steps,
                              headings=None if hd is None else hd[s0:], points=pts[s0:], scan_maps=maps[s0:])  # fmt: skip
             after = rows >= s0
+            if s0 == starts[0]:
+                traces[float(gamma)] = (list(f.fit_trace_), res.best[rows - s0] == truth)
             right += int(np.sum(res.best[rows[after] - s0] == truth[after]))
             counted += int(np.sum(after))
         top1 = right / counted
         tried.append({"outlier": chosen.outlier, "temper_metres": chosen.temper_metres, "scan_gamma": float(gamma), "top1": top1})
         if top1 > best[0]:
             best = (top1, trial)
+    if lost and best[1].scan_gamma > 0 and starts[0] == int(rows[0]):
+        trace, ok = traces[float(best[1].scan_gamma)]
+        if len(trace) == rows.size:
+            thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), ok, after=best[1].lost_after)
+            if thr is not None:
+                best = (best[0], replace(best[1], lost_fit=thr, lost_kidnap=kap))
     return best[1], tried
+
+
+def calibrate_lost(
+    fits: Any, right: Any, quantile: float | None = None, *, after: int = 1
+) -> tuple[float | None, float]:
+    """The lost detection's threshold and re-draw probability from a run along the mapping part.
+
+    ``fits`` (one per observed row, NaN where there is none, e.g. at a
+    global initialisation): the tracked belief's scan fit (the weighted mean
+    end-point log-likelihood, :attr:`~fingerloc.map.pose_filter.PoseFilter.fit_trace_`);
+    ``right``: whether the filter's answer at the row was right. The
+    threshold is the ``quantile`` of the fits at the right rows (below it,
+    the belief explains the view worse than the map nearly always does when
+    it is right; default :data:`LOST_QUANTILE`); the re-draw probability is how often the answer was wrong
+    at rows below the threshold (``after`` rows in a row), ``(wrong + 1) / (n + 2)`` (Laplace's rule).
+    ``(None, 0)`` without a right row with a fit.
+    """
+    f = np.asarray(fits, dtype=np.float64).reshape(-1)
+    ok = np.asarray(right, dtype=bool).reshape(-1)
+    if f.size != ok.size:
+        raise InvalidParameterError(f"fits and right must have the same length, got {f.size} and {ok.size}")
+    has = np.isfinite(f)
+    if not np.any(has & ok):
+        return None, 0.0
+    thr = float(np.quantile(f[has & ok], LOST_QUANTILE if quantile is None else quantile))
+    low = has & (f < thr)
+    run = np.zeros(f.size, dtype=np.int64)  # consecutive rows below the threshold, up to each row
+    for i in range(f.size):
+        run[i] = (run[i - 1] + 1 if i else 1) if low[i] else 0
+    low = run >= max(int(after), 1)
+    return thr, float((np.sum(low & ~ok) + 1) / (np.sum(low) + 2))
 
 
 def calibrate_labelled(options: Mapping[str, Any], observations: Sequence[Observation]) -> Calibration:
@@ -985,6 +1064,12 @@ class Tracker:
             heading=heading_of(self.calibration),
             scan_map=self.scan_map,
             scan_gamma=self.calibration.scan_gamma if self.scan_map is not None else 0.0,
+            fresh_factor=int(self.calibration.scan_fresh),
+            lost_fit=self.calibration.lost_fit,
+            lost_kidnap=self.calibration.lost_kidnap,
+            lost_after=int(self.calibration.lost_after),
+            lost_statistic=self.calibration.lost_statistic,
+            lost_uniform=bool(self.calibration.lost_uniform),
             random_state=seed if rng is None else rng,
         )
 
