@@ -2,7 +2,8 @@
 scripts/issue15_heading/cache.py (/tmp/heading/LOG.pkl) and the logs' scans (cached here once).
 
 usage: run.py NAME SEEDS [k=v ...] [--kidnap] [--log=LOG ...]
-Options are PoseFilteredMethod keywords (scan=True, observe=False, scan_gamma=3, odometry_error=2 ...), and
+Options are PoseFilteredMethod keywords (scan=True, observe=False, scan_gamma=3, odometry_error=2, lost=False ...),
+g.NAME=V and q.ATTR=V (see prep), and
 base=baseline-histogram (needs /tmp/filter/LOG-baseline-histogram.pkl of scripts/issue15_filter/cache.py).
 Writes /tmp/sbench/res-NAME.json; prints per log top-1, the chosen scan_gamma and the mapping-pass tuning.
 Shares scripts/issue15_heading/run.py's restore (the cached fits, the filter rerun as the benchmark runs it).
@@ -62,9 +63,18 @@ R.load = load
 
 
 def prep(log, seed, opts):
+    """The fitted method and the query pass's inputs; ``g.NAME=V`` sets fingerloc.pipeline.tracker.NAME first,
+    ``q.ATTR=V`` sets ATTR of the query-pass filter after the fit (a diagnosis, nothing tuned)."""
+    from fingerloc.pipeline import tracker
+
     opts = dict(opts)
+    for k in [k for k in opts if k.startswith("g.")]:
+        setattr(tracker, k[2:], opts.pop(k))
+    q = {k[2:]: opts.pop(k) for k in list(opts) if k.startswith("q.")}
     data = R.prep(log, opts.pop("base", "fingerprint"), seed, opts)
     data.points = data.method.step_points()
+    for k, v in q.items():
+        setattr(data.method.filter_, k, v)
     return data
 
 
@@ -86,10 +96,13 @@ def main():
             top1 = float(np.mean(full.best[q] == data.truth[q]))
             m = data.method
             tun = m.tuning_
+            cal = m.calibration_
             r = {"n": int(q.sum()), "top1": top1, "gamma": getattr(m, "scan_gamma_", 0.0), "outlier": m.outlier_,
                  "temper": m.temper_metres_,
                  "tuning": [[t.get("scan_gamma", 0.0), round(t["top1"], 4)] for t in tun if "scan_gamma" in t],
                  "mapping_top1_noscan": max((t["top1"] for t in tun if "scan_gamma" not in t), default=None),
+                 "lost": [] if cal.lost_fit is None else [[cal.lost_fit, cal.lost_kidnap]],
+                 "lost_steps": len(getattr(m.filter_, "lost_steps_", [])),
                  "fit_s": round(t1 - t0, 2), "run_s": round(time.time() - t1, 2)}
             if kid:
                 k = kidnap_experiment(data, name=log, random_state=seed)
@@ -105,6 +118,7 @@ def main():
         per["pooled"] = line
         res["seeds"][seed] = per
         print(name, seed, "POOLED", json.dumps(line), flush=True)
+    os.makedirs(OUT, exist_ok=True)
     with open(f"{OUT}/res-{name}.json", "w") as fh:
         json.dump(res, fh, indent=1, default=str)
 
