@@ -31,15 +31,9 @@ from fingerloc.model import PlaceModel
 from fingerloc.pipeline.mapping import load_map
 from fingerloc.pipeline.readers import read_run
 
-from ._logs import rooms_path, write_log
 from ._places import dataset
 
 DATA = Path(__file__).parent / "data"
-
-
-@pytest.fixture(scope="module")
-def rooms_log(tmp_path_factory):
-    return write_log(tmp_path_factory.mktemp("v3") / "rooms-corrected.log", rooms_path())
 
 
 @pytest.fixture(scope="module")

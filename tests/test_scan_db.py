@@ -23,14 +23,8 @@ from fingerloc.pipeline.mapping import load_map, make_map, run_end_points
 from fingerloc.pipeline.readers import read_run
 
 from ._cli import run_cli as run
-from ._logs import rooms_path, write_log
 
 DATA = Path(__file__).parent / "data"
-
-
-@pytest.fixture(scope="module")
-def rooms_log(tmp_path_factory):
-    return write_log(tmp_path_factory.mktemp("scan") / "rooms-corrected.log", rooms_path())
 
 
 @pytest.fixture(scope="module")
