@@ -59,6 +59,25 @@ def parse(v):
     return {"True": True, "False": False, "None": None}.get(v, v)
 
 
+def kidnap_into(r, data, log, seed):
+    """Run the kidnap trials of one log into its result row ``r``."""
+    k = kidnap_experiment(data, name=log, random_state=seed)
+    r["kidnap"] = k.summary()
+    r["trials"] = k.trials
+
+
+def pool(name, seed, per, kid):
+    """Add and print the pooled line of one seed's per-log rows (``per[log]["n"]``, ``["top1"]``)."""
+    n = sum(p["n"] for p in per.values())
+    line = {"pooled": sum(p["top1"] * p["n"] for p in per.values()) / n}
+    if kid:
+        tr = [t for p in per.values() for t in p["trials"]]
+        line["kidnap"] = markov.KidnapResult("pooled", tr).summary()
+    per["pooled"] = line
+    print(name, seed, "POOLED", json.dumps(line), flush=True)
+    return per
+
+
 if __name__ == "__main__":
     name, seeds, base = sys.argv[1], [int(x) for x in sys.argv[2].split(",")], sys.argv[3]
     args = [a for a in sys.argv[4:] if "=" in a and not a.startswith("--")]
@@ -79,18 +98,9 @@ if __name__ == "__main__":
             r = {"n": int(q.sum()), "top1": top1, "mapping_top1": max((t["top1"] for t in tun), default=None), "outlier": data.method.outlier_, "temper": data.method.temper_metres_,
                  "heading": None if hm is None else [round(hm.kappa, 2), round(hm.intercept, 2), round(hm.slope, 2), round(hm.reverse, 3), round(float(hm.peak_share(0.0)), 3), round(float(hm.peak_share(-3.0)), 3)]}
             if kid:
-                k = kidnap_experiment(data, name=log, random_state=seed)
-                r["kidnap"] = k.summary()
-                r["trials"] = k.trials
+                kidnap_into(r, data, log, seed)
             r["sec"] = time.time() - t0
             per[log] = r
             print(name, seed, log, json.dumps({k: v for k, v in r.items() if k != "trials"}), flush=True)
-        n = sum(p["n"] for p in per.values())
-        line = {"pooled": sum(p["top1"] * p["n"] for p in per.values()) / n}
-        if kid:
-            tr = [t for p in per.values() for t in p["trials"]]
-            line["kidnap"] = markov.KidnapResult("pooled", tr).summary()
-        per["pooled"] = line
-        res["seeds"][seed] = per
-        print(name, seed, "POOLED", json.dumps(line), flush=True)
+        res["seeds"][seed] = pool(name, seed, per, kid)
     json.dump(res, open(f"/tmp/heading/res-{name}.json", "w"), indent=1)

@@ -20,8 +20,6 @@ _spec = importlib.util.spec_from_file_location(
 R = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(R)  # patches FilteredMethod.fit to restore the cached fits
 
-from fingerloc.experiments import markov  # noqa: E402
-from fingerloc.experiments.markov import kidnap_experiment  # noqa: E402
 from fingerloc.experiments.protocol import load_log_scans  # noqa: E402
 from fingerloc.pipeline.places import visit_folds  # noqa: E402
 from fingerloc.pipeline.tracker import held_out_rows  # noqa: E402
@@ -105,19 +103,10 @@ def main():
                  "lost_steps": len(getattr(m.filter_, "lost_steps_", [])),
                  "fit_s": round(t1 - t0, 2), "run_s": round(time.time() - t1, 2)}
             if kid:
-                k = kidnap_experiment(data, name=log, random_state=seed)
-                r["kidnap"] = k.summary()
-                r["trials"] = k.trials
+                R.kidnap_into(r, data, log, seed)
             per[log] = r
             print(name, seed, log, json.dumps({k: v for k, v in r.items() if k != "trials"}), flush=True)
-        n = sum(p["n"] for p in per.values())
-        line = {"pooled": sum(p["top1"] * p["n"] for p in per.values()) / n}
-        if kid:
-            tr = [t for p in per.values() for t in p["trials"]]
-            line["kidnap"] = markov.KidnapResult("pooled", tr).summary()
-        per["pooled"] = line
-        res["seeds"][seed] = per
-        print(name, seed, "POOLED", json.dumps(line), flush=True)
+        res["seeds"][seed] = R.pool(name, seed, per, kid)
     os.makedirs(OUT, exist_ok=True)
     with open(f"{OUT}/res-{name}.json", "w") as fh:
         json.dump(res, fh, indent=1, default=str)
