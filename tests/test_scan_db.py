@@ -185,6 +185,7 @@ def test_run_end_points_of_scans_and_records(rooms_log):
 def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
     """make_map gives tune_pose_filter the held-out rows' end points, the folds and the two folds' scan maps."""
     import fingerloc.pipeline.mapping as mapping
+    import fingerloc.pipeline.tracker as tracker
 
     seen: dict[str, object] = {}
 
@@ -200,8 +201,8 @@ def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
         return np.arange(len(train_idx)) % 2
 
     monkeypatch.setattr(mapping, "tune_pose_filter", fake_tune)
-    monkeypatch.setattr(mapping, "fold_scan_maps", fake_folds)
-    monkeypatch.setattr(mapping, "scan_folds", fake_scan_folds)
+    monkeypatch.setattr(tracker, "fold_scan_maps", fake_folds)
+    monkeypatch.setattr(tracker, "scan_folds", fake_scan_folds)
     run_ = read_run(rooms_log)
     pm = make_map(run_, heading=False)
     assert pm.scan_map is not None

@@ -74,12 +74,11 @@ from ..pipeline.tracker import (
     HeldOut,
     Tracker,
     challenger_of,
-    fold_scan_maps,
     heading_of,
     held_out_calibration,
     held_out_headings,
     run_pose_steps,
-    scan_folds,
+    scan_tuning_inputs,
     step_distances,
     tune_pose_filter,
     with_heading_model,
@@ -609,23 +608,12 @@ class PoseFilteredMethod(FilteredMethod):
         self.tuning_: list[dict[str, float]] = []
         self.scan_map_: ScanMap | None = None
         self.scan_points_: list[FArray] | None = None
-        held_points: list[FArray | None] | None = None
-        sfold: IArray | None = None
-        fold_maps: tuple[ScanMap, ScanMap] | None = None
+        scan_args: dict[str, Any] = {}
         if self.scan:
             self.scan_points_ = [_end_points(s) for s in all_scans]
             self.scan_map_ = ScanMap.from_scans(self.scan_points_[: split.n_mapping], poses[: split.n_mapping])
-            if self.scan_gamma is None and held is not None and held.index.size:
-                tr = split.train_idx
-                sfold = scan_folds(tr, labels)
-                try:
-                    travel = np.cumsum(step_distances(poses[: split.n_mapping, :2]))[tr]
-                    fold_maps = fold_scan_maps(
-                        [self.scan_points_[i] for i in tr.tolist()], poses[tr], sfold, travel=travel
-                    )
-                except InvalidParameterError:  # a fold without end points: no scan evidence (gamma 0)
-                    fold_maps = None
-                held_points = [self.scan_points_[i] for i in tr[held.index].tolist()]
+            if self.scan_gamma is None and held is not None:
+                scan_args = scan_tuning_inputs(self.scan_points_, poses, split.train_idx, labels, held)
         if self.tune and held is not None and (self.observe or (self.scan and self.scan_gamma is None)):
             # without the sensor (observe=False) the tuning runs on uniform rows: what the scan evidence adds alone
             tuned_on = held if self.observe else replace(held, scores=np.zeros_like(held.scores))
@@ -633,9 +621,8 @@ class PoseFilteredMethod(FilteredMethod):
                 self.tracker_, tuned_on, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
                 seed=self.seed, temper=self.temper, relocalize=self.relocalize,
                 headings=self.held_headings_ if self.tune_heading else None,
-                scan_points=held_points if fold_maps is not None else None, scan_maps=fold_maps,
-                scan_fold=sfold if fold_maps is not None else None, scan_starts=self.scan_starts,
-                scan_fresh=self.scan_fresh, lost=self.lost and self.observe,
+                scan_starts=self.scan_starts, scan_fresh=self.scan_fresh, lost=self.lost and self.observe,
+                **scan_args,
             )  # fmt: skip
         if self.scan and self.scan_gamma is not None:
             self.calibration_ = replace(self.calibration_, scan_gamma=float(self.scan_gamma))

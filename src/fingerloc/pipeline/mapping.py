@@ -35,13 +35,11 @@ from .tracker import (
     TUNE_WITH_HEADING,
     Calibration,
     Tracker,
-    fold_scan_maps,
     held_out_calibration,
     held_out_headings,
     mapping_graph,
     model_fit_score,
-    scan_folds,
-    step_distances,
+    scan_tuning_inputs,
     tune_pose_filter,
     with_heading_model,
 )
@@ -82,38 +80,15 @@ def run_end_points(run: Run, idx: Any = None, *, stride: int | None = None) -> l
     return out if any_ranges else None
 
 
-def _scan_map(run: Run, n_mapping: int, poses: Any) -> Any:
+def _scan_map(run: Run, n_mapping: int, poses: Any) -> tuple[Any, list[Any] | None]:
     """The :class:`~fingerloc.map.scan_map.ScanMap` of the mapping part's end points (the pose filter's
-    stride, as the benchmark's), or None (no ranges, or no return at all)."""
+    stride, as the benchmark's) and those end points; (None, None) without ranges or any return."""
     from ..map.scan_map import ScanMap
 
     pts = run_end_points(run, np.arange(n_mapping))
     if pts is None or not any(q.shape[0] for q in pts):
-        return None
-    return ScanMap.from_scans(pts, poses[:n_mapping])
-
-
-def _scan_tuning(run: Run, split: PlaceSplit, held: Any, poses: Any) -> dict[str, Any]:
-    """The scan evidence's arguments of :func:`~fingerloc.pipeline.tracker.tune_pose_filter`, as the
-    benchmark passes them: each held-out row's end points (``scan_points``, rows as ``held.scores``), the
-    training scans' folds (``scan_fold``: alternate visits in time order, ``scan_folds``) and the two folds'
-    scan maps (``scan_maps``: ``fold_scan_maps``, the guard measured along the run).
-
-    Empty (``scan_gamma`` stays 0, off) without held-out rows, or when a fold's complement has no end point.
-    """
-    if held.index.size == 0:
-        return {}
-    tr = split.train_idx
-    pts = run_end_points(run, tr)
-    if pts is None:
-        return {}
-    fold = scan_folds(tr, split.train_labels)
-    travel = np.cumsum(step_distances(poses[: split.n_mapping, :2]))[tr]
-    try:
-        maps = fold_scan_maps(pts, poses[tr], fold, travel=travel)
-    except InvalidParameterError:  # a fold without end points: no map to score its rows against
-        return {}
-    return {"scan_points": [pts[i] for i in held.index.tolist()], "scan_maps": maps, "scan_fold": fold}
+        return None, None
+    return ScanMap.from_scans(pts, poses[:n_mapping]), pts
 
 
 @dataclass(slots=True)
@@ -254,10 +229,10 @@ def make_map(
     note(f"learning {split.n_places} places ({resolved.name})")
     model = resolved.model().fit(training)
     graph, metres = mapping_graph(poses[: split.n_mapping, :2], split.centres, labels)
-    scan_map = None
+    scan_map = mapping_points = None
     if scan:
         note(f"mapping the laser end points of {split.n_mapping} scans")
-        scan_map = _scan_map(run, split.n_mapping, poses)
+        scan_map, mapping_points = _scan_map(run, split.n_mapping, poses)
     held = None
     if calibrate:
         note("calibrating the filters on the mapping part")
@@ -290,7 +265,10 @@ def make_map(
     if held is not None:
         note("choosing the pose filter's reliability and tempering on the mapping part")
         factor = (1.0 if run.kind == "carmen" else 0.0) if odometry_error is None else odometry_error
-        scan_args = {} if scan_map is None else _scan_tuning(run, split, held, poses)
+        scan_args = {}
+        if mapping_points is not None:
+            scan_args = scan_tuning_inputs(mapping_points, poses[: split.n_mapping], split.train_idx,
+                                           split.train_labels, held)  # fmt: skip
         cal, _ = tune_pose_filter(
             Tracker(split.centres, graph, cal), held, split.train_idx, poses[: split.n_mapping], odometry_error=factor,
             headings=headings if TUNE_WITH_HEADING else None, **scan_args,

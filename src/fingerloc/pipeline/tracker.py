@@ -83,6 +83,7 @@ __all__ = [
     "posterior_columns",
     "run_pose_steps",
     "scan_folds",
+    "scan_tuning_inputs",
     "step_distances",
     "tune_grid",
     "tune_pose_filter",
@@ -797,6 +798,32 @@ def fold_scan_maps(
             raise InvalidParameterError(f"no end point outside fold {f}: no map to score its rows against")
         maps.append(ScanMap.from_scans([pts[i] for i in keep], ps[keep], **options))
     return maps[0], maps[1]
+
+
+def scan_tuning_inputs(points: Sequence[Any], poses: Any, train_idx: Any, labels: Any, held: HeldOut) -> dict[str, Any]:
+    """The scan evidence's keyword arguments of :func:`tune_pose_filter` for a mapping part.
+
+    ``points``: the end points (robot frame, :func:`~fingerloc.map.scan_map.scan_points`)
+    of every scan of the mapping part at least (indexed like ``poses``);
+    ``poses``: those scans' poses, shape (n, 3), in the run's order;
+    ``train_idx`` / ``labels``: the training scans and their places; ``held``:
+    the held-out calibration rows. Returns ``scan_points`` (the held-out
+    rows' end points, rows as ``held.scores``), ``scan_fold``
+    (:func:`scan_folds`) and ``scan_maps`` (:func:`fold_scan_maps`, the guard
+    measured along the run); empty (the scan evidence stays off) without
+    held-out rows or when a fold's complement has no end point.
+    """
+    if held.index.size == 0:
+        return {}
+    tr = np.asarray(train_idx, dtype=np.int64).reshape(-1)
+    ps = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    fold = scan_folds(tr, labels)
+    travel = np.cumsum(step_distances(ps[: int(tr.max()) + 1, :2]))[tr]
+    try:
+        maps = fold_scan_maps([points[i] for i in tr.tolist()], ps[tr], fold, travel=travel)
+    except InvalidParameterError:  # a fold without end points: no map to score its rows against
+        return {}
+    return {"scan_points": [points[i] for i in tr[held.index].tolist()], "scan_maps": maps, "scan_fold": fold}
 
 
 def tune_pose_filter(
