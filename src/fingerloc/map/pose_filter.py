@@ -853,18 +853,17 @@ class PoseFilter:
                 fits.append(self._scan(fresh, scan, smap))
                 extra = (w_obs * self.scan_gamma) * fits[-1]
             logw.append(comp_kid - math.log(m) + corr + extra)
+        allp, alw = np.concatenate(parts), np.concatenate(logw)
         if scan is not None:  # the fresh particles' scan weights are not in the analytic posterior: the particles'
-            allp, alw = np.concatenate(parts), np.concatenate(logw)
             top = float(np.max(alw))
             if math.isfinite(top):  # the belief's fit: the posterior mean of the end points' log-likelihood
                 pw = np.exp(alw - top)
                 self.scan_fit_ = float(np.dot(pw, np.concatenate(fits)) / pw.sum())
-            _, at = self._nearest(allp[:, :2])
-            top = float(np.max(alw))
+            at = np.concatenate([near] + [self._nearest(q[:, :2])[1] for q in parts[1:]])  # the tracked: known
             with np.errstate(divide="ignore"):
                 post = np.log(bincount_weights(at, np.exp(alw - top), P))
             self._place_log_posterior = post - logsumexp(post)
-        self._resample(np.concatenate(parts), np.concatenate(logw))
+        self._resample(allp, alw)
         return self.place_log_posterior()
 
     def _scan_points(self, points: Any, scan_map: ScanMap | None) -> FArray | None:
