@@ -61,7 +61,7 @@ from ..map.filter import FilterResult, TransitionModel, fit_outlier_weight, run_
 from ..map.graph import PlaceGraph
 from ..map.pose_filter import Challenger, HeadingModel
 from ..map.relocalize import Augmented
-from ..map.scan_map import ScanMap, scan_points
+from ..map.scan_map import ScanMap, end_points
 from ..pipeline.tracker import (
     HEADING_TEMPER_M,
     HOLD_MARGIN,
@@ -610,7 +610,7 @@ class PoseFilteredMethod(FilteredMethod):
         self.scan_points_: list[FArray] | None = None
         scan_args: dict[str, Any] = {}
         if self.scan:
-            self.scan_points_ = [_end_points(s) for s in all_scans]
+            self.scan_points_ = [end_points(s) for s in all_scans]
             self.scan_map_ = ScanMap.from_scans(self.scan_points_[: split.n_mapping], poses[: split.n_mapping])
             if self.scan_gamma is None and held is not None:
                 scan_args = scan_tuning_inputs(self.scan_points_, poses, split.train_idx, labels, held)
@@ -759,11 +759,6 @@ def field_of_view(scans: Sequence[Scan]) -> float:
     """Median field of view of the scans, radians (pi when there are none)."""
     fov = [sum(w for _, w in s.fov) for s in scans]
     return float(np.median(fov)) if fov else math.pi
-
-
-def _end_points(scan: Scan) -> FArray:
-    """A scan's laser end points in the robot frame (:func:`~fingerloc.map.scan_map.scan_points`)."""
-    return scan_points(scan.ranges, scan.bearings, max_range=scan.max_range, sensor_offset=scan.sensor_offset)
 
 
 def _full_poses(scans: Sequence[Scan]) -> FArray:

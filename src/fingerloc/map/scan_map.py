@@ -29,12 +29,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from ..sensors import Scan
 
 __all__ = [
     "SCAN_CLIP_M",
@@ -44,6 +47,7 @@ __all__ = [
     "SCAN_SIGMA_M",
     "SCAN_STRIDE",
     "ScanMap",
+    "end_points",
     "scan_points",
 ]
 
@@ -99,6 +103,13 @@ def scan_points(
         return np.column_stack([r * np.cos(b), r * np.sin(b)])
     ox, oy, oth = (float(v) for v in np.asarray(sensor_offset, dtype=np.float64).reshape(3))
     return np.column_stack([ox + r * np.cos(b + oth), oy + r * np.sin(b + oth)])
+
+
+def end_points(scan: Scan, *, stride: int = SCAN_STRIDE) -> FArray:
+    """A :class:`~fingerloc.sensors.Scan`'s end points in the robot frame (its sensor's mount applied),
+    every ``stride``-th beam with a return, shape (m, 2), metres (:func:`scan_points`)."""
+    return scan_points(scan.ranges, scan.bearings, stride=stride, max_range=scan.max_range,
+                       sensor_offset=scan.sensor_offset)  # fmt: skip
 
 
 def _to_frame(points: FArray, pose: FArray) -> FArray:

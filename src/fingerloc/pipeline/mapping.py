@@ -51,14 +51,14 @@ def run_end_points(run: Run, idx: Any = None, *, stride: int | None = None) -> l
     """The laser end points of a run's items ``idx`` (default all): robot frame, shape (m, 2) each, metres.
 
     A laser log's scans give theirs with the sensor's offset
-    (:meth:`~fingerloc.sensors.Scan.points`); a JSON Lines observation its
+    (:func:`~fingerloc.map.scan_map.end_points`); a JSON Lines observation its
     ``ranges`` at ``range_bearings`` (robot frame). An item without ranges
     gives an empty (0, 2) array; ``None`` when no item has ranges.
     ``stride``: every ``stride``-th beam with a return
     (:func:`~fingerloc.map.scan_map.scan_points`; default
     :data:`~fingerloc.map.scan_map.SCAN_STRIDE`, the pose filter's).
     """
-    from ..map.scan_map import SCAN_STRIDE, scan_points
+    from ..map.scan_map import SCAN_STRIDE, end_points, scan_points
 
     st = SCAN_STRIDE if stride is None else stride
     sel = range(len(run)) if idx is None else [int(i) for i in np.asarray(idx, dtype=np.int64).reshape(-1)]
@@ -67,7 +67,7 @@ def run_end_points(run: Run, idx: Any = None, *, stride: int | None = None) -> l
     if run.scans is not None:
         for i in sel:
             s = run.scans[i]
-            out.append(scan_points(s.ranges, s.bearings, stride=st, sensor_offset=s.sensor_offset))
+            out.append(end_points(s, stride=st))
         return out
     any_ranges = False
     for i in sel:
