@@ -117,7 +117,7 @@ def test_records_with_non_finite_numbers_are_encoded_as_before(monkeypatch):
     from fingerloc.cli._localize import answer_chunk, encode_record, parse_lines
     from fingerloc.metrics import rank_scores
     from fingerloc.model import normalise_log
-    from fingerloc.pipeline.mapping import load_map
+    from fingerloc.pipeline.placemap import load_map
 
     model = load_map(GOLDEN / "paper.sqlite").model
     lines = (GOLDEN / "q.jsonl").read_text(encoding="utf-8").splitlines()
