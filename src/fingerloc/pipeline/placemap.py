@@ -355,8 +355,8 @@ class PlaceMap:
             raise InvalidParameterError(f"{run.paths[0]}: tracking a raw run needs a pose on every scan")
         if not self.has_positions:
             raise InvalidParameterError(
-                f"{run.paths[0]}: a raw run is tracked against a map made by 'fingerloc map' (place positions); "
-                "this database has none"
+                f"{run.paths[0]}: the map has no place positions or calibration stored; make the database with "
+                "'fingerloc map' (or track JSON Lines with --graph-from)"
             )
         assert self.positions is not None and self.calibration is not None
         start = self._start(run, "tracking", note)
