@@ -10,10 +10,12 @@ from pathlib import Path
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import all_or_nothing, warn
 from .app import app, err_console
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
+    LOCK_TIMEOUT_OPTION,
     POSE_SOURCE_OPTION,
     SKIP_BAD_OPTION,
     TOPIC_OPTION,
@@ -28,6 +30,7 @@ from .reports import check_report, map_report
 __all__ = ["map_cmd"]
 
 @app.command("map")
+@all_or_nothing  # the database and --json / --queries renamed together at the end, or none
 def map_cmd(
     runs: list[Path] = typer.Argument(..., metavar="RUN", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
     db: Path = typer.Option(..., "--db", help="Place database to write (schema 4)."),
@@ -65,6 +68,7 @@ def map_cmd(
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
     ),
+    lock_timeout: float = LOCK_TIMEOUT_OPTION,
 ) -> None:
     """Make a place map from a recorded run's poses.
 
@@ -76,6 +80,7 @@ def map_cmd(
     graph (visiting order) and the filters' calibration, so that
     'fingerloc localize' and 'fingerloc track' need only the database.
     """
+    from ..pipeline.compat import check_map, check_run_for_map
     from ..pipeline.mapping import make_map, save_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms
 
@@ -98,6 +103,7 @@ def map_cmd(
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    warn(check_run_for_map(run))  # no usable scan: an error; a stationary run: a warning
     with err_console.status("mapping...") as status:
         pm = make_map(
             run,
@@ -113,6 +119,7 @@ def map_cmd(
             on_step=lambda s: status.update(s),
         )
     err_console.print(pm.preset.reason, markup=False)
+    warn(check_map(pm))  # one place, beta at a bound, empty training views
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
         err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "

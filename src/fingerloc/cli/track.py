@@ -11,7 +11,7 @@ import typer
 
 from .._lazy import LazyModule
 from ..errors import InvalidParameterError
-from ._io import check_output
+from ._io import all_or_nothing, check_output
 from .app import app, bench_app, console, err_console
 from .bench import write_json
 
@@ -22,6 +22,7 @@ else:
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
+    LOCK_TIMEOUT_OPTION,
     POSE_SOURCE_OPTION,
     SKIP_BAD_OPTION,
     TOPIC_OPTION,
@@ -42,6 +43,7 @@ def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[
 
 
 @app.command("track")
+@all_or_nothing  # outputs renamed together at the end, the database's writer lock held to the end
 def track_cmd(
     data: Path = typer.Argument(..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag."),
     db: Path = typer.Option(..., "--db", help="Place database ('fingerloc map', or 'learn' with the place graph)."),
@@ -117,6 +119,7 @@ def track_cmd(
     pose_source: str = POSE_SOURCE_OPTION,
     base_frame: str | None = BASE_FRAME_OPTION,
     skip_bad: bool = SKIP_BAD_OPTION,
+    lock_timeout: float = LOCK_TIMEOUT_OPTION,
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
@@ -379,11 +382,13 @@ def _jsonl_steps(
     data: Path, db: Path, *, scale: float | None, graph_from: Path | None, pending: list[Any]
 ) -> tuple[Any, ...]:
     from ..io.jsonl import read_observations
-    from ..map.database import load_model, read_map_info, save_model
+    from ..map.database import hold_lock, load_model, read_map_info, save_model
     from ..map.filter import metres_per_move
     from ..map.graph import PlaceGraph, load_graph
     from ..pipeline.tracker import step_distances
 
+    if graph_from is not None:
+        hold_lock(db)  # the writer lock from this read to the graph's store (a concurrent learn waits)
     model = load_model(db)
     classes = [str(c) for c in model.classes_]
     metres = None

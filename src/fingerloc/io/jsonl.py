@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -454,30 +452,30 @@ def read_observations(path: str | Path) -> list[Observation]:
 def write_observations(path: str | Path, observations: Iterable[Observation]) -> int:
     """Write observations as JSON Lines, atomically (a temporary file renamed over ``path``).
 
+    ``-`` writes to standard output. A symbolic link at ``path`` stays a link
+    (its target is replaced); a device, FIFO or link loop is refused
+    (:func:`fingerloc.atomic.check_target`); inside an
+    :class:`~fingerloc.atomic.OutputGroup` the rename waits for the group's end.
+
     Returns
     -------
     int
         Number of observations written.
     """
-    p = Path(path)
+    import sys
+
+    from ..atomic import check_target, replacing
+
     n = 0
-    if p.is_symlink():  # write through the link: it stays a link
-        p = Path(os.path.realpath(p))
-    if p.is_file():
-        mode = p.stat().st_mode & 0o7777
-    else:
-        mask = os.umask(0o022)
-        os.umask(mask)
-        mode = 0o666 & ~mask
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            for obs in observations:
-                fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
-                n += 1
-        os.chmod(tmp, mode)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    if str(path) == "-":
+        for obs in observations:
+            sys.stdout.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
+            n += 1
+        sys.stdout.flush()
+        return n
+    target = check_target(path, str(path))
+    with replacing(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        for obs in observations:
+            fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
+            n += 1
     return n
