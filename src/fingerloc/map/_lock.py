@@ -38,7 +38,7 @@ DEFAULT_LOCK_TIMEOUT_S = 60.0
 
 Notify = Callable[[str], None]
 
-_held: dict[str, int] = {}
+_held: dict[tuple[int, str], int] = {}
 _held_guard = threading.RLock()
 
 
@@ -140,7 +140,7 @@ def locked(path: str | Path, *, timeout: float | None = None, notify: Notify | N
         notify = group.notify if notify is None else notify
     wait = _check_timeout(timeout)
     real = real_path(path)
-    key = str(real)
+    key = (threading.get_ident(), str(real))  # re-entrant per thread: another thread waits on the flock
     with _held_guard:
         if _held.get(key):
             _held[key] += 1
