@@ -11,7 +11,7 @@ import typer
 
 from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
-from ._io import JsonRecordStream, atomic_text_file, lit
+from ._io import JsonRecordStream, atomic_text_file, lit, warn
 from .app import app, console, err_console
 from .options import (
     BASE_FRAME_OPTION,
@@ -31,6 +31,7 @@ else:  # imported when a command runs, not for --help
     np = LazyModule("numpy")
     Table = LazyAttr("rich.table", "Table")
 read_observations = LazyAttr("fingerloc.io.jsonl", "read_observations")
+compat = LazyModule("fingerloc.pipeline.compat")
 
 @app.command("localize")
 def localize_cmd(
@@ -127,6 +128,7 @@ def localize_cmd(
         if rank_list:
             summary["top1"] = float(np.mean(np.array(rank_list) == 1))
             summary["mean_rank"] = float(np.mean(rank_list))
+            warn(compat.check_queries(len(rank_list)))  # fewer than 10 labelled queries: rough figures
         if stream is not None:
             stream.finish({"summary": summary, "preset": preset})
     if json_out is not None:
@@ -160,6 +162,7 @@ def _serial_chunks(data: Path, model: Any, top: int, *, table: bool, records: bo
 
     for start, lines in jsonl_chunks(data):
         obs = parse_lines(data, lines)
+        warn(compat.check_observations(model, obs, what=str(data)) if start == 0 else [])  # modality, field of view
         names = [f"{data.name}:{start + i + 1}" for i in range(len(obs))]
         yield answer_chunk(model, obs, names, start, top, table=table, records=records)
 
@@ -200,13 +203,16 @@ def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
     from ..pipeline.places import nearest_within
 
     if run.records is not None:
+        warn(compat.check_observations(lm, run.records, what=str(run.paths[0])))  # modality, field of view
         return list(run.records), list(run.names)
     features = {} if lm.preset is None else lm.preset.features
     poses = run.poses
     if poses is None or lm.positions is None or lm.calibration is None:
         why = "its scans have no poses" if poses is None else "the database has no place positions"
         err_console.print(f"{run.paths[0]}: {why}: every scan is a query, unlabelled", markup=False)
-        return run.observations(features=features), list(run.names)
+        obs = run.observations(features=features)
+        warn(compat.check_observations(lm, obs, what=str(run.paths[0])))  # modality, field of view
+        return obs, list(run.names)
     start = 0
     mapped = lm.mapped_run(run.key)
     if mapped is not None:
@@ -216,9 +222,11 @@ def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
             f"(from scan {start} of {len(run)})",
             markup=False,
         )
+    warn(compat.check_frame(lm.positions, lm.calibration.radius, lm.calibration.spacing, poses[start:], what=str(run.paths[0])))
     idx, near = nearest_within(poses[start:, :2], lm.positions, lm.calibration.radius)
     idx = idx + start
     obs = [o.with_label(lm.labels[j]) for o, j in zip(run.observations(idx, features=features), near.tolist(), strict=True)]
+    warn(compat.check_observations(lm, obs, what=str(run.paths[0])))  # modality, field of view
     err_console.print(
         f"{idx.size} scan(s) within {lm.calibration.radius:g} m of a place are the queries", markup=False
     )

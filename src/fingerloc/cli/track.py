@@ -11,7 +11,7 @@ import typer
 
 from .._lazy import LazyModule
 from ..errors import InvalidParameterError
-from ._io import all_or_nothing, check_output
+from ._io import all_or_nothing, check_output, warn
 from .app import app, bench_app, console, err_console
 from .bench import write_json
 
@@ -30,6 +30,8 @@ from .options import (
     check_db_target,
     read_run_files,
 )
+
+compat = LazyModule("fingerloc.pipeline.compat")
 
 
 def _summary(best: np.ndarray, log_post: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
@@ -160,6 +162,7 @@ def track_cmd(
     steps = _steps(tr, quiet)
     summary = _track_summary(tr, filter_kind)
     _print_summary(summary, tr, filter_kind)
+    warn(compat.check_queries(summary["filtered"].get("labelled", 0)))  # fewer than 10 labelled steps
     write_json(json_out, {"steps": steps, "summary": summary})
     if report is not None:
         track_report(report, result=tr.result, log_likelihood=tr.beta * tr.ll, truth=tr.truth, classes=tr.classes,
@@ -424,6 +427,7 @@ def _jsonl_steps(
     obs = read_observations(data)
     if not obs:
         raise InvalidParameterError(f"{data}: no observation to track")
+    warn(compat.check_observations(model, obs, what=str(data)))  # modality, field of view
     ll = np.asarray(model.predict_log_proba(obs), dtype=np.float64)  # what beta is calibrated on
     col = {c: j for j, c in enumerate(classes)}
     truth = np.array([col.get(o.label, -1) if o.label else -1 for o in obs], dtype=np.int64)
@@ -486,9 +490,11 @@ def _run_steps(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     hd = None
     if map_log:
+        warn(compat.check_run_for_map(run))  # no usable scan: an error; a stationary run: a warning
         with err_console.status("mapping...") as status:
             pm = make_map(run, heading=heading, scan=scan, on_step=lambda s: status.update(s))
         err_console.print(pm.preset.reason, markup=False)
+        warn(compat.check_map(pm))  # one place, beta at a bound
 
         def store() -> None:
             size = save_map(pm, db)
@@ -513,6 +519,7 @@ def _run_steps(
         # JSON Lines: every observation observes; the truth is its label
         col = {lab: j for j, lab in enumerate(lm.labels)}
         truth = np.array([col.get(str(o.label), -1) if o.label else -1 for o in run.records], dtype=np.int64)
+        warn(compat.check_observations(lm, run.records, what=str(data)))  # modality, field of view
         ll = posterior_columns(lm.model, list(run.records), p, lm.labels)
         if use_scan:
             pts = run_end_points(run)
@@ -529,6 +536,7 @@ def _run_steps(
             err_console.print(f"{data} is the run the map was made from: tracking its scans after the mapping "
                               f"part (from scan {start} of {len(run)})", markup=False)  # fmt: skip
         poses = poses[start:]
+        warn(compat.check_frame(lm.positions, lm.calibration.radius, lm.calibration.spacing, poses, what=str(data)))
         near_idx, near = nearest_within(poses[:, :2], lm.positions, lm.calibration.radius)
         n = poses.shape[0]
         truth = np.full(n, -1, dtype=np.int64)
@@ -537,6 +545,7 @@ def _run_steps(
         ll = np.full((n, p), np.nan)
         with err_console.status(f"scoring {observed.size} scans..."):
             obs = run.observations(observed + start, features=features)
+            warn(compat.check_observations(lm, obs, what=str(data)))  # modality, field of view
             ll[observed] = posterior_columns(lm.model, obs, p, lm.labels)
             if use_scan:
                 seen = run_end_points(run, observed + start)

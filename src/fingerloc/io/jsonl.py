@@ -40,7 +40,9 @@ from ..errors import DataFormatError, EmptyInputError, FingerlocError
 from ..observation import FEATURE_TYPES, FULL_FOV, Observation, fov_from_degrees
 
 __all__ = [
+    "MAX_LINE_BYTES",
     "check_text",
+    "iter_lines",
     "iter_observations",
     "observation_from_record",
     "observation_to_record",
@@ -62,6 +64,10 @@ def _parse_int(text: str) -> int:
 
 #: Largest |x| or |y| of a pose, metres (beyond it, distances overflow; no map is that large).
 MAX_COORD_M = 1e9
+
+#: Longest line (bytes) of a JSON Lines file: a view with 500 keypoints, a profile and a 3600-beam scan takes
+#: under 1 MB; a longer line (a file of NUL bytes, ``/dev/zero``) is refused before it fills the memory.
+MAX_LINE_BYTES = 16 << 20
 
 
 class _LimitError(ValueError):
@@ -409,8 +415,48 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
     return rec
 
 
+def iter_lines(path: str | Path) -> Iterator[tuple[int, str]]:
+    """The non-blank lines of a text file with their 1-based numbers, each at most :data:`MAX_LINE_BYTES`.
+
+    The file is opened once (a pipe or a FIFO works) and read as UTF-8.
+
+    Raises
+    ------
+    DataFormatError
+        The file cannot be read, is binary (a NUL byte), is not UTF-8, or has a line too long (naming the line).
+    """
+    p = Path(path)
+    try:
+        fh = open(p, "rb")
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
+    with fh:
+        lineno = 0
+        while True:
+            try:
+                raw = fh.readline(MAX_LINE_BYTES + 1)
+            except OSError as err:
+                raise DataFormatError(f"cannot read after line {lineno}: {err.strerror or err}", path=p) from err
+            if not raw:
+                return
+            lineno += 1
+            if len(raw) > MAX_LINE_BYTES:
+                what = "binary data (NUL bytes), not JSON Lines" if b"\x00" in raw[:4096] else (
+                    f"line longer than {MAX_LINE_BYTES:,} bytes")  # fmt: skip
+                raise DataFormatError(what, path=p, line=lineno)
+            if not raw.strip():
+                continue
+            if b"\x00" in raw:
+                raise DataFormatError("binary data (a NUL byte), not JSON Lines", path=p, line=lineno)
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as err:
+                raise DataFormatError("not a UTF-8 text file", path=p, line=lineno) from err
+            yield lineno, text
+
+
 def iter_observations(path: str | Path) -> Iterator[Observation]:
-    """Stream the observations of a JSON Lines file, one per non-blank line.
+    """Stream the observations of a JSON Lines file, one per non-blank line (:func:`iter_lines`).
 
     Raises
     ------
@@ -420,26 +466,15 @@ def iter_observations(path: str | Path) -> Iterator[Observation]:
         When the file holds no observation.
     """
     p = Path(path)
-    try:
-        fh = p.open("r", encoding="utf-8")
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
     count = 0
-    with fh:
-        lineno = 0
+    for lineno, line in iter_lines(p):
         try:
-            for lineno, line in enumerate(fh, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    record = parse_record(line)
-                    obs = observation_from_record(record)
-                except DataFormatError as err:
-                    raise err.at(path=p, line=lineno) from err
-                count += 1
-                yield obs
-        except UnicodeDecodeError as err:
-            raise DataFormatError("not a UTF-8 text file", path=p, line=lineno + 1) from err
+            record = parse_record(line)
+            obs = observation_from_record(record)
+        except DataFormatError as err:
+            raise err.at(path=p, line=lineno) from err
+        count += 1
+        yield obs
     if count == 0:
         raise EmptyInputError("no observation in file (empty)", path=p)
 

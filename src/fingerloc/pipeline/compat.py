@@ -116,7 +116,7 @@ def check_observations(
     -------
     list of str
         Warnings: the observations have a modality the map lacks (ignored),
-        some are empty, their field of view differs from the map's.
+        their field of view differs from the map's.
 
     Raises
     ------
@@ -146,8 +146,6 @@ def check_observations(
             f"{what} also have {_words(kinds - have)} features, which the map{_preset_name(m)} has not learned: "
             "they are ignored"
         )
-    if empty:
-        out.append(f"{empty} of {len(obs)} observation(s) in {what} have no feature at all: their answers are guesses")
     f_map = sensor.get("fov_deg")
     fov = [math.degrees(sum(w for _, w in o.fov)) for o in obs]
     if isinstance(f_map, (int, float)) and fov and "laser" in (kinds & have):

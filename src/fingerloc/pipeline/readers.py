@@ -58,17 +58,17 @@ def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Sc
     """The front-laser scans of a CARMEN log in file order, and the number of skipped bad lines.
 
     ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
-    must carry a pose.
+    must carry a pose. The log is read once (a pipe or a FIFO works).
     """
-    from ..io.carmen import ReadStats, front_laser_messages, inspect_log, iter_scans, require_laser
+    from ..io.carmen import ReadStats, front_laser_messages, laser_scans, read_log, require_laser
 
-    info = inspect_log(path)
+    st = ReadStats()
+    info, records = read_log(path, skip_bad=skip_bad, stats=st)
     require_laser(path, info)
     messages = front_laser_messages(info)
     if not messages:
         raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
-    st = ReadStats()
-    scans = list(iter_scans(path, skip_bad=skip_bad, messages=messages, stats=st))
+    scans = [scan for _, scan in laser_scans(path, records, info, messages, skip_bad=skip_bad, stats=st)]
     if not scans:
         raise EmptyInputError("no front-laser scan could be read", path=path)
     if any(s.pose is None for s in scans):
@@ -86,13 +86,33 @@ def iter_carmen_observations(
     ``features`` go to :func:`fingerloc.features.laser.observation_from_scan`.
     """
     from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser, require_laser
+    from ..io.carmen import (
+        ReadStats,
+        default_messages,
+        inspect_log,
+        is_regular,
+        iter_laser,
+        laser_scans,
+        read_log,
+        require_laser,
+    )
 
-    info = inspect_log(path)
-    require_laser(path, info)
     st = ReadStats()
-    for rec, scan in iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st):
+    if is_regular(path):  # two passes (thresholds, then scans): memory does not grow with the log
+        info = inspect_log(path)
+        require_laser(path, info)
+        pairs = iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st, info=info)
+    else:  # a pipe or a FIFO: read once
+        info, records = read_log(path, skip_bad=skip_bad, stats=st)
+        require_laser(path, info)
+        pairs = laser_scans(path, records, info, default_messages(info), skip_bad=skip_bad, stats=st)
+    n = 0
+    for rec, scan in pairs:
+        n += 1
         yield f"{path.name}:{rec.line} {rec.message}", observation_from_scan(scan, label=place, **features)
+    if not n:
+        why = f"; {st.skipped} malformed line(s) skipped, first: {st.first_errors[0]}" if st.skipped else ""
+        raise EmptyInputError(f"no usable laser scan{why}", path=path)
     if st.skipped and notify is not None:
         notify(f"{path}: skipped {st.skipped} malformed line(s); first: {st.first_errors[0]}")
 
