@@ -11,7 +11,7 @@ any error of the rosbags library while a bag is opened or read becomes a
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -28,6 +28,7 @@ __all__ = [
     "BagReadStats",
     "bag_info",
     "is_bag_path",
+    "messages",
 ]
 
 #: File name endings taken for ROS bags (a folder holding ``metadata.yaml`` is a ROS 2 bag too).
@@ -123,8 +124,31 @@ def bag_info(path: str | Path) -> BagInfo:
     """List the topics of a bag with their message types and counts."""
     p = Path(path)
     with _Open(p) as reader:
-        topics = {name: (str(info.msgtype), int(info.msgcount)) for name, info in reader.topics.items()}
+        try:
+            topics = {str(name): (str(info.msgtype), int(info.msgcount)) for name, info in reader.topics.items()}
+        except Exception as err:  # rosbags' ReaderError, a UnicodeDecodeError of a damaged header...
+            raise DataFormatError(f"not a readable ROS bag: {type(err).__name__}: {err}", path=p) from None
     return BagInfo(path=str(p), topics=topics)
+
+
+def messages(reader: Any, connections: Sequence[Any], path: Path) -> Iterator[tuple[Any, int, bytes]]:
+    """``reader.messages(connections=...)`` with any error of the reading itself (a damaged chunk or
+    index, an undecodable header) turned into one :class:`DataFormatError` line."""
+    if not connections:
+        return
+    n = 0
+    it = iter(reader.messages(connections=list(connections)))
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except Exception as err:  # rosbags raises several unrelated types here
+            raise DataFormatError(
+                f"damaged bag: cannot read past message {n} ({type(err).__name__}: {err})", path=path
+            ) from None
+        n += 1
+        yield item
 
 
 def _choose_scan_topics(info: BagInfo, topic: str | Sequence[str] | None) -> tuple[str, ...]:
@@ -175,6 +199,8 @@ def _scan_from_msg(msg: Any, t: float) -> Scan:
         raise DataFormatError(f"a LaserScan needs at least 2 beams, got {n}")
     inc = float(msg.angle_increment)
     a0 = float(msg.angle_min)
+    if not math.isfinite(a0) or abs(a0) > 8 * math.pi:
+        raise DataFormatError(f"LaserScan angle_min must be a finite angle (radians), got {msg.angle_min!r}")
     if not (math.isfinite(inc) and math.isfinite(a0)) or inc == 0:
         if math.isfinite(float(msg.angle_max)) and math.isfinite(a0) and float(msg.angle_max) != a0:
             inc = (float(msg.angle_max) - a0) / (n - 1)
@@ -192,6 +218,8 @@ def _scan_from_msg(msg: Any, t: float) -> Scan:
         bearings, ranges = bearings[keep], ranges[keep]
         intensities = None if intensities is None else intensities[keep]
     rmin, rmax = float(msg.range_min), float(msg.range_max)
+    if not (math.isfinite(rmin) and rmin >= 0):
+        raise DataFormatError(f"LaserScan range_min must be a finite number of metres >= 0, got {msg.range_min!r}")
     ranges = np.where(np.isfinite(ranges) & (ranges >= max(rmin, 0.0)), ranges, np.inf)
     if not (math.isfinite(rmax) and rmax > 0):
         finite = ranges[np.isfinite(ranges)]

@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..errors import DataFormatError, InvalidParameterError
-from ._bag_messages import ODOMETRY, TF_MESSAGES, BagInfo, _choose_scan_topics, _Open, _stamp, bag_info
+from ._bag_messages import ODOMETRY, TF_MESSAGES, BagInfo, _choose_scan_topics, _Open, _stamp, bag_info, messages
 from .frames import IDENTITY, Transform3, TransformSeries, TransformTree, mount_tilt
 
 __all__ = ["BagPlan", "LidarMount", "PoseTrack", "bag_plan", "parse_pose_source"]
@@ -210,6 +210,16 @@ class _Poses:
     tree: TransformTree | None
 
 
+def _transform(where: str, translation: Any, rotation: Any, path: str) -> Transform3:
+    """A transform of a message, its numbers checked (one line naming the topic and the field)."""
+    from .frames import checked_transform
+
+    try:
+        return checked_transform(translation, rotation)
+    except DataFormatError as err:
+        raise DataFormatError(f"{where}: {err.message}", path=path) from None
+
+
 def _collect_poses(reader: Any, info: BagInfo, pose_source: str, odom_topic: str | None) -> _Poses:
     """Read the pose messages: an odometry series (when asked or auto) and the transform tree."""
     kind, arg = parse_pose_source(pose_source, odom_topic)
@@ -236,20 +246,21 @@ def _collect_poses(reader: Any, info: BagInfo, pose_source: str, odom_topic: str
     odom = TransformSeries() if use_odom else None
     child: str | None = None
     tree = TransformTree() if tfs else None
-    for conn, ns, raw in reader.messages(connections=conns) if conns else ():
+    for conn, ns, raw in messages(reader, conns, Path(info.path)):
         try:
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception:
             continue  # a broken pose message is as good as a missing one
         if conn.msgtype == ODOMETRY and odom is not None:
             p = msg.pose.pose
-            odom.add(_stamp(msg.header, ns), Transform3.from_msg(p.position, p.orientation))
+            odom.add(_stamp(msg.header, ns), _transform(f"{conn.topic}: pose.pose", p.position, p.orientation, info.path))
             if child is None and str(msg.child_frame_id).strip("/"):
                 child = str(msg.child_frame_id).strip("/")
         elif conn.msgtype in TF_MESSAGES and tree is not None:
             static = conn.topic.rstrip("/").endswith("tf_static")
             for tf in msg.transforms:
-                value = Transform3.from_msg(tf.transform.translation, tf.transform.rotation)
+                link = f"{conn.topic}: transform {str(tf.header.frame_id)!r} -> {str(tf.child_frame_id)!r}"
+                value = _transform(link, tf.transform.translation, tf.transform.rotation, info.path)
                 tree.add(str(tf.header.frame_id), str(tf.child_frame_id), _stamp(tf.header, ns), value, static=static)
     if odom is not None:
         odom.freeze()
@@ -278,7 +289,7 @@ def _probe(reader: Any, info: BagInfo, topics: Sequence[str]) -> _Probe:
     def done() -> bool:
         return present <= set(frames) and len(ref_stamps) >= n_ref
 
-    for conn, ns, raw in reader.messages(connections=conns) if conns and not done() else ():
+    for conn, ns, raw in messages(reader, conns if not done() else [], Path(info.path)):
         if conn.topic in frames and not (conn.topic == topics[0] and len(ref_stamps) < n_ref):
             continue
         try:

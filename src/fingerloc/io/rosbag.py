@@ -72,6 +72,7 @@ from ._bag_messages import (
     _stamp,
     bag_info,
     is_bag_path,
+    messages,
 )
 from .bag_plan import (
     BagPlan,
@@ -259,7 +260,7 @@ def iter_bag_scans(
 
         conns = [c for c in reader.connections if c.topic in topics]
         if len(topics) == 1:
-            for conn, ns, raw in reader.messages(connections=conns):
+            for conn, ns, raw in messages(reader, conns, p):
                 st.lines += 1
                 scan = decode(conn, ns, raw)
                 if scan is not None:
@@ -267,7 +268,7 @@ def iter_bag_scans(
                     yield scan
             return
         yield from _paired(
-            reader.messages(connections=conns),
+            messages(reader, conns, p),
             decode,
             topics,
             float(plan.pair_tolerance or 0.0),

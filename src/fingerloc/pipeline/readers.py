@@ -135,17 +135,19 @@ def iter_bag_observations(
     from ..io.rosbag import BagPlan, BagReadStats
 
     st = BagReadStats()
+    plans: list[BagPlan] = []  # said once every scan has been read: an error stays the only line
 
-    def report(plan: BagPlan) -> None:
-        if notify is not None:
-            notify(f"{path}: {plan.describe()}")
-
-    scans = _bag_scans(path, skip_bad=skip_bad, stats=st, on_plan=report, **dict(bag_options or {}))
+    scans = _bag_scans(path, skip_bad=skip_bad, stats=st, on_plan=plans.append, **dict(bag_options or {}))
+    k = 0
     for k, scan in enumerate(scans, start=1):
         t = "" if scan.timestamp is None else f" t={scan.timestamp:.3f}"
         yield f"{path.name}#{k}{t}", observation_from_scan(scan, label=place, **features)
+    if k == 0:
+        raise EmptyInputError(f"no usable laser scan ({_bag_losses(st) or 'the scan topic has no message'})", path=path)
     if notify is None:
         return
+    for plan in plans:
+        notify(f"{path}: {plan.describe()}")
     if st.skipped:
         notify(f"{path}: skipped {st.skipped} bad scan message(s); first: {st.first_errors[0]}")
     dropped = [
@@ -154,6 +156,18 @@ def iter_bag_observations(
     ]
     if any(dropped):
         notify(f"{path}: dropped {' and '.join(d for d in dropped if d)}")
+
+
+def _bag_losses(st: Any) -> str:
+    """What a bag reader dropped, in words (empty when nothing)."""
+    parts = []
+    if st.skipped:
+        parts.append(f"{st.skipped} bad scan message(s) skipped, first: {st.first_errors[0]}")
+    if getattr(st, "unpaired", 0):
+        parts.append(f"{st.unpaired} time step(s) without a scan on every topic")
+    if getattr(st, "unmounted", 0):
+        parts.append(f"{st.unmounted} scan(s) whose lidar mount was missing in /tf")
+    return "; ".join(parts)
 
 
 def _bag_scans(path: Path, **options: Any) -> Iterator[Scan]:
@@ -300,12 +314,13 @@ def read_run(
         names = [f"{p.name}#{i}" for i in range(len(scans))]
         return Run([p], k, names, scans=scans, key=_run_key(scans, _scan_bytes), skipped=skipped)
     if k == "bag":
-        from ..io.carmen import ReadStats
 
-        st = ReadStats()
+        from ..io.rosbag import BagReadStats
+
+        st = BagReadStats()
         scans = list(_bag_scans(p, skip_bad=skip_bad, stats=st, **dict(bag_options or {})))
         if not scans:
-            raise EmptyInputError("no laser scan could be read", path=p)
+            raise EmptyInputError(f"no laser scan could be read ({_bag_losses(st) or 'no scan message'})", path=p)
         names = [f"{p.name}#{i}" for i in range(len(scans))]
         return Run([p], k, names, scans=scans, key=_run_key(scans, _scan_bytes), skipped=st.skipped)
     from ..io.jsonl import read_observations
