@@ -96,7 +96,7 @@ def _fields(o):
 
 
 def test_learn_new_places_without_poses_into_a_map_is_refused(mapped, tmp_path, capsys):
-    src, pm = mapped
+    src, _pm = mapped
     db = _copy(src, tmp_path)
     before = db.read_bytes()
     extra = _places_file(tmp_path / "no-pose.jsonl", ["elsewhere"])
@@ -238,7 +238,7 @@ def test_a_fifo_output_is_refused_and_stays_a_fifo(tmp_path, capsys, mapped):
     data = _places_file(tmp_path / "q.jsonl", ["x"])
     fifo = tmp_path / "out.fifo"
     os.mkfifo(fifo)
-    code, out, err = run(capsys, "localize", data, "--db", db, "--json", fifo)
+    code, _out, err = run(capsys, "localize", data, "--db", db, "--json", fifo)
     assert code == 2 and err.startswith("error: --json: ") and "FIFO" in err and len(err.strip().splitlines()) == 1
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
     code, _, err = run(capsys, "learn", data, "--db", fifo)

@@ -46,6 +46,7 @@ __all__ = [
     "replace",
     "temporary_name",
     "umask",
+    "write_fault",
 ]
 
 Notify = Callable[[str], None]
@@ -182,6 +183,25 @@ def _glob_escape(text: str) -> str:
     return "".join(f"[{c}]" if c in "*?[" else c for c in text)
 
 
+def write_fault(directory: Path, detail: str) -> str:
+    """Why a write in ``directory`` failed, in words, when the system's message is vague (SQLite says "disk
+    I/O error" for a file-size limit): a full file system, else a file-size limit, else ``detail``."""
+    import resource
+
+    try:
+        st = os.statvfs(directory)
+        if st.f_bavail * st.f_frsize < 1 << 16:
+            return "no space left on the device"
+    except OSError:
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if soft != resource.RLIM_INFINITY:
+        return f"file too large (a file-size limit of {soft} bytes, e.g. ulimit -f)"
+    if "full" in detail:
+        return "no space left on the device"
+    return detail
+
+
 def fsync_directory(directory: Path) -> None:
     """Make a rename in ``directory`` durable (best effort: not every file system allows it)."""
     try:
@@ -308,10 +328,12 @@ def replacing(target: Path, *, mode: int | None = None) -> Iterator[Path]:
             os.fsync(fh.fileno())
         os.chmod(tmp, keep)
         replace(tmp, target)
-    except BaseException:
+    except BaseException as err:
         for f in (Path(tmp), Path(tmp + "-journal")):
             try:
                 f.unlink(missing_ok=True)
             except OSError:
                 pass
+        if isinstance(err, OSError) and err.filename is None and err.errno is not None:
+            raise OSError(err.errno, os.strerror(err.errno), str(target)) from None  # name the output
         raise

@@ -128,11 +128,11 @@ def localize_cmd(
         if rank_list:
             summary["top1"] = float(np.mean(np.array(rank_list) == 1))
             summary["mean_rank"] = float(np.mean(rank_list))
-            warn(compat.check_queries(len(rank_list)))  # fewer than 10 labelled queries: rough figures
         if stream is not None:
             stream.finish({"summary": summary, "preset": preset})
     if json_out is not None:
         err_console.print(lit(f"wrote {json_out}"))
+    warn(compat.check_queries(len(rank_list)))  # fewer than 10 labelled queries: rough figures
     if rank_list:
         console.print(
             f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "

@@ -59,6 +59,7 @@ table and field, never a wrong model or a traceback.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -74,7 +75,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..atomic import check_target, replace, temporary_name, temporary_patterns, umask
+from ..atomic import check_target, replace, temporary_name, temporary_patterns, umask, write_fault
 from ..errors import DatabaseError, DataFormatError, FingerlocError
 from ..io.jsonl import observation_from_record, observation_to_record, parse_record
 from ..model import PlaceModel
@@ -583,11 +584,11 @@ def save_model(
         try:
             return _save_locked(real, params, state, graph_edges, info)
         except sqlite3.Error as err:
-            raise DatabaseError(f"{target}: cannot write the place database ({err}); it is unchanged") from None
+            why = write_fault(real.parent, str(err))
+            raise DatabaseError(f"{target}: cannot write the place database ({why}); it is unchanged") from None
         except OSError as err:
-            raise DatabaseError(
-                f"{target}: cannot write the place database ({err.strerror or err}); it is unchanged"
-            ) from None
+            why = write_fault(real.parent, err.strerror or str(err)) if err.errno in (errno.ENOSPC, errno.EFBIG, errno.EIO) else (err.strerror or str(err))
+            raise DatabaseError(f"{target}: cannot write the place database ({why}); it is unchanged") from None
 
 
 def _save_locked(
