@@ -209,9 +209,9 @@ def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
     poses = run.poses
     if poses is None or lm.positions is None or lm.calibration is None:
         why = "its scans have no poses" if poses is None else "the database has no place positions"
-        err_console.print(f"{run.paths[0]}: {why}: every scan is a query, unlabelled", markup=False)
         obs = run.observations(features=features)
         warn(compat.check_observations(lm, obs, what=str(run.paths[0])))  # modality, field of view
+        err_console.print(f"{run.paths[0]}: {why}: every scan is a query, unlabelled", markup=False)
         return obs, list(run.names)
     start = 0
     mapped = lm.mapped_run(run.key)
