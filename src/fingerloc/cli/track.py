@@ -206,8 +206,8 @@ def _check_options(
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
     if filter_kind not in ("places", "pose"):
         raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
-    if odometry_error is not None and not (math.isfinite(odometry_error) and odometry_error >= 0):
-        raise InvalidParameterError(f"--odometry-error must be a finite factor >= 0, got {odometry_error!r}")
+    if odometry_error is not None and not (math.isfinite(odometry_error) and 0 <= odometry_error <= 100):
+        raise InvalidParameterError(f"--odometry-error must be a factor in [0, 100], got {odometry_error!r}")
     if radius is not None and not (math.isfinite(radius) and radius > 0):
         raise InvalidParameterError(f"--radius must be a positive number of metres, got {radius!r}")
     if scale is not None and not (math.isfinite(scale) and scale > 0):
