@@ -711,7 +711,8 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
         try:
             ok = con.execute("PRAGMA quick_check").fetchone()
             if ok is None or ok[0] != "ok":
-                raise DatabaseError(f"{p}: corrupt place database ({ok[0] if ok else 'no answer'})")
+                why = " ".join(str(ok[0]).split()) if ok else "no answer"  # SQLite's report spans lines
+                raise DatabaseError(f"{p}: corrupt place database ({why})")
             tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
             if "meta" not in tables:
                 raise DatabaseError(f"{p}: not a fingerloc place database (no meta table)")
@@ -735,6 +736,8 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
             yield con
         except sqlite3.Error as err:
             raise DatabaseError(f"{p}: not a valid place database ({err})") from err
+        except UnicodeDecodeError as err:
+            raise DatabaseError(f"{p}: damaged place database (a text value is not UTF-8: {err.reason})") from err
     finally:
         con.close()
 
