@@ -41,7 +41,7 @@ def saved(tmp_path_factory):
     obs = read_observations(d / "t.jsonl")
     db = d / "p.sqlite"
     learn_into(db, obs, preset="paper", calibrate=False)
-    from fingerloc.pipeline.mapping import load_map
+    from fingerloc.pipeline.placemap import load_map
 
     lm = load_map(db)
     return _Saved(db.read_bytes(), obs, lm.labels, lm.model.predict_log_proba(obs), d)
@@ -60,7 +60,7 @@ class _Saved(tuple):  # type: ignore[type-arg]
 @settings(max_examples=fuzz_examples(40), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(flips=st.lists(st.tuples(st.integers(0, 10**9), st.integers(1, 255)), min_size=1, max_size=4))
 def test_a_database_with_flipped_bytes_loads_the_same_or_is_refused(saved, flips):
-    from fingerloc.pipeline.mapping import load_map
+    from fingerloc.pipeline.placemap import load_map
 
     data, obs, labels, logp, d = saved
     raw = bytearray(data)

@@ -21,9 +21,11 @@ import numpy as np
 import pytest
 
 from fingerloc.cli import main
+from fingerloc.config import Config
 from fingerloc.io.jsonl import write_observations
 from fingerloc.map.database import load_model
-from fingerloc.pipeline.mapping import load_map, make_map, save_map
+from fingerloc.pipeline.mapping import make_map
+from fingerloc.pipeline.placemap import load_map
 from fingerloc.pipeline.readers import read_run
 
 from ._cli import run_cli as run
@@ -43,9 +45,9 @@ def _places_file(path, labels, *, offset=0):
 def mapped(rooms_log, tmp_path_factory):
     """A database made by ``map`` of the rooms log (no calibration: fast), and its map."""
     d = tmp_path_factory.mktemp("mapped")
-    pm = make_map(read_run(rooms_log), calibrate=False)
+    pm = make_map(read_run(rooms_log), Config().with_(calibration={"enabled": False}))
     db = d / "m.sqlite"
-    save_map(pm, db)
+    pm.save(db)
     return db, pm
 
 
@@ -86,7 +88,7 @@ def test_learn_into_a_map_keeps_positions_graph_calibration_and_scan_map(mapped,
     assert after.calibration is not None and after.calibration.n_train == before.calibration.n_train + 5
     assert after.scan_map is not None and after.scan_map.cells.shape[0] > before.scan_map.cells.shape[0]
     assert after.graph.edges().keys() >= before.graph.edges().keys()
-    assert after.tracker() is not None  # what track needs is there
+    assert after.has_positions and after.tracker(filter="pose") is not None  # what track needs is there
 
 
 def _fields(o):
@@ -131,10 +133,12 @@ def test_track_graph_from_and_a_concurrent_learn_keep_every_place(tmp_path, caps
     more = _places_file(tmp_path / "more.jsonl", ["d", "e"], offset=5)
     db = tmp_path / "p.sqlite"
     assert run(capsys, "learn", data, "--db", db, "--no-calibration")[0] == 0
-    import fingerloc.map.filter as filt
+    import fingerloc.map.database as database
+    from fingerloc.pipeline.placemap import PlaceMap
 
-    real = filt.run_filter
+    real_track, real_info = PlaceMap.track, database.read_map_info
     threads: list[threading.Thread] = []
+    moments = {"tracked": False, "fired": False}
 
     def learn_more() -> None:
         try:
@@ -142,8 +146,7 @@ def test_track_graph_from_and_a_concurrent_learn_keep_every_place(tmp_path, caps
         except SystemExit:
             pass
 
-    def run_filter(*args, **kwargs):
-        # between track's read of the database and its store: another writer comes
+    def another_writer() -> None:
         fd = os.open(f"{db}.lock", os.O_RDWR | os.O_CREAT)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -160,13 +163,25 @@ def test_track_graph_from_and_a_concurrent_learn_keep_every_place(tmp_path, caps
             threads.append(t)
         else:  # nothing stops it: it writes now
             learn_more()
-        return real(*args, **kwargs)
 
-    monkeypatch.setattr(filt, "run_filter", run_filter)
+    def track(*args, **kwargs):
+        moments["tracked"] = True
+        return real_track(*args, **kwargs)
+
+    def read_map_info(*args, **kwargs):
+        # once track has run, while it stores the graph (after it read the model again): another writer comes
+        if moments["tracked"] and not moments["fired"] and threading.current_thread() is threading.main_thread():
+            moments["fired"] = True
+            another_writer()
+        return real_info(*args, **kwargs)
+
+    monkeypatch.setattr(PlaceMap, "track", track)
+    monkeypatch.setattr(database, "read_map_info", read_map_info)
     code, _, err = run(capsys, "track", data, "--db", db, "--graph-from", data, "-q")
     for t in threads:
         t.join(timeout=120)
     assert code == 0, err
+    assert moments["fired"], "the graph was stored without reading the database again"
     assert sorted(str(c) for c in load_model(db).classes_) == ["a", "b", "c", "d", "e"]
 
 

@@ -76,7 +76,7 @@ _CALIBRATION: dict[str, tuple[float | None, float | None, bool]] = {
     "hold_margin": (0.0, 1.0, False),
     "tie_break": (0.0, 1.0, False),
 }
-_NULLABLE = frozenset({"gap_metres", "lost_fit", "hold_margin", "tie_break"})
+_NULLABLE = frozenset({"gap_metres", "lost_fit", "hold_margin", "tie_break", "metres_per_move"})
 
 
 def check_calibration(value: Any, where: str) -> dict[str, Any]:
@@ -94,10 +94,10 @@ def check_calibration(value: Any, where: str) -> dict[str, Any]:
         name = f"{where}: meta.calibration.{k}"
         if v is None and k in _NULLABLE:
             continue
-        if isinstance(v, (bool, str)) or v is None:
-            if k in _CALIBRATION or (v is None and k not in _NULLABLE):
+        if isinstance(v, (bool, str, dict, list)) or v is None:
+            if k in _CALIBRATION:
                 raise DatabaseError(f"{name} must be a number, got {v!r}")
-            continue
+            continue  # a setting (a strategy's name, a flag, the stored config): checked where it is read
         if not _finite(v):
             raise DatabaseError(f"{name} must be a finite number, got {v!r}")
         rule = _CALIBRATION.get(k)

@@ -9,7 +9,8 @@ sensible can come out; every message names what differs and how to fix it.
 
 * :func:`check_observations` - the observations' modality (laser, image)
   against the map's, and their field of view (another lidar or set of
-  topics);
+  topics); :func:`check_run` - the same for a whole run (its scans or
+  records) and its poses against the map's places (:func:`check_frame`);
 * :func:`check_frame` - a run's poses against the map's place positions
   (another frame: no overlap of the extents, or few poses near any place);
 * :func:`check_run_for_map` - a run that cannot make a map (no usable scan,
@@ -36,6 +37,7 @@ __all__ = [
     "check_map",
     "check_observations",
     "check_queries",
+    "check_run",
     "check_run_for_map",
     "map_sensor",
 ]
@@ -127,15 +129,21 @@ def check_observations(
     obs = list(observations)
     if not obs:
         return []
-    sensor = map_sensor(m, sensor)
-    have = set(sensor.get("modality") or [])
     kinds, empty = _modality(obs)
-    out: list[str] = []
     if empty == len(obs):
         raise InvalidParameterError(
             f"{what}: none of the {len(obs)} observation(s) has a feature (no laser return, no image feature): "
             "nothing to compare with the map's places"
         )
+    fov = [math.degrees(sum(w for _, w in o.fov)) for o in obs]
+    return _check_kinds(m, kinds, float(np.median(fov)), what=what, sensor=sensor)
+
+
+def _check_kinds(m: Any, kinds: set[str], fov_deg: float | None, *, what: str, sensor: dict[str, Any] | None) -> list[str]:
+    """The modality and field of view of what is answered against the map's."""
+    sensor = map_sensor(m, sensor)
+    have = set(sensor.get("modality") or [])
+    out: list[str] = []
     if have and not (kinds & have):
         raise InvalidParameterError(
             f"{what} have {_words(kinds)} features, the map holds {_words(have)} views{_preset_name(m)}: they cannot "
@@ -147,9 +155,8 @@ def check_observations(
             "they are ignored"
         )
     f_map = sensor.get("fov_deg")
-    fov = [math.degrees(sum(w for _, w in o.fov)) for o in obs]
-    if isinstance(f_map, (int, float)) and fov and "laser" in (kinds & have):
-        f_obs = float(np.median(fov))
+    if isinstance(f_map, (int, float)) and fov_deg is not None and "laser" in (kinds & have):
+        f_obs = fov_deg
         if abs(f_obs - float(f_map)) > FOV_TOLERANCE_DEG:
             topics = sensor.get("topics")
             hint = f" (the map's topics: {', '.join(topics)})" if isinstance(topics, list) and topics else ""
@@ -157,6 +164,42 @@ def check_observations(
                 f"{what} cover {f_obs:.0f} deg, the map's views {float(f_map):.0f} deg: another lidar or another set "
                 f"of topics? read them as the map's run was read (--topic ...){hint}"
             )
+    return out
+
+
+def check_run(m: Any, run: Any, *, what: str | None = None, sensor: dict[str, Any] | None = None) -> list[str]:
+    """A run about to be answered (``localize``, ``track``) against a map: sensor and frame.
+
+    JSON Lines records go through :func:`check_observations`; a laser run's
+    scans are laser views (refused when none has a return, or when the map
+    holds image views only), their field of view compared with the map's;
+    with poses and the map's place positions, :func:`check_frame`.
+
+    Returns
+    -------
+    list of str
+        Warnings (see the functions above).
+
+    Raises
+    ------
+    InvalidParameterError
+        Nothing sensible can come out (another modality, no usable scan, no overlap with the map).
+    """
+    name = what or (str(run.paths[0]) if getattr(run, "paths", None) else "the run")
+    if run.records is not None:
+        out = check_observations(m, run.records, what=name, sensor=sensor)
+    else:
+        scans = run.scans or []
+        if scans and not any(bool(np.any(s.valid)) for s in scans):
+            raise InvalidParameterError(
+                f"{name}: none of its {len(scans)} scans has a laser return (every range is missing, zero or beyond "
+                "the sensor's maximum): nothing to compare with the map's places"
+            )
+        out = _check_kinds(m, {"laser"}, math.degrees(run.field_of_view()), what=f"{name}'s scans", sensor=sensor)
+    positions, cal = getattr(m, "positions", None), getattr(m, "calibration", None)
+    poses = run.poses
+    if poses is not None and positions is not None and cal is not None:
+        out += check_frame(positions, cal.radius, cal.spacing, poses, what=name)
     return out
 
 

@@ -149,8 +149,8 @@ def learn_into(
 def _create(path: Path, obs: list[Observation], preset: str | None, given: dict[str, Any], calibrate: bool) -> LearnResult:
     from ..map.database import MapInfo, observation_hash, save_model, sensor_summary
     from ..map.graph import PlaceGraph
+    from .calibration import calibrate_labelled
     from .presets import empty_terms, resolve_preset
-    from .tracker import calibrate_labelled
 
     resolved = resolve_preset("auto" if preset is None else preset, obs, given)
     model = resolved.model().fit(obs)
@@ -215,7 +215,7 @@ def _extend(path: Path, obs: list[Observation], preset: str | None, given: dict[
     from ..map.database import MapInfo, observation_hash, read_graph_edges, read_map_info, save_model
     from ..map.graph import PlaceGraph
     from .compat import check_observations
-    from .mapping import load_map
+    from .placemap import load_map
 
     lm = load_map(path)
     info = read_map_info(path)
