@@ -404,8 +404,9 @@ def _write_bag(path: Path, *, ranges: Any = None, mount: tuple[float, float, flo
                topics: tuple[str, ...] = ("/scan",), beacon: bool = False, scales: tuple[float, ...] = (100.0,),
                stamps: int = 4) -> Path:  # fmt: skip
     """A ROS 2 bag: LaserScans (270 deg, 541 beams) of a 6 x 6 m room on ``topics`` (a front lidar, then one
-    turned by pi), their mounts on /tf_static; ``ranges`` overrides every range; with ``beacon`` the second
-    lidar sees a 10 cm reflector at -160 deg that the first does not cover."""
+    turned by pi), their mounts on /tf_static, odometry on /odom (the robot moves 0.5 m along x per scan);
+    ``ranges`` overrides every range; with ``beacon`` the second lidar sees a 10 cm reflector at -160 deg
+    that the first does not cover."""
     import numpy as np
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -426,6 +427,7 @@ def _write_bag(path: Path, *, ranges: Any = None, mount: tuple[float, float, flo
     with Writer(path, version=9) as wr:
         conns = [wr.add_connection(t, "sensor_msgs/msg/LaserScan", typestore=ts) for t in topics]
         c_static = wr.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        c_odom = wr.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
         links = []
         for k in range(len(topics)):
             x, y, yaw = mount if (k == 0 and mount != (0.0, 0.0, 0.0)) else mounts[k]
@@ -436,6 +438,16 @@ def _write_bag(path: Path, *, ranges: Any = None, mount: tuple[float, float, flo
         wr.write(c_static, int(0.5e9), ts.serialize_cdr(T["tf2_msgs/msg/TFMessage"](transforms=links),
                                                         "tf2_msgs/msg/TFMessage"))  # fmt: skip
         for s in range(stamps):
+            zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+            odom = T["nav_msgs/msg/Odometry"](
+                header=header(1.0 + 0.1 * s, "odom"), child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=0.5 * s, y=0.0, z=0.0), orientation=quat(0.0)),
+                    covariance=np.zeros(36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                    linear=zero, angular=zero), covariance=np.zeros(36)),
+            )  # fmt: skip
+            wr.write(c_odom, int((1.0 + 0.1 * s) * 1e9), ts.serialize_cdr(odom, "nav_msgs/msg/Odometry"))
             for k, conn in enumerate(conns):
                 x, y, yaw = mounts[k]
                 phi = -fov / 2 + fov / (n - 1) * np.arange(n)
@@ -466,12 +478,12 @@ def _bags(b: Battery, d: Path) -> None:
         import rosbags  # noqa: F401
     except ImportError:
         return
-    nan_bag = _write_bag(d / "nan-bag", ranges=float("nan"))
+    nan_bag = _write_bag(d / "nan-bag", ranges=float("nan"), stamps=8)
     b.expect_error("map a bag whose ranges are all NaN", "map", nan_bag, "--db", d / "nan.sqlite", "--pose-source",
-                   "none", "--no-calibration", needle="return")  # fmt: skip
-    far_bag = _write_bag(d / "far-bag", ranges=100.0)
+                   "odom", "--no-calibration", needle="return")  # fmt: skip
+    far_bag = _write_bag(d / "far-bag", ranges=100.0, stamps=8)
     b.expect_error("map a bag whose ranges are all beyond range_max", "map", far_bag, "--db", d / "far.sqlite",
-                   "--pose-source", "none", "--no-calibration", needle="return")  # fmt: skip
+                   "--pose-source", "odom", "--no-calibration", needle="return")  # fmt: skip
     inf_bag = _write_bag(d / "inf-bag", mount=(math.inf, math.nan, 0.0))
     b.expect_error("features of a bag with a lidar mount at (inf, nan)", "features", inf_bag, needle="translation")
     good = _write_bag(d / "good-bag")
