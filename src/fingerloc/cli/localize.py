@@ -91,13 +91,14 @@ def localize_cmd(
     classes = [str(c) for c in model.classes_]
     preset = None if lm.preset is None else lm.preset.name
     records = json_out is not None
+    doubts: list[str] = []
     if cluster:
         chunks = _cluster_chunks(data, db, top, table=not quiet, records=records, workers=workers, scheduler=scheduler)
     elif jsonl and report is None:  # a stream: a chunk of lines at a time
         chunks = _serial_chunks(data, model, top, table=not quiet, records=records)
     else:
         run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
-        warn(compat.check_run(lm, run, what=str(data)))  # another modality or frame: an error; doubts: warnings
+        doubts = compat.check_run(lm, run, what=str(data))  # another modality or frame: an error now; doubts below
         obs, names = lm.queries(run, on_note=lambda s: err_console.print(s, markup=False))
         keep = report is not None
         from ..pipeline.localize import LOCALIZE_CHUNK, answer_chunk
@@ -133,7 +134,7 @@ def localize_cmd(
             stream.finish({"summary": summary, "preset": preset})
     if json_out is not None:
         err_console.print(lit(f"wrote {json_out}"))
-    warn(compat.check_queries(len(rank_list)))  # fewer than 10 labelled queries: rough figures
+    warn(doubts + compat.check_queries(len(rank_list)))  # said once the answers are out; few queries: rough figures
     if rank_list:
         console.print(
             f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "

@@ -104,7 +104,7 @@ def map_cmd(
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
-    warn(check_run_for_map(run))  # no usable scan: an error; a stationary run: a warning
+    doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     config = Config().with_(
         places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,
                 "until_s": until},
@@ -114,7 +114,7 @@ def map_cmd(
         pm = make_map(run, config, preset=preset, overrides=overrides, on_step=lambda s: status.update(s))
     assert pm.preset is not None and pm.calibration is not None and pm.split is not None and pm.training is not None
     err_console.print(pm.preset.reason, markup=False)
-    warn(check_map(pm))  # one place, beta at a bound, empty training views
+    warn(doubts + check_map(pm))  # one place, beta at a bound, empty training views
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
         err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "

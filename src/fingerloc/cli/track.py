@@ -141,7 +141,7 @@ def track_cmd(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     pm = _place_map(run, db, map_log=map_log, graph_from=graph_from, radius=radius, heading=heading, scan=scan,
                     pose=filter_kind == "pose", pending=pending)  # fmt: skip
-    warn(compat.check_map(pm) if map_log else compat.check_run(pm, run))  # what does not fit: error or warning lines
+    doubts = compat.check_map(pm) if map_log else compat.check_run(pm, run)  # what does not fit: an error now, doubts
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
@@ -161,7 +161,7 @@ def track_cmd(
                 markup=False,
             )
     _print_summary(tr)
-    warn(compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # fewer than 10 labelled steps
+    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
     if report is not None:
         beta = tr.summary["likelihood_scale"]
@@ -224,12 +224,13 @@ def _place_map(
     from ..pipeline.placemap import load_map
 
     if map_log:
-        warn(compat.check_run_for_map(run))  # no usable scan: an error; a stationary run: a warning
+        early = compat.check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning below
         with err_console.status("mapping...") as status:
             pm = make_map(run, Config().with_(calibration={"heading": heading, "scan": scan}),
                           on_step=lambda s: status.update(s))  # fmt: skip
         assert pm.preset is not None and pm.split is not None
         err_console.print(pm.preset.reason, markup=False)
+        warn(early)
         n_places = pm.split.n_places
 
         def save_map() -> None:
