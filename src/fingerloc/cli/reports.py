@@ -53,6 +53,7 @@ def check_report(report: Path | None) -> None:
         from ..reporting import check_report_dir
 
         check_report_dir(report, flag="--report")
+        check_output(report, "--report", directory=True)  # its folder (or its parent) writable, before any work
 
 
 def _done(path: Path) -> None:

@@ -10,12 +10,13 @@ import typer
 
 from .._lazy import LazyModule
 from ..errors import InvalidParameterError
-from ._io import check_output
+from ._io import all_or_nothing, check_output, warn
 from .app import app, console, err_console
 from .bench import write_json
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
+    LOCK_TIMEOUT_OPTION,
     POSE_SOURCE_OPTION,
     SKIP_BAD_OPTION,
     TOPIC_OPTION,
@@ -30,11 +31,13 @@ if TYPE_CHECKING:
     from ..pipeline.placemap import PlaceMap, TrackResult
 else:
     np = LazyModule("numpy")  # imported when a command runs, not for --help
+compat = LazyModule("fingerloc.pipeline.compat")
 
 __all__ = ["track_cmd"]
 
 
 @app.command("track")
+@all_or_nothing  # outputs renamed together at the end, the database's writer lock held to the end
 def track_cmd(
     data: Path = typer.Argument(..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag."),
     db: Path = typer.Option(..., "--db", help="Place database ('fingerloc map', or 'learn' with the place graph)."),
@@ -110,6 +113,7 @@ def track_cmd(
     pose_source: str = POSE_SOURCE_OPTION,
     base_frame: str | None = BASE_FRAME_OPTION,
     skip_bad: bool = SKIP_BAD_OPTION,
+    lock_timeout: float = LOCK_TIMEOUT_OPTION,
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
@@ -137,6 +141,7 @@ def track_cmd(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     pm = _place_map(run, db, map_log=map_log, graph_from=graph_from, radius=radius, heading=heading, scan=scan,
                     pose=filter_kind == "pose", pending=pending)  # fmt: skip
+    doubts = compat.check_map(pm) if map_log else compat.check_run(pm, run)  # what does not fit: an error now, doubts
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
@@ -156,6 +161,7 @@ def track_cmd(
                 markup=False,
             )
     _print_summary(tr)
+    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
     if report is not None:
         beta = tr.summary["likelihood_scale"]
@@ -183,6 +189,8 @@ def _check_options(
     for flag, v in (("--odometry-error", odometry_error), ("--alpha", alpha), ("--scan-gamma", scan_gamma)):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InvalidParameterError(f"{flag} must be a finite number >= 0, got {v!r}")
+    if odometry_error is not None and odometry_error > 100:  # a factor on the odometry's simulated errors
+        raise InvalidParameterError(f"--odometry-error must be a factor in [0, 100], got {odometry_error!r}")
     for flag, v in (("--radius", radius), ("--scale", scale), ("--metres-per-move", metres_per_move)):
         if v is not None and not (math.isfinite(v) and v > 0):
             raise InvalidParameterError(f"{flag} must be a positive number, got {v!r}")
@@ -211,15 +219,18 @@ def _place_map(
     """The map to track against: made from the run (``--map``, saved later), or the database's (with the visits of
     ``--graph-from``, whose graph is saved later)."""
     from ..config import Config
+    from ..map.database import hold_lock
     from ..pipeline.mapping import make_map
     from ..pipeline.placemap import load_map
 
     if map_log:
+        early = compat.check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning below
         with err_console.status("mapping...") as status:
             pm = make_map(run, Config().with_(calibration={"heading": heading, "scan": scan}),
                           on_step=lambda s: status.update(s))  # fmt: skip
         assert pm.preset is not None and pm.split is not None
         err_console.print(pm.preset.reason, markup=False)
+        warn(early)
         n_places = pm.split.n_places
 
         def save_map() -> None:
@@ -228,6 +239,8 @@ def _place_map(
 
         pending.append(save_map)
         return pm
+    if graph_from is not None:
+        hold_lock(db)  # the writer lock from this read to the graph's store (a concurrent learn waits)
     pm = load_map(db, scan=scan and pose)
     if run.kind != "jsonl" or (graph_from is None and pm.has_positions):
         return pm

@@ -147,6 +147,22 @@ def _encode_profile(profile: np.ndarray) -> tuple[int, bytes]:
     return _PROFILE_F64, np.ascontiguousarray(profile, dtype="<f8").tobytes()
 
 
+#: Largest |x| or |y| of a stored pose, metres (the JSON Lines reader's bound).
+_MAX_COORD_M = 1e9
+
+
+def _check_pose_time(pose: tuple[float, ...] | None, timestamp: float | None) -> None:
+    """A decoded pose must be finite and within +-1e9 m, a timestamp finite."""
+    if pose is not None and not (
+        all(np.isfinite(v) for v in pose) and abs(pose[0]) <= _MAX_COORD_M and abs(pose[1]) <= _MAX_COORD_M
+    ):
+        raise DatabaseError(
+            f"corrupt observation record in the place database (pose {pose!r}: finite, x and y within +-1e9 m)"
+        )
+    if timestamp is not None and not np.isfinite(timestamp):
+        raise DatabaseError(f"corrupt observation record in the place database (timestamp {timestamp!r})")
+
+
 def decode_observation(
     data: object, *, label: str | None = None, source: str | None = None, default_fov: Fov | None = None
 ) -> Observation:
@@ -208,6 +224,7 @@ def decode_observation(
         rest = parts[9:]
     pose = tuple(float(v) for v in rest.pop(0)) if flags & _POSE else None
     timestamp = float(rest.pop(0)[0]) if flags & _TIME else None
+    _check_pose_time(pose, timestamp)
     fov_v, app, ranges, bearings = rest
     fov = tuple((float(fov_v[2 * k]), float(fov_v[2 * k + 1])) for k in range(n_fov)) if n_fov else FULL_FOV
     if flags & _DEFAULT_FOV and default_fov is not None:

@@ -588,6 +588,7 @@ def load_map(path: str | Path, *, scan: bool = True) -> PlaceMap:
 
 def store_graph(path: str | Path, edges: dict[tuple[str, str], int]) -> None:
     """Replace the place graph stored in a place database (everything else kept as it is)."""
-    from ..map.database import load_model, read_map_info, save_model
+    from ..map.database import load_model, locked, read_map_info, save_model
 
-    save_model(load_model(path), path, graph_edges=edges, info=read_map_info(path))
+    with locked(path):  # the read and the write as one: a concurrent writer's places are kept
+        save_model(load_model(path), path, graph_edges=edges, info=read_map_info(path))
