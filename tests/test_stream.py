@@ -25,7 +25,7 @@ from fingerloc.io.stream import (
 )
 from fingerloc.pipeline.readers import load_log_scans
 
-from ._logs import rooms_path, write_log
+from ._logs import rooms_path
 from .features_world import CARMEN_DIR
 
 

@@ -122,9 +122,15 @@ def main(argv: list[str] | None = None) -> None:
         sys.stderr.write(f"note: running under {exe} (Debian's rospy) with this environment's packages\n")
         sys.stderr.flush()
         os.execve(exe, [exe, "-m", "fingerloc.ros.node", *args], env)
+    import rosgraph
     import rospy
 
-    rospy.init_node("fingerloc", argv=[sys.argv[0], *args])
+    if not rosgraph.is_master_online():
+        _fail(f"no ROS master at {rosgraph.get_master_uri()}: start roscore (or set ROS_MASTER_URI) first")
+    try:
+        rospy.init_node("fingerloc", argv=[sys.argv[0], *args])
+    except rospy.exceptions.ROSException as err:
+        _fail(f"cannot start the node: {err}")
     try:
         config = NodeConfig.from_params(rospy.get_param("~", {}))
         tracker = load_tracker(config)
