@@ -1,0 +1,245 @@
+"""``fingerloc bench live``: the streaming tracker's latency per step, and the pose filter's APE against a run's poses.
+
+Two sections:
+
+* **latency**: the streaming tracker (``PlaceMap.tracker(filter="pose")``,
+  one ``step`` per scan) on a map of about ``places`` places with the
+  ``laser2d`` preset. A real log's map has tens of places; the map is made
+  from ``copies`` copies of the log's mapping part, each moved ``offset_m``
+  metres further along ``x`` (buildings side by side that look alike), and
+  learned without calibration; the single log's own calibration (its
+  likelihood scale, the pose filter's tuned reliabilities, scan power...)
+  is put on it, with the kidnapping probability of its number of
+  training scans. The log's query part (after the mapping part) is then
+  tracked step by step, the robot in the first copy; each step's wall time
+  (``time.perf_counter``) and CPU time (``time.process_time``) are taken, after
+  ``warmup`` steps that compile and fill caches. Figures: median, 95th
+  percentile and maximum, milliseconds, and the load average.
+* **ape**: per log, the map of its mapping part (``fingerloc map``'s
+  defaults) and ``track --filter pose`` of its query part (the library's
+  ``PlaceMap.track``, what ``track --tum`` writes), then evo's APE
+  (translation part, RMSE, no alignment: both are in the map's frame)
+  between the filter's poses and the run's own (corrected) poses, over the
+  steps whose answer is right (the true place, that of the run's pose within
+  a place's radius), and over every tracked step. Both trajectories are
+  written as TUM files and read back by evo (``evo.tools.file_interface``);
+  their timestamps are the steps' indices in the run (seconds), so that evo
+  pairs them exactly whatever the log's clock.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..pipeline.readers import Run
+from ..sensors import Scan
+
+__all__ = ["ape_translation", "percentile", "run_live_bench", "tiled_run"]
+
+#: Metres between two copies of a building in the latency map.
+COPY_OFFSET_M = 10_000.0
+
+Progress = Callable[[str], None]
+
+
+def tiled_run(run: Run, copies: int, n: int, *, offset_m: float = COPY_OFFSET_M) -> Run:
+    """The first ``n`` scans of a laser run, ``copies`` times, copy ``k`` moved ``k * offset_m`` metres along ``x``.
+
+    Timestamps go on increasing from copy to copy (each copy after the
+    previous one's last stamp), so that the run is one trajectory.
+    """
+    if run.scans is None:
+        raise InvalidParameterError("tiled_run needs a laser run (scans with poses)")
+    if copies < 1 or not 1 <= n <= len(run):
+        raise InvalidParameterError(f"tiled_run: copies must be >= 1 and n in [1, {len(run)}], got {copies}, {n}")
+    base = run.scans[:n]
+    if any(s.pose is None for s in base):
+        raise InvalidParameterError("tiled_run needs a pose on every scan")
+    t = [float(s.timestamp or 0.0) for s in base]
+    span = (max(t) - min(t)) + 1.0
+    scans: list[Scan] = []
+    names: list[str] = []
+    for k in range(copies):
+        for i, s in enumerate(base):
+            assert s.pose is not None
+            x, y, th = s.pose
+            scans.append(replace(s, pose=(x + k * offset_m, y, th), timestamp=t[i] + k * span))
+            names.append(f"copy{k}:{run.names[i]}")
+    return Run(list(run.paths), run.kind, names, scans=scans, key=f"tiled{copies}x{n}:{run.key}")
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """The ``q``-th percentile (0-100) by linear interpolation (numpy's default)."""
+    return float(np.percentile(np.asarray(values, dtype=np.float64), q))
+
+
+def ape_translation(ref: Any, est: Any, *, folder: Path | None = None) -> dict[str, Any]:
+    """evo's APE (translation part, no alignment) between two planar trajectories of the same steps.
+
+    Parameters
+    ----------
+    ref, est : array_like, shape (n, 3)
+        Poses ``(x, y, theta)`` of the same ``n`` steps, metres and radians.
+    folder : Path, optional
+        Where the two TUM files are written (default: a temporary folder).
+
+    Returns
+    -------
+    dict
+        ``steps``, ``rmse_m``, ``mean_m``, ``median_m``, ``max_m`` (``None``
+        figures without a step).
+    """
+    from evo import main_ape
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    from ..io.trajectory import write_tum
+
+    r = np.asarray(ref, dtype=np.float64).reshape(-1, 3)
+    e = np.asarray(est, dtype=np.float64).reshape(-1, 3)
+    if r.shape != e.shape:
+        raise InvalidParameterError(f"ape_translation: {r.shape[0]} reference and {e.shape[0]} estimated poses")
+    if r.shape[0] == 0:
+        return {"steps": 0, "rmse_m": None, "mean_m": None, "median_m": None, "max_m": None}
+    stamps = np.arange(r.shape[0], dtype=np.float64)
+    with tempfile.TemporaryDirectory(prefix="fingerloc-ape-") as tmp:
+        where = Path(folder) if folder is not None else Path(tmp)
+        write_tum(where / "reference.tum", stamps, r)
+        write_tum(where / "estimate.tum", stamps, e)
+        tr = file_interface.read_tum_trajectory_file(str(where / "reference.tum"))
+        te = file_interface.read_tum_trajectory_file(str(where / "estimate.tum"))
+    tr, te = sync.associate_trajectories(tr, te, max_diff=1e-3)
+    res = main_ape.ape(tr, te, metrics.PoseRelation.translation_part, align=False)
+    st = res.stats
+    return {"steps": int(r.shape[0]), "rmse_m": float(st["rmse"]), "mean_m": float(st["mean"]),
+            "median_m": float(st["median"]), "max_m": float(st["max"])}  # fmt: skip
+
+
+def _figures_ms(values_s: Sequence[float]) -> dict[str, float]:
+    ms = [1000.0 * v for v in values_s]
+    return {
+        "median_ms": statistics.median(ms),
+        "p95_ms": percentile(ms, 95.0),
+        "max_ms": max(ms),
+        "mean_ms": statistics.fmean(ms),
+    }
+
+
+def latency(
+    log: Path, *, places: int = 1000, seed: int = 0, steps: int | None = None, warmup: int = 20,
+    on_progress: Progress | None = None,
+) -> dict[str, Any]:  # fmt: skip
+    """The latency section (see the module docstring) on one CARMEN log."""
+    import fingerloc as fl
+
+    note = on_progress or (lambda s: None)
+    note(f"reading {log.name}")
+    run = fl.read_run(log)
+    note(f"mapping {log.name} (calibrated)")
+    own = fl.make_map(run)
+    n_map = int(own.split.n_mapping)
+    per_copy = max(len(own.labels), 1)
+    copies = max(1, math.ceil(places / per_copy))
+    note(f"mapping {copies} copies of its mapping part ({n_map} scans each, without calibration)")
+    big = fl.make_map(tiled_run(run, copies, n_map), mapping_part=1.0, calibrate=False)
+    cal = replace(own.calibration, kidnap=1.0 / (int(big.split.n_train) + 2), n_train=int(big.split.n_train))
+    big = replace(big, calibration=cal)
+    tracker = big.tracker(filter="pose", seed=seed)
+    queries = list(range(n_map, len(run)))
+    if steps is not None:
+        queries = queries[: warmup + steps]
+    assert run.scans is not None
+    wall: list[float] = []
+    cpu: list[float] = []
+    note(f"tracking {len(queries)} scans on {len(big.labels)} places")
+    for k, i in enumerate(queries):
+        s = run.scans[i]
+        w0, c0 = time.perf_counter(), time.process_time()
+        tracker.step(s, odometry=s.pose, stamp=s.timestamp)
+        w1, c1 = time.perf_counter(), time.process_time()
+        if k >= warmup:
+            wall.append(w1 - w0)
+            cpu.append(c1 - c0)
+    if not wall:
+        raise InvalidParameterError(f"{log}: no step to time after {warmup} warm-up steps")
+    return {
+        "log": log.name,
+        "places": len(big.labels),
+        "copies": copies,
+        "places_per_copy": per_copy,
+        "preset": getattr(big.preset, "name", None),
+        "filter": "pose",
+        "steps": len(wall),
+        "warmup_steps": warmup,
+        "wall": _figures_ms(wall),
+        "cpu": _figures_ms(cpu),
+        "load_average_1min": os.getloadavg()[0],
+    }
+
+
+def ape(log: Path, *, seed: int = 0, on_progress: Progress | None = None) -> dict[str, Any]:
+    """The APE section (see the module docstring) on one CARMEN log."""
+    import fingerloc as fl
+
+    note = on_progress or (lambda s: None)
+    run = fl.read_run(log)
+    note(f"mapping {log.name}")
+    pm = fl.make_map(run)
+    note(f"tracking {log.name}")
+    res = pm.track(run, filter="pose", seed=seed)
+    poses = run.poses
+    assert poses is not None
+    start = len(run) - len(res.steps)
+    rows = [(start + a.step, a) for a in res.steps if a.pose is not None]
+    right = [(i, a) for i, a in rows if a.true is not None and a.place == a.true]
+
+    def pair(sel: list[tuple[int, Any]]) -> tuple[Any, Any]:
+        idx = [i for i, _ in sel]
+        return poses[idx], np.array([a.pose for _, a in sel], dtype=np.float64).reshape(-1, 3)
+
+    labelled = sum(1 for a in res.steps if a.true is not None)
+    return {
+        "log": log.name,
+        "tracked_steps": len(res.steps),
+        "steps_with_pose": len(rows),
+        "labelled_steps": labelled,
+        "right_steps": len(right),
+        "top1": len(right) / labelled if labelled else None,
+        "ape_right": ape_translation(*pair(right)),
+        "ape_all": ape_translation(*pair(rows)),
+    }
+
+
+def run_live_bench(
+    logs: Sequence[Path],
+    *,
+    latency_log: Path | None = None,
+    places: int = 1000,
+    seed: int = 0,
+    steps: int | None = None,
+    sections: Sequence[str] = ("latency", "ape"),
+    on_progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Both sections: latency on ``latency_log`` (default the first log), APE on every log."""
+    unknown = set(sections) - {"latency", "ape"}
+    if unknown:
+        raise InvalidParameterError(f"unknown bench live section {sorted(unknown)[0]!r} (latency, ape)")
+    if not logs:
+        raise InvalidParameterError("bench live needs at least one CARMEN log")
+    out: dict[str, Any] = {"seed": seed}
+    if "latency" in sections:
+        out["latency"] = latency(latency_log or logs[0], places=places, seed=seed, steps=steps, on_progress=on_progress)
+    if "ape" in sections:
+        out["ape"] = {Path(lg).name: ape(Path(lg), seed=seed, on_progress=on_progress) for lg in logs}
+    return out

@@ -1,0 +1,56 @@
+"""``bench live``'s pieces: the tiled run of the latency map, and evo's APE against a direct computation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fingerloc.errors import InvalidParameterError
+from fingerloc.experiments.live import ape_translation, percentile, tiled_run
+from fingerloc.pipeline.readers import read_run
+
+from ._cli import run_cli
+
+pytest.importorskip("evo", reason="evo is a test extra (pip install -e '.[test]')")
+
+
+def test_tiled_run_moves_each_copy_along_x_and_keeps_time_going(rooms_log):
+    run = read_run(rooms_log)
+    tiled = tiled_run(run, 3, 5, offset_m=100.0)
+    assert len(tiled) == 15 and tiled.kind == "carmen"
+    p, q = run.poses[:5], tiled.poses
+    for k in range(3):
+        np.testing.assert_array_equal(q[5 * k : 5 * k + 5, 0], p[:, 0] + 100.0 * k)
+        np.testing.assert_array_equal(q[5 * k : 5 * k + 5, 1:], p[:, 1:])
+        for a, b in zip(tiled.scans[5 * k : 5 * k + 5], run.scans[:5], strict=True):
+            np.testing.assert_array_equal(a.ranges, b.ranges)
+    assert np.all(np.diff(tiled.timestamps) > 0)
+    assert tiled.names[5] == "copy1:" + run.names[0]
+    with pytest.raises(InvalidParameterError, match="copies must be >= 1"):
+        tiled_run(run, 0, 5)
+
+
+def test_ape_is_the_rms_of_the_position_errors(tmp_path):
+    rng = np.random.default_rng(0)
+    ref = np.column_stack([np.cumsum(rng.normal(0, 1, (40, 2)), axis=0), rng.uniform(-3, 3, 40)])
+    est = ref + rng.normal(0, [0.3, 0.2, 0.5], ref.shape)
+    res = ape_translation(ref, est, folder=tmp_path)
+    err = np.hypot(*(est[:, :2] - ref[:, :2]).T)
+    assert res["steps"] == 40
+    assert res["rmse_m"] == pytest.approx(math.sqrt(np.mean(err**2)), rel=1e-9)
+    assert res["max_m"] == pytest.approx(err.max(), rel=1e-9)
+    assert (tmp_path / "reference.tum").exists() and (tmp_path / "estimate.tum").exists()
+    assert ape_translation(np.zeros((0, 3)), np.zeros((0, 3)))["rmse_m"] is None
+    with pytest.raises(InvalidParameterError, match="3 reference and 2 estimated"):
+        ape_translation(ref[:3], est[:2])
+
+
+def test_percentile_interpolates_as_numpy():
+    assert percentile([1.0, 2.0, 3.0, 4.0], 95.0) == pytest.approx(3.85)
+
+
+def test_bench_live_is_a_command(capsys):
+    code, out, _ = run_cli(capsys, "bench", "live", "--help")
+    assert code == 0 and "--places" in out and "APE" in out
