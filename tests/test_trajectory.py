@@ -168,3 +168,13 @@ def test_readers_name_the_bad_line(tmp_path, text, reader, match):
     path.write_text(text)
     with pytest.raises((DataFormatError, EmptyInputError), match=match):
         reader(path)
+
+
+def test_a_lenient_writer_writes_a_repeated_stamp_just_after_the_previous_one(tmp_path):
+    with TrajectoryWriter(tmp_path / "t.tum", "tum", strict=False) as w:
+        for t in (5.0, 5.0, 4.0, 6.0):
+            w.add((0.0, 0.0, 0.0), t)
+    assert w.nudged == 2
+    t, _ = read_tum(tmp_path / "t.tum")
+    np.testing.assert_allclose(t, [5.0, 5.0 + 1e-6, 5.0 + 2e-6, 6.0], rtol=0, atol=1e-9)
+    assert evo_file.read_tum_trajectory_file(str(tmp_path / "t.tum")).check()[0]

@@ -37,6 +37,7 @@ from .._types import FArray
 from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
 
 __all__ = [
+    "STAMP_NUDGE_S",
     "TRAJECTORY_FORMATS",
     "TrajectoryWriter",
     "kitti_line",
@@ -51,6 +52,9 @@ __all__ = [
 
 #: The formats :class:`TrajectoryWriter` writes.
 TRAJECTORY_FORMATS: tuple[str, ...] = ("tum", "kitti")
+
+#: Seconds after the previous pose at which a TUM pose whose stamp does not increase is written (``strict=False``).
+STAMP_NUDGE_S = 1e-6
 
 Pose = tuple[float, float, float]
 
@@ -123,6 +127,10 @@ class TrajectoryWriter:
     fmt : {"tum", "kitti"}
     flush : bool, default False
         Flush the temporary file after every pose.
+    strict : bool, default True
+        TUM: refuse a stamp that is not after the previous one. False: write
+        it :data:`STAMP_NUDGE_S` after the previous one instead (counted in
+        :attr:`nudged`); some logs repeat stamps or write them with too few digits.
 
     Raises
     ------
@@ -130,7 +138,7 @@ class TrajectoryWriter:
         An unknown format, or a directory that cannot hold the file.
     """
 
-    def __init__(self, path: str | Path, fmt: str = "tum", *, flush: bool = False) -> None:
+    def __init__(self, path: str | Path, fmt: str = "tum", *, flush: bool = False, strict: bool = True) -> None:
         if fmt not in TRAJECTORY_FORMATS:
             raise InvalidParameterError(
                 f"trajectory format must be one of {', '.join(TRAJECTORY_FORMATS)}, got {fmt!r}"
@@ -139,6 +147,8 @@ class TrajectoryWriter:
         self.path = p
         self.fmt = fmt
         self.count = 0
+        self.nudged = 0
+        self._strict = strict
         self._flush = flush
         self._last: float | None = None
         target = Path(os.path.realpath(p)) if p.is_symlink() else p
@@ -167,6 +177,9 @@ class TrajectoryWriter:
         if self.fmt == "tum":
             if stamp is None:
                 raise InvalidParameterError(f"TUM: pose {self.count + 1} has no timestamp")
+            if self._last is not None and not float(stamp) > self._last and not self._strict:
+                stamp = self._last + STAMP_NUDGE_S
+                self.nudged += 1
             if self._last is not None and not float(stamp) > self._last:
                 raise InvalidParameterError(
                     f"TUM: timestamps must increase, pose {self.count + 1} at {float(stamp)!r} s "
