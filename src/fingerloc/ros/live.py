@@ -68,6 +68,7 @@ __all__ = [
     "NodeConfig",
     "Step",
     "StepTracker",
+    "load_tracker",
 ]
 
 Planar = tuple[float, float, float]
@@ -503,6 +504,16 @@ class LiveInput:
             self.stats.note(str(err))
             return None
         return Step(merged, r.pose, t)
+
+
+def load_tracker(config: NodeConfig) -> StepTracker:
+    """The streaming tracker of ``config.database`` with the node's filter, seed and evidence options."""
+    import fingerloc as fl
+
+    place_map = fl.load_map(config.database)
+    tracker: StepTracker = place_map.tracker(filter=config.filter, seed=config.seed, scan=config.scan,
+                                             heading=config.heading)  # fmt: skip
+    return tracker
 
 
 Publish = Callable[[Any], None]

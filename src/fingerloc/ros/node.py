@@ -34,9 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FingerlocError
-from .live import LiveLocalizer, NodeConfig, StepTracker
+from .live import LiveLocalizer, NodeConfig, StepTracker, load_tracker
 
-__all__ = ["SYSTEM_PYTHON", "load_tracker", "main", "run", "system_python_path"]
+__all__ = ["SYSTEM_PYTHON", "main", "run", "system_python_path"]
 
 #: The Python of Debian's ROS packages.
 SYSTEM_PYTHON = "/usr/bin/python3"
@@ -46,16 +46,6 @@ _REEXEC_FLAG = "FINGERLOC_ROS_SYSTEM_PYTHON"
 
 #: Seconds between two looks at scans waiting for odometry.
 POLL_PERIOD_S = 0.05
-
-
-def load_tracker(config: NodeConfig) -> StepTracker:
-    """The streaming tracker of ``config.database`` with the node's filter, seed and evidence options."""
-    import fingerloc as fl
-
-    place_map = fl.load_map(config.database)
-    tracker: StepTracker = place_map.tracker(filter=config.filter, seed=config.seed, scan=config.scan,
-                                             heading=config.heading)  # fmt: skip
-    return tracker
 
 
 def system_python_path() -> str:

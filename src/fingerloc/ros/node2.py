@@ -16,7 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..errors import FingerlocError
-from .live import LiveLocalizer, NodeConfig, StepTracker
+from .live import LiveLocalizer, NodeConfig, StepTracker, load_tracker
 
 __all__ = ["main", "run"]
 
@@ -39,8 +39,6 @@ def main(argv: list[str] | None = None) -> None:
     except ImportError:
         sys.stderr.write("error: rclpy is not importable: source your ROS 2 installation's setup.bash first\n")
         raise SystemExit(2) from None
-    from .node import load_tracker
-
     rclpy.init(args=[sys.argv[0], *(argv or [])])
     node = Node("fingerloc", allow_undeclared_parameters=True, automatically_declare_parameters_from_overrides=True)
     try:
