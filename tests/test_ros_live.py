@@ -104,13 +104,38 @@ def _odom(t, x):
 
 
 def test_a_scan_waits_for_odometry_at_its_stamp_then_takes_it_interpolated():
-    live = LiveInput(NodeConfig("db", pose_source="odom"))
+    live = LiveInput(NodeConfig("db", pose_source="odom", base_frame="laser"))
     live.add_odometry(0.9, _odom(0.9, 0.9))
     assert live.add_scan("scan", _scan(1.0), "laser") == []
     live.add_odometry(1.1, _odom(1.1, 1.3))
     (step,) = live.ready()
     assert step.odometry == pytest.approx((1.1, 0.0, 0.0)) and step.stamp == 1.0
     assert step.scan.pose == step.odometry and live.base == "laser"
+
+
+def test_the_first_scan_waits_for_the_static_mount_of_its_frame():
+    from fingerloc.ros.convert import TransformLink
+
+    clock = Clock()
+    live = LiveInput(NodeConfig("db", pose_source="none"), clock=clock)
+    assert live.add_scan("scan", _scan(1.0), "laser") == []  # no /tf_static yet: the base frame cannot be told
+    link = TransformLink("base_link", "laser", 0.0, Transform3.from_planar((0.3, 0.0, math.pi / 2)))
+    live.add_transforms([TransformLink("base_footprint", "base_link", 0.0, Transform3()), link], static=True)
+    (step,) = live.ready()
+    assert live.base == "base_footprint" and step.scan.sensor_offset == pytest.approx((0.3, 0.0, math.pi / 2))
+    other = LiveInput(NodeConfig("db", pose_source="none"), clock=clock)
+    other.add_scan("scan", _scan(1.0), "laser")
+    clock.now = 1.0
+    (step,) = other.poll()
+    assert other.base == "laser" and step.scan.sensor_offset == (0.0, 0.0, 0.0)
+    assert "no /tf mount for the lidar frame" in other.stats.notes[0]
+
+
+def test_a_lidar_without_a_transform_to_the_given_base_frame_is_dropped_and_counted():
+    clock = Clock()
+    live = LiveInput(NodeConfig("db", pose_source="none", base_frame="base_link"), clock=clock)
+    assert live.add_scan("scan", _scan(1.0), "laser") == []
+    assert live.stats.unmounted == 1 and "no transform from lidar frame 'laser'" in live.stats.notes[0]
 
 
 def test_without_fresh_odometry_a_scan_goes_after_the_wait():
@@ -126,7 +151,7 @@ def test_without_fresh_odometry_a_scan_goes_after_the_wait():
 
 
 def test_the_rate_limit_drops_scans_by_their_stamps():
-    live = LiveInput(NodeConfig("db", pose_source="none", rate_hz=4.0))
+    live = LiveInput(NodeConfig("db", pose_source="none", rate_hz=4.0, base_frame="laser"))
     stamps = [s.stamp for t in np.arange(0.0, 1.01, 0.1) for s in live.add_scan("scan", _scan(float(t)), "laser")]
     assert stamps == pytest.approx([0.0, 0.3, 0.6, 0.9]) and live.stats.rate_limited == 7
 
@@ -161,7 +186,7 @@ def test_node_parameters():
 def test_the_localizer_publishes_the_place_when_it_changes_and_every_answer():
     places, answers, poses = [], [], []
     tracker = StandInTracker()
-    loc = LiveLocalizer(tracker, NodeConfig("db", pose_source="odom"), on_place=places.append,
+    loc = LiveLocalizer(tracker, NodeConfig("db", pose_source="odom", base_frame="laser"), on_place=places.append,
                         on_answer=answers.append, on_pose=poses.append)  # fmt: skip
     n_beams = [5, 5, 6, 11, 7]  # returns 5, 5, 6, 11, 7 -> places p0, p0, p1, p1, p2
     for k, n in enumerate(n_beams):

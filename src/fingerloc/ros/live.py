@@ -12,8 +12,9 @@ streaming tracker takes, with the rules of the bag reader
   partners is dropped (counted). A reference scan is settled once every other
   topic has a scan later than its stamp plus the tolerance.
 * **Base frame and mounts**: the given base frame, or the root of the static
-  transforms above the lidar frame (a lidar frame unknown to ``/tf`` is its own
-  base, a zero mount); each lidar's full 3D mount at the scan's stamp,
+  transforms above the lidar frame, chosen at the first scan (which waits up
+  to ``max_wait_s`` for ``/tf_static`` to name its frame; a lidar frame still
+  unknown then is its own base, a zero mount); each lidar's full 3D mount at the scan's stamp,
   reduced to the plane (:func:`~fingerloc.io.frames.reduce_to_plane`:
   mirrored bearings for a lidar upside down, a lidar tilted more than
   ``max_tilt_deg`` refused).
@@ -387,10 +388,12 @@ class LiveInput:
             return self._tf_latest
         return math.inf
 
-    def _is_ready(self, scan: Scan, arrived: float, now: float) -> bool:
+    def _is_ready(self, scan: Scan, frame: str, arrived: float, now: float) -> bool:
         t = float(scan.timestamp or 0.0)
         if len(self._pending) > MAX_PENDING or now - arrived >= self.config.max_wait_s:
             return True
+        if self.base is None and frame and frame not in self.tree.frames():
+            return False  # the base frame is chosen from /tf_static: wait for its mount (at most the wait)
         tol = self.pair_tolerance
         if any(self._latest[o] <= t + tol for o in self._partners):
             return False
@@ -400,7 +403,7 @@ class LiveInput:
         """Settle every pending reference scan whose partners and odometry have arrived (or waited long enough)."""
         out: list[Step] = []
         now = self.clock()
-        while self._pending and self._is_ready(self._pending[0][0], self._pending[0][2], now):
+        while self._pending and self._is_ready(*self._pending[0], now):
             scan, frame, arrived = self._pending.popleft()
             if now - arrived >= self.config.max_wait_s and self._pose_clock() < float(scan.timestamp or 0.0):
                 self.stats.stale += 1
