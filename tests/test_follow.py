@@ -18,6 +18,10 @@ from ._live import StandInTracker
 from ._logs import rooms_path
 
 
+def stepper(tracker):
+    return lambda it: tracker.step(it.item, odometry=it.pose, stamp=it.stamp)
+
+
 class Lines(io.StringIO):
     """An output stream that signals each complete line."""
 
@@ -36,7 +40,9 @@ class Lines(io.StringIO):
 def test_every_step_is_one_json_line_and_the_trajectories_are_written(rooms_log, tmp_path):
     out = Lines()
     tracker = StandInTracker()
-    res = follow_track(rooms_log, tracker, follow=False, tum=tmp_path / "e.tum", kitti=tmp_path / "e.kitti", out=out)
+    res = follow_track(
+        rooms_log, stepper(tracker), follow=False, tum=tmp_path / "e.tum", kitti=tmp_path / "e.kitti", out=out
+    )
     n = len(rooms_path())
     assert len(res.answers) == len(out.lines) == n and res.ended == "end of input"
     recs = [json.loads(ln) for ln in out.lines]
@@ -56,7 +62,7 @@ def test_each_answer_is_out_before_the_next_line_is_written(rooms_log, tmp_path)
     result = {}
 
     def track():
-        result["res"] = follow_track(path, StandInTracker(), follow=True, idle_timeout=2.0, out=out)
+        result["res"] = follow_track(path, stepper(StandInTracker()), follow=True, idle_timeout=2.0, out=out)
 
     th = threading.Thread(target=track)
     th.start()
@@ -82,11 +88,11 @@ def test_a_bad_line_stops_the_stream_and_leaves_no_trajectory(rooms_log, tmp_pat
     bad.write_text("\n".join(text) + "\n")
     (tmp_path / "e.tum").write_text("old\n")
     with pytest.raises(DataFormatError, match=r"bad\.log:6: FLASER line has 4 fields"):
-        follow_track(bad, StandInTracker(), follow=False, tum=tmp_path / "e.tum", out=Lines())
+        follow_track(bad, stepper(StandInTracker()), follow=False, tum=tmp_path / "e.tum", out=Lines())
     assert (tmp_path / "e.tum").read_text() == "old\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.log", "e.tum"]
     warnings = []
-    res = follow_track(bad, StandInTracker(), follow=False, skip_bad=True, warn=warnings.append, out=Lines())
+    res = follow_track(bad, stepper(StandInTracker()), follow=False, skip_bad=True, warn=warnings.append, out=Lines())
     assert res.skipped == 1 and len(res.answers) == len(rooms_path())
     assert warnings == [f"warning: {bad}:6: FLASER line has 4 fields, expected 14"]
 
@@ -98,13 +104,15 @@ def test_interrupting_the_stream_keeps_what_was_tracked(rooms_log, tmp_path):
                 raise KeyboardInterrupt
             return super().step(item, odometry=odometry, stamp=stamp)
 
-    res = follow_track(rooms_log, Interrupting(), follow=False, tum=tmp_path / "e.tum", out=Lines())
+    res = follow_track(rooms_log, stepper(Interrupting()), follow=False, tum=tmp_path / "e.tum", out=Lines())
     assert res.ended == "interrupted" and len(res.answers) == 4
     assert read_tum(tmp_path / "e.tum")[0].size == 4
 
 
 def test_outputs_are_checked_before_reading(tmp_path, rooms_log):
     with pytest.raises(InvalidParameterError, match="--tum"):
-        follow_track(rooms_log, StandInTracker(), follow=False, tum=tmp_path / "missing" / "e.tum", out=Lines())
+        follow_track(
+            rooms_log, stepper(StandInTracker()), follow=False, tum=tmp_path / "missing" / "e.tum", out=Lines()
+        )
     with pytest.raises(InvalidParameterError, match="--idle-timeout"):
-        follow_track(rooms_log, StandInTracker(), idle_timeout=0.0, out=Lines())
+        follow_track(rooms_log, stepper(StandInTracker()), idle_timeout=0.0, out=Lines())

@@ -148,11 +148,14 @@ def latency(
     run = fl.read_run(log)
     note(f"mapping {log.name} (calibrated)")
     own = fl.make_map(run)
+    assert own.split is not None and own.calibration is not None
     n_map = int(own.split.n_mapping)
     per_copy = max(len(own.labels), 1)
     copies = max(1, math.ceil(places / per_copy))
     note(f"mapping {copies} copies of its mapping part ({n_map} scans each, without calibration)")
-    big = fl.make_map(tiled_run(run, copies, n_map), mapping_part=1.0, calibrate=False)
+    cfg = fl.Config().with_(places={"mapping_part": 1.0}, calibration={"enabled": False})
+    big = fl.make_map(tiled_run(run, copies, n_map), cfg)
+    assert big.split is not None
     cal = replace(own.calibration, kidnap=1.0 / (int(big.split.n_train) + 2), n_train=int(big.split.n_train))
     big = replace(big, calibration=cal)
     tracker = big.tracker(filter="pose", seed=seed)
@@ -198,24 +201,23 @@ def ape(log: Path, *, seed: int = 0, on_progress: Progress | None = None) -> dic
     pm = fl.make_map(run)
     note(f"tracking {log.name}")
     res = pm.track(run, filter="pose", seed=seed)
-    poses = run.poses
-    assert poses is not None
-    start = len(run) - len(res.steps)
-    rows = [(start + a.step, a) for a in res.steps if a.pose is not None]
-    right = [(i, a) for i, a in rows if a.true is not None and a.place == a.true]
+    ref = res.poses
+    assert ref is not None
+    rows = [(k, a) for k, a in enumerate(res.answers) if a.pose is not None]
+    right = [(k, a) for k, a in rows if a.true is not None and a.place == a.true]
 
     def pair(sel: list[tuple[int, Any]]) -> tuple[Any, Any]:
-        idx = [i for i, _ in sel]
-        return poses[idx], np.array([a.pose for _, a in sel], dtype=np.float64).reshape(-1, 3)
+        return ref[[k for k, _ in sel]], np.array([a.pose for _, a in sel], dtype=np.float64).reshape(-1, 3)
 
-    labelled = sum(1 for a in res.steps if a.true is not None)
+    labelled = sum(1 for a in res.answers if a.true is not None and a.observed)
     return {
         "log": log.name,
-        "tracked_steps": len(res.steps),
+        "tracked_steps": len(res.answers),
         "steps_with_pose": len(rows),
         "labelled_steps": labelled,
         "right_steps": len(right),
-        "top1": len(right) / labelled if labelled else None,
+        "right_observed_steps": sum(1 for _, a in right if a.observed),
+        "top1": sum(1 for _, a in right if a.observed) / labelled if labelled else None,
         "ape_right": ape_translation(*pair(right)),
         "ape_all": ape_translation(*pair(rows)),
     }

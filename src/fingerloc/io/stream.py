@@ -115,6 +115,8 @@ class StreamItem:
         The robot's raw odometry pose in its odometry frame, metres and radians.
     stamp : float or None
         Seconds, the input's clock.
+    kind : str
+        The stream's format: ``"carmen"`` or ``"jsonl"``.
     """
 
     line: int
@@ -124,6 +126,7 @@ class StreamItem:
     pose: Planar | None = None
     odometry: Planar | None = None
     stamp: float | None = None
+    kind: str = ""
 
     @property
     def item(self) -> Scan | Observation | None:
@@ -332,7 +335,8 @@ class StreamReader:
         if isinstance(rec, OdomRecord):
             if not self.odometry_lines:
                 return None
-            return StreamItem(lineno, f"{self.source}:{lineno} ODOM", odometry=rec.pose, stamp=rec.timestamp)
+            return StreamItem(lineno, f"{self.source}:{lineno} ODOM", odometry=rec.pose, stamp=rec.timestamp,
+                              kind="carmen")  # fmt: skip
         if rec is None or not self._front(rec.message):
             return None
         thr = self._codes.threshold(rec)
@@ -352,7 +356,7 @@ class StreamReader:
         except InvalidParameterError as err:
             raise DataFormatError(f"{rec.message}: {err}") from None
         return StreamItem(lineno, f"{self.source}:{lineno} {rec.message}", scan=scan, pose=rec.pose, odometry=rec.odom,
-                          stamp=rec.timestamp)  # fmt: skip
+                          stamp=rec.timestamp, kind="carmen")  # fmt: skip
 
     def _jsonl(self, lineno: int, text: str) -> StreamItem | None:
         if not text.strip():
@@ -364,12 +368,17 @@ class StreamReader:
         name = f"{self.source}:{lineno}"
         if "features" in record:
             obs = observation_from_record(record)
-            return StreamItem(lineno, name, observation=obs, pose=obs.pose, odometry=odom, stamp=obs.timestamp)
+            return StreamItem(lineno, name, observation=obs, pose=obs.pose, odometry=odom, stamp=obs.timestamp,
+                              kind="jsonl")  # fmt: skip
         if "scan" in record:
             scan = _scan_record(record)
-            return StreamItem(lineno, name, scan=scan, pose=scan.pose, odometry=odom, stamp=scan.timestamp)
+            return StreamItem(
+                lineno, name, scan=scan, pose=scan.pose, odometry=odom, stamp=scan.timestamp, kind="jsonl"
+            )
         if odom is not None:
-            return StreamItem(lineno, name, odometry=odom, stamp=_stamp(record)) if self.odometry_lines else None
+            if not self.odometry_lines:
+                return None
+            return StreamItem(lineno, name, odometry=odom, stamp=_stamp(record), kind="jsonl")
         raise DataFormatError('a record needs "features" (an observation), "scan" (a laser scan) or "odometry"')
 
 
