@@ -134,7 +134,9 @@ def test_the_first_scan_waits_for_the_static_mount_of_its_frame():
 def test_a_lidar_without_a_transform_to_the_given_base_frame_is_dropped_and_counted():
     clock = Clock()
     live = LiveInput(NodeConfig("db", pose_source="none", base_frame="base_link"), clock=clock)
-    assert live.add_scan("scan", _scan(1.0), "laser") == []
+    assert live.add_scan("scan", _scan(1.0), "laser") == [] and live.stats.unmounted == 0  # waits for /tf_static
+    clock.now = 1.0
+    assert live.poll() == []
     assert live.stats.unmounted == 1 and "no transform from lidar frame 'laser'" in live.stats.notes[0]
 
 

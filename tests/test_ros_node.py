@@ -78,3 +78,41 @@ def test_fingerloc_ros_without_a_master_fails_with_one_line(tmp_path):
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert res.returncode == 2
     assert res.stderr.strip().splitlines()[-1].startswith("error: no ROS master at http://127.0.0.1:1: start roscore")
+
+
+def test_the_node_on_a_place_database_publishes_the_places_of_offline_track(ros, tmp_path, capsys):
+    """fingerloc-ros as a user runs it (this environment's Python; it re-runs itself under Debian's rospy), on a
+    map of the rooms' first loop; the second loop replayed as a bag: the places equal ``track BAG --observe all``."""
+    import sys
+
+    import fingerloc as fl
+
+    from ._cli import run_cli
+    from ._doors import rooms_log_with_doors
+
+    full = rooms_log_with_doors(tmp_path / "rooms-corrected.log")
+    pm = fl.make_map(fl.read_run(full), fl.Config().with_(calibration={"tune": False, "scan_gamma": 1.0}))
+    db = tmp_path / "rooms.sqlite"
+    pm.save(db)
+    scans = fl.read_run(full).scans
+    bag = write_scans_bag(tmp_path / "held.bag", scans[len(scans) // 2 :], t_offset=1000.0, mount=(0.0, 0.0, 0.0))
+    code, _, err = run_cli(capsys, "track", bag, "--db", db, "--filter", "pose", "--observe", "all", "--seed", "2",
+                           "--json", tmp_path / "off.json", "-q")  # fmt: skip
+    assert code == 0, err
+    off = json.loads((tmp_path / "off.json").read_text())["steps"]
+    node = start([sys.executable, "-m", "fingerloc.ros.node", f"_database:={db}", "_scan_topics:=/scan",
+                  "_odom_topic:=/odom", "_base_frame:=base_link", "_seed:=2", "_queue_size:=1000"], ros,
+                 tmp_path / "node.out")  # fmt: skip
+    try:
+        res = replay(bag, tmp_path / "got.json", ros, timeout=90.0)
+    finally:
+        stop(node)
+    log = (tmp_path / "node.out").read_text(errors="replace")
+    assert res.returncode == 0, res.stderr[-2000:] + log[-3000:]
+    got = json.loads((tmp_path / "got.json").read_text())
+    assert [a["best"] for a in got["answers"]] == [s["best"] for s in off]
+    for a, s in zip(got["answers"], off, strict=True):
+        assert a["pose"] == pytest.approx(s["pose"], abs=1e-9) and a["probability"] == pytest.approx(s["probability"])
+    assert got["places"] == [s["best"] for k, s in enumerate(off) if k == 0 or s["best"] != off[k - 1]["best"]]
+    assert len(got["poses"]) == len(off) and got["poses"][-1]["frame"] == "map"
+    assert "note: running under /usr/bin/python3 (Debian's rospy)" in log

@@ -19,29 +19,7 @@ import pytest
 from fingerloc.io.trajectory import read_kitti, read_tum
 
 from ._cli import run_cli
-from ._logs import ROOMS, box_scan
-
-NO_RETURN = 81.83  # a laser's no-return code: the beams through the door of each room
-
-
-def _rooms_log(path: Path, loops: int = 2) -> Path:
-    """Three rooms walked ``loops`` times, one FLASER line per step; each room's door (16 beams) sees nothing."""
-    lines = ["# synthetic rooms with doors", "PARAM robot_front_laser_max 81.83 nohost 0"]
-    k = 0
-    for _ in range(loops):
-        for j, (w, h) in enumerate(ROOMS):
-            for dx in (-0.4, -0.2, 0.0, 0.2, 0.4):
-                x, y, th = w / 2 + dx, h / 2, 0.25 * dx
-                s = box_scan(w, h, x, y, th, n=181, noise=0.005, rng=np.random.default_rng(k))
-                r = np.minimum(s.ranges, 30.0)
-                r[60 + 20 * j : 76 + 20 * j] = NO_RETURN
-                ranges = " ".join(f"{v:.3f}" for v in r)
-                wx = x + 20.0 * j
-                lines.append(f"FLASER 181 {ranges} {wx:.3f} {y:.3f} {th:.4f} 0 0 0 {100 + k}.0 host {100 + k}.0")
-                lines.append(f"ODOM {wx:.3f} {y:.3f} {th:.4f} 0 0 0 {100 + k}.5 host {100 + k}.5")
-                k += 1
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+from ._doors import rooms_log_with_doors
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +29,7 @@ def mapped(tmp_path_factory):
     import fingerloc as fl
 
     d = tmp_path_factory.mktemp("follow")
-    full = _rooms_log(d / "rooms-corrected.log")
+    full = rooms_log_with_doors(d / "rooms-corrected.log")
     pm = fl.make_map(fl.read_run(full), fl.Config().with_(calibration={"tune": False, "scan_gamma": 1.0}))
     assert pm.calibration.heading is not None and pm.scan_map is not None
     pm.save(d / "rooms.sqlite")

@@ -12,9 +12,10 @@ streaming tracker takes, with the rules of the bag reader
   partners is dropped (counted). A reference scan is settled once every other
   topic has a scan later than its stamp plus the tolerance.
 * **Base frame and mounts**: the given base frame, or the root of the static
-  transforms above the lidar frame, chosen at the first scan (which waits up
-  to ``max_wait_s`` for ``/tf_static`` to name its frame; a lidar frame still
-  unknown then is its own base, a zero mount); each lidar's full 3D mount at the scan's stamp,
+  transforms above the lidar frame, chosen at the first scan. A scan whose
+  lidar frame ``/tf`` has not named yet waits (at most ``max_wait_s``) for it;
+  then a lidar frame still unknown is its own base (a zero mount) by default,
+  and a scan without a mount to a given base frame is dropped (counted); each lidar's full 3D mount at the scan's stamp,
   reduced to the plane (:func:`~fingerloc.io.frames.reduce_to_plane`:
   mirrored bearings for a lidar upside down, a lidar tilted more than
   ``max_tilt_deg`` refused).
@@ -392,8 +393,8 @@ class LiveInput:
         t = float(scan.timestamp or 0.0)
         if len(self._pending) > MAX_PENDING or now - arrived >= self.config.max_wait_s:
             return True
-        if self.base is None and frame and frame not in self.tree.frames():
-            return False  # the base frame is chosen from /tf_static: wait for its mount (at most the wait)
+        if frame and frame != self.base and frame not in self.tree.frames():
+            return False  # the lidar's mount (and the default base frame) come from /tf_static: wait for it
         tol = self.pair_tolerance
         if any(self._latest[o] <= t + tol for o in self._partners):
             return False
