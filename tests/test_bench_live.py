@@ -54,3 +54,31 @@ def test_percentile_interpolates_as_numpy():
 def test_bench_live_is_a_command(capsys):
     code, out, _ = run_cli(capsys, "bench", "live", "--help")
     assert code == 0 and "--places" in out and "APE" in out
+
+
+def test_the_latency_section_times_both_variants_on_a_tiled_map(tmp_path):
+    from fingerloc.experiments.live import latency
+
+    from ._doors import rooms_log_with_doors
+
+    log = rooms_log_with_doors(tmp_path / "rooms-corrected.log")
+    res = latency(log, places=7, steps=3, warmup=1)
+    assert res["places_per_copy"] == 3 and res["copies"] == 3 and res["places"] == 9
+    assert set(res["variants"]) == {"default", "no_heading"} and res["steps"] == 3
+    for v in res["variants"].values():
+        assert v["cpu"]["median_ms"] == pytest.approx(v["cpu_observe"]["median_ms"] + v["cpu_filter"]["median_ms"], rel=0.5)
+
+
+def test_the_ape_section_is_evo_over_the_right_steps(tmp_path):
+    import fingerloc as fl
+    from fingerloc.experiments.live import ape
+
+    from ._doors import rooms_log_with_doors
+
+    log = rooms_log_with_doors(tmp_path / "rooms-corrected.log")
+    res = ape(log, seed=1)
+    track = fl.make_map(fl.read_run(log)).track(fl.read_run(log), filter="pose", seed=1)
+    right = [(k, a) for k, a in enumerate(track.answers) if a.true is not None and a.place == a.true]
+    assert res["right_steps"] == len(right) > 0 and res["tracked_steps"] == len(track.answers) == 15
+    err = [math.hypot(a.pose[0] - track.poses[k][0], a.pose[1] - track.poses[k][1]) for k, a in right]
+    assert res["ape_right"]["rmse_m"] == pytest.approx(math.sqrt(np.mean(np.square(err))), rel=1e-9)

@@ -30,13 +30,17 @@ def live_cmd(
                              sections=only or ("latency", "ape"), on_progress=lambda s: status.update(s))  # fmt: skip
     lat = res.get("latency")
     if lat is not None:
-        w, c = lat["wall"], lat["cpu"]
-        console.print(
-            f"latency on {lat['log']}, {lat['places']} places ({lat['copies']} copies of {lat['places_per_copy']}), "
-            f"{lat['steps']} steps: median {w['median_ms']:.1f} ms, p95 {w['p95_ms']:.1f} ms, max {w['max_ms']:.1f} ms "
-            f"(CPU: median {c['median_ms']:.1f} ms, p95 {c['p95_ms']:.1f} ms); load average {lat['load_average_1min']:.2f}",
-            soft_wrap=True, markup=False,
-        )  # fmt: skip
+        console.print(f"latency on {lat['log']}, {lat['places']} places ({lat['copies']} copies of "
+                      f"{lat['places_per_copy']}); load average {lat['load_average_1min']:.2f}", soft_wrap=True,
+                      markup=False)  # fmt: skip
+        for name, v in lat["variants"].items():
+            w, c, co, cf = v["wall"], v["cpu"], v["cpu_observe"], v["cpu_filter"]
+            console.print(
+                f"  {name.replace('_', ' ')}, {v['steps']} steps: median {w['median_ms']:.1f} ms, p95 {w['p95_ms']:.1f} ms "
+                f"(CPU median {c['median_ms']:.1f} ms, p95 {c['p95_ms']:.1f} ms: observation {co['median_ms']:.1f} ms, "
+                f"filter {cf['median_ms']:.1f} ms)",
+                soft_wrap=True, markup=False,
+            )  # fmt: skip
     for name, a in (res.get("ape") or {}).items():
         r, al = a["ape_right"], a["ape_all"]
         fig = "-" if r["rmse_m"] is None else f"{r['rmse_m']:.3f} m"

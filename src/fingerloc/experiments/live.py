@@ -14,7 +14,10 @@ Two sections:
   tracked step by step, the robot in the first copy; each step's wall time
   (``time.perf_counter``) and CPU time (``time.process_time``) are taken, after
   ``warmup`` steps that compile and fill caches. Figures: median, 95th
-  percentile and maximum, milliseconds, and the load average.
+  percentile and maximum, milliseconds, and the load average; the CPU time is
+  split into the observation (features, the model's scores over every place,
+  the heading each place implies, end points) and the filter. Two variants:
+  the map's defaults, and without the heading evidence (``heading=False``).
 * **ape**: per log, the map of its mapping part (``fingerloc map``'s
   defaults) and ``track --filter pose`` of its query part (the library's
   ``PlaceMap.track``, what ``track --tum`` writes), then evo's APE
@@ -158,24 +161,15 @@ def latency(
     assert big.split is not None
     cal = replace(own.calibration, kidnap=1.0 / (int(big.split.n_train) + 2), n_train=int(big.split.n_train))
     big = replace(big, calibration=cal)
-    tracker = big.tracker(filter="pose", seed=seed)
     queries = list(range(n_map, len(run)))
     if steps is not None:
         queries = queries[: warmup + steps]
     assert run.scans is not None
-    wall: list[float] = []
-    cpu: list[float] = []
-    note(f"tracking {len(queries)} scans on {len(big.labels)} places")
-    for k, i in enumerate(queries):
-        s = run.scans[i]
-        w0, c0 = time.perf_counter(), time.process_time()
-        tracker.step(s, odometry=s.pose, stamp=s.timestamp)
-        w1, c1 = time.perf_counter(), time.process_time()
-        if k >= warmup:
-            wall.append(w1 - w0)
-            cpu.append(c1 - c0)
-    if not wall:
-        raise InvalidParameterError(f"{log}: no step to time after {warmup} warm-up steps")
+    scans = [run.scans[i] for i in queries]
+    variants = {}
+    for name, heading in (("default", True), ("no_heading", False)):
+        note(f"tracking {len(scans)} scans on {len(big.labels)} places ({name.replace('_', ' ')})")
+        variants[name] = _time_steps(big.tracker(filter="pose", seed=seed, heading=heading), scans, warmup)
     return {
         "log": log.name,
         "places": len(big.labels),
@@ -183,12 +177,35 @@ def latency(
         "places_per_copy": per_copy,
         "preset": getattr(big.preset, "name", None),
         "filter": "pose",
-        "steps": len(wall),
         "warmup_steps": warmup,
-        "wall": _figures_ms(wall),
-        "cpu": _figures_ms(cpu),
+        **variants["default"],
+        "variants": variants,
         "load_average_1min": os.getloadavg()[0],
     }
+
+
+def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> dict[str, Any]:
+    """Wall and CPU time of each step after ``warmup``; CPU split into the observation (features, the model's
+    scores, implied headings, end points: ``Tracker.observe``) and the filter (``Tracker.step_scores``)."""
+    wall: list[float] = []
+    cpu: list[float] = []
+    cpu_observe: list[float] = []
+    cpu_filter: list[float] = []
+    for k, s in enumerate(scans):
+        w0, c0 = time.perf_counter(), time.process_time()
+        row, hd, pts, unknown = tracker.observe(s)
+        c1 = time.process_time()
+        tracker.step_scores(row, s.pose, s.timestamp, headings=hd, points=pts, unknown=unknown, started=w0)
+        w2, c2 = time.perf_counter(), time.process_time()
+        if k >= warmup:
+            wall.append(w2 - w0)
+            cpu.append(c2 - c0)
+            cpu_observe.append(c1 - c0)
+            cpu_filter.append(c2 - c1)
+    if not wall:
+        raise InvalidParameterError(f"no step to time after {warmup} warm-up steps")
+    return {"steps": len(wall), "wall": _figures_ms(wall), "cpu": _figures_ms(cpu),
+            "cpu_observe": _figures_ms(cpu_observe), "cpu_filter": _figures_ms(cpu_filter)}  # fmt: skip
 
 
 def ape(log: Path, *, seed: int = 0, on_progress: Progress | None = None) -> dict[str, Any]:
