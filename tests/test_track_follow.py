@@ -44,9 +44,10 @@ def _stdin(monkeypatch, data: bytes) -> None:
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BufferedReader(io.BytesIO(data))))
 
 
-def test_a_piped_log_gives_the_answers_of_track_step_for_step(mapped, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("odometry", [[], ["--odometry-error", "0"]], ids=["simulated-odometry", "exact-odometry"])
+def test_a_piped_log_gives_the_answers_of_track_step_for_step(mapped, tmp_path, capsys, monkeypatch, odometry):
     db, held = mapped
-    common = ["--db", db, "--filter", "pose", "--odometry-error", "0", "--seed", "3"]
+    common = ["--db", db, "--filter", "pose", "--seed", "3", *odometry]
     code, _, err = run_cli(capsys, "track", held, *common, "--json", tmp_path / "off.json", "-q")
     assert code == 0, err
     off = json.loads((tmp_path / "off.json").read_text())["steps"]

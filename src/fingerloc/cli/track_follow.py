@@ -80,8 +80,8 @@ def track_follow(
                 factor = 1.0 if item.kind == "carmen" and filter_kind == "pose" else 0.0
                 if factor:
                     note("CARMEN poses are corrected ones: simulating wheel-odometry errors (--odometry-error 1)")
-            extra: dict[str, Any] = {"odometry_error": factor} if filter_kind == "pose" and factor else {}
-            stepper = state["stepper"] = StreamStepper(pm, pm.tracker(**options, **extra), observe=observe)
+            tracker = pm.tracker(**options, odometry_error=factor if filter_kind == "pose" else 0.0)
+            stepper = state["stepper"] = StreamStepper(pm, tracker, observe=observe)
         return stepper.step(item)
 
     res = follow_track(data, step, kind=kind, follow=True, skip_bad=skip_bad, idle_timeout=idle_timeout,
