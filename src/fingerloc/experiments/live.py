@@ -5,9 +5,10 @@ Two sections:
 * **latency**: the streaming tracker (``PlaceMap.tracker(filter="pose")``,
   one ``step`` per scan) on a map of about ``places`` places with the
   ``laser2d`` preset. A real log's map has tens of places; the map is made
-  from ``copies`` copies of the log's mapping part, each moved ``offset_m``
-  metres further along ``x`` (buildings side by side that look alike), and
-  learned without calibration; the single log's own calibration (its
+  from ``copies`` copies of the log's mapping part laid out on a square grid,
+  ``gap_m`` metres between the trajectories' bounding boxes (buildings side
+  by side that look alike; close enough that the scan map keeps its
+  resolution), and learned without calibration; the single log's own calibration (its
   likelihood scale, the pose filter's tuned reliabilities, scan power...)
   is put on it, with the kidnapping probability of its number of
   training scans. The log's query part (after the mapping part) is then
@@ -50,17 +51,19 @@ from ..sensors import Scan
 
 __all__ = ["ape_translation", "percentile", "run_live_bench", "tiled_run"]
 
-#: Metres between two copies of a building in the latency map.
-COPY_OFFSET_M = 10_000.0
+#: Metres between the bounding boxes of two copies' trajectories in the latency map.
+COPY_GAP_M = 40.0
 
 Progress = Callable[[str], None]
 
 
-def tiled_run(run: Run, copies: int, n: int, *, offset_m: float = COPY_OFFSET_M) -> Run:
-    """The first ``n`` scans of a laser run, ``copies`` times, copy ``k`` moved ``k * offset_m`` metres along ``x``.
+def tiled_run(run: Run, copies: int, n: int, *, gap_m: float = COPY_GAP_M) -> Run:
+    """The first ``n`` scans of a laser run, ``copies`` times, laid out on a square grid of copies.
 
-    Timestamps go on increasing from copy to copy (each copy after the
-    previous one's last stamp), so that the run is one trajectory.
+    Copy ``k`` sits in column ``k % c`` and row ``k // c`` (``c = ceil(sqrt(copies))``),
+    moved by the trajectory's extent plus ``gap_m`` metres per column and per
+    row. Timestamps go on increasing from copy to copy, so that the run is
+    one trajectory.
     """
     if run.scans is None:
         raise InvalidParameterError("tiled_run needs a laser run (scans with poses)")
@@ -69,15 +72,19 @@ def tiled_run(run: Run, copies: int, n: int, *, offset_m: float = COPY_OFFSET_M)
     base = run.scans[:n]
     if any(s.pose is None for s in base):
         raise InvalidParameterError("tiled_run needs a pose on every scan")
+    xy = np.array([s.pose[:2] for s in base if s.pose is not None], dtype=np.float64)
+    dx, dy = (np.ptp(xy, axis=0) + gap_m).tolist()
+    cols = math.ceil(math.sqrt(copies))
     t = [float(s.timestamp or 0.0) for s in base]
     span = (max(t) - min(t)) + 1.0
     scans: list[Scan] = []
     names: list[str] = []
     for k in range(copies):
+        ox, oy = (k % cols) * dx, (k // cols) * dy
         for i, s in enumerate(base):
             assert s.pose is not None
             x, y, th = s.pose
-            scans.append(replace(s, pose=(x + k * offset_m, y, th), timestamp=t[i] + k * span))
+            scans.append(replace(s, pose=(x + ox, y + oy, th), timestamp=t[i] + k * span))
             names.append(f"copy{k}:{run.names[i]}")
     return Run(list(run.paths), run.kind, names, scans=scans, key=f"tiled{copies}x{n}:{run.key}")
 
@@ -141,16 +148,17 @@ def _figures_ms(values_s: Sequence[float]) -> dict[str, float]:
 
 def latency(
     log: Path, *, places: int = 1000, seed: int = 0, steps: int | None = None, warmup: int = 20,
-    on_progress: Progress | None = None,
+    config: Any = None, on_progress: Progress | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """The latency section (see the module docstring) on one CARMEN log."""
+    """The latency section (see the module docstring) on one CARMEN log; ``config``: the log's own map's
+    (default ``Config()``, what ``fingerloc map`` does)."""
     import fingerloc as fl
 
     note = on_progress or (lambda s: None)
     note(f"reading {log.name}")
     run = fl.read_run(log)
     note(f"mapping {log.name} (calibrated)")
-    own = fl.make_map(run)
+    own = fl.make_map(run, config)
     assert own.split is not None and own.calibration is not None
     n_map = int(own.split.n_mapping)
     per_copy = max(len(own.labels), 1)
@@ -208,14 +216,14 @@ def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> dict[str, A
             "cpu_observe": _figures_ms(cpu_observe), "cpu_filter": _figures_ms(cpu_filter)}  # fmt: skip
 
 
-def ape(log: Path, *, seed: int = 0, on_progress: Progress | None = None) -> dict[str, Any]:
-    """The APE section (see the module docstring) on one CARMEN log."""
+def ape(log: Path, *, seed: int = 0, config: Any = None, on_progress: Progress | None = None) -> dict[str, Any]:
+    """The APE section (see the module docstring) on one CARMEN log; ``config``: the map's (default ``Config()``)."""
     import fingerloc as fl
 
     note = on_progress or (lambda s: None)
     run = fl.read_run(log)
     note(f"mapping {log.name}")
-    pm = fl.make_map(run)
+    pm = fl.make_map(run, config)
     note(f"tracking {log.name}")
     res = pm.track(run, filter="pose", seed=seed)
     ref = res.poses
