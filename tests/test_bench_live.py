@@ -90,3 +90,20 @@ def test_the_ape_section_is_evo_over_the_right_steps(tmp_path):
     assert res["right_steps"] == len(right) > 0 and res["tracked_steps"] == len(track.answers) == 15
     err = [math.hypot(a.pose[0] - track.poses[k][0], a.pose[1] - track.poses[k][1]) for k, a in right]
     assert res["ape_right"]["rmse_m"] == pytest.approx(math.sqrt(np.mean(np.square(err))), rel=1e-9)
+    st = res["stream"]  # the query part (15 scans) as its own log, read whole and line by line
+    assert st["offline_steps"] == st["stream_steps"] == st["same_place"] == st["same_record"] == 15
+
+
+def test_the_held_out_log_is_the_query_part(tmp_path):
+    from fingerloc.experiments.live import held_out_log
+    from fingerloc.pipeline.readers import load_log_scans
+
+    from ._doors import rooms_log_with_doors
+
+    log = rooms_log_with_doors(tmp_path / "rooms-corrected.log")
+    assert held_out_log(log, 10, tmp_path / "held.log") == 20
+    text = (tmp_path / "held.log").read_text().splitlines()
+    assert text[:2] == log.read_text().splitlines()[:2] and text[2].startswith("FLASER")
+    full, _ = load_log_scans(log)
+    held, _ = load_log_scans(tmp_path / "held.log")
+    assert [s.timestamp for s in held] == [s.timestamp for s in full[10:]]

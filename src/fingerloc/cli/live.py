@@ -45,9 +45,11 @@ def live_cmd(
         r, al = a["ape_right"], a["ape_all"]
         fig = "-" if r["rmse_m"] is None else f"{r['rmse_m']:.3f} m"
         fig_all = "-" if al["rmse_m"] is None else f"{al['rmse_m']:.3f} m"
+        st = a["stream"]
         console.print(
             f"{name}: APE (translation RMSE) {fig} over {r['steps']} right steps, {fig_all} over all {al['steps']} "
-            f"tracked steps with a pose",
+            f"tracked steps with a pose; query part as a stream: {st['same_place']} of {st['offline_steps']} steps "
+            f"the same place ({st['same_record']} the same record, {st['stream_steps']} stream steps)",
             soft_wrap=True, markup=False,
         )  # fmt: skip
     write_json(json_out, res)

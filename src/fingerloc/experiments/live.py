@@ -19,7 +19,7 @@ Two sections:
   split into the observation (features, the model's scores over every place,
   the heading each place implies, end points) and the filter. Two variants:
   the map's defaults, and without the heading evidence (``heading=False``).
-* **ape**: per log, the map of its mapping part (``fingerloc map``'s
+* **ape** (and the stream check): per log, the map of its mapping part (``fingerloc map``'s
   defaults) and ``track --filter pose`` of its query part (the library's
   ``PlaceMap.track``, what ``track --tum`` writes), then evo's APE
   (translation part, RMSE, no alignment: both are in the map's frame)
@@ -28,7 +28,9 @@ Two sections:
   a place's radius), and over every tracked step. Both trajectories are
   written as TUM files and read back by evo (``evo.tools.file_interface``);
   their timestamps are the steps' indices in the run (seconds), so that evo
-  pairs them exactly whatever the log's clock.
+  pairs them exactly whatever the log's clock. With the same map, the query
+  part written as a log of its own is tracked read whole and line by line
+  (:func:`stream_check`): the steps that give the same place, the same record.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from ..errors import InvalidParameterError
 from ..pipeline.readers import Run
 from ..sensors import Scan
 
-__all__ = ["ape_translation", "percentile", "run_live_bench", "tiled_run"]
+__all__ = ["ape_translation", "held_out_log", "percentile", "run_live_bench", "stream_check", "tiled_run"]
 
 #: Metres between the bounding boxes of two copies' trajectories in the latency map.
 COPY_GAP_M = 40.0
@@ -226,6 +228,9 @@ def ape(log: Path, *, seed: int = 0, config: Any = None, on_progress: Progress |
     pm = fl.make_map(run, config)
     note(f"tracking {log.name}")
     res = pm.track(run, filter="pose", seed=seed)
+    assert pm.split is not None
+    note(f"tracking the query part of {log.name} as a stream")
+    stream = stream_check(log, pm, int(pm.split.n_mapping), seed=seed)
     ref = res.poses
     assert ref is not None
     rows = [(k, a) for k, a in enumerate(res.answers) if a.pose is not None]
@@ -245,6 +250,59 @@ def ape(log: Path, *, seed: int = 0, config: Any = None, on_progress: Progress |
         "top1": sum(1 for _, a in right if a.observed) / labelled if labelled else None,
         "ape_right": ape_translation(*pair(right)),
         "ape_all": ape_translation(*pair(rows)),
+        "stream": stream,
+    }
+
+
+def held_out_log(log: Path, n_mapping: int, out: Path) -> int:
+    """Write the query part of a CARMEN log as a log of its own: its comment and ``PARAM`` lines, then every line
+    after its ``n_mapping``-th front-laser line (``FLASER``, or ``ROBOTLASER1`` in a log without them, the stream
+    reader's rule); returns the number of front-laser lines written."""
+    from ..io.stream import open_lines
+
+    front: str | None = None
+    seen = written = 0
+    with open(out, "w", encoding="utf-8") as fh:
+        for _, text in open_lines(log):
+            head = text.split(None, 1)[0] if text.strip() else ""
+            if front is None and head in ("FLASER", "ROBOTLASER1"):
+                front = head
+            if head == front:
+                seen += 1
+            if head.startswith("#") or head == "PARAM":
+                fh.write(text)
+            elif seen > n_mapping:
+                fh.write(text)
+                written += head == front
+    return written
+
+
+def stream_check(log: Path, place_map: Any, n_mapping: int, *, seed: int = 0) -> dict[str, Any]:
+    """The query part of ``log`` as its own log, tracked twice with the pose filter: read whole
+    (``PlaceMap.track``, what ``track LOG --json`` does) and line by line (``track - --follow``: the stream
+    reader and :class:`~fingerloc.pipeline.follow.StreamStepper`, CARMEN's simulated odometry); how many steps
+    give the same place, and how many the same record (every field of ``track --json`` but the name and latency)."""
+    import fingerloc as fl
+
+    from ..io.stream import iter_stream
+    from ..pipeline.follow import track_stream
+
+    with tempfile.TemporaryDirectory(prefix="fingerloc-held-") as tmp:
+        held = Path(tmp) / f"held-{log.name.removesuffix('.gz')}"
+        held_out_log(log, n_mapping, held)
+        offline = place_map.track(fl.read_run(held), filter="pose", seed=seed).answers
+        live = list(track_stream(place_map, iter_stream(held), filter="pose", seed=seed, odometry_error=1.0))
+
+    def record(a: Any) -> dict[str, Any]:
+        r = a.to_json()
+        return {k: v for k, v in r.items() if k not in ("name", "latency_ms")}
+
+    n = min(len(offline), len(live))
+    return {
+        "offline_steps": len(offline),
+        "stream_steps": len(live),
+        "same_place": sum(offline[k].place == live[k].place for k in range(n)),
+        "same_record": sum(record(offline[k]) == record(live[k]) for k in range(n)),
     }
 
 
