@@ -155,3 +155,38 @@ def test_each_answer_is_printed_before_the_next_line_is_read(mapped, tmp_path):
             proc.kill()
             proc.wait()
     assert len(got) == 15 and [g["step"] for g in got] == list(range(15))
+
+
+def test_the_stream_stepper_decides_truth_and_observation_per_item(mapped):
+    import fingerloc as fl
+    from fingerloc.io.stream import StreamItem
+    from fingerloc.observation import Observation
+    from fingerloc.pipeline.follow import StreamStepper
+
+    db, _ = mapped
+    pm = fl.load_map(db)
+    calls = []
+
+    class Recorder:
+        def step(self, item, **kw):
+            calls.append(kw)
+
+    centre = tuple(pm.positions[1])
+    on_place = (centre[0] + 0.3, centre[1], 0.0)
+    off_place = (centre[0] + 3.0, centre[1] + 3.0, 0.0)
+    obs = Observation.from_degrees({"VE": [10.0]})
+    items = [
+        StreamItem(1, "a", observation=obs.with_label(pm.labels[2]), pose=off_place),  # a label wins
+        StreamItem(2, "b", observation=obs, pose=on_place),
+        StreamItem(3, "c", observation=obs, pose=off_place),
+        StreamItem(4, "d", observation=obs, odometry=(1.0, 2.0, 0.5)),  # no pose: observes, moves by odometry
+    ]
+    for mode in ("queries", "all"):
+        calls.clear()
+        stepper = StreamStepper(pm, Recorder(), observe=mode)
+        for it in items:
+            stepper.step(it)
+        assert [c["truth"] for c in calls] == [pm.labels[2], pm.labels[1], None, None]
+        assert [c["observe"] for c in calls] == [True, True, mode == "all", True]
+        assert calls[3]["odometry"] == (1.0, 2.0, 0.5) and calls[1]["odometry"] == on_place
+        assert [c["name"] for c in calls] == ["a", "b", "c", "d"]

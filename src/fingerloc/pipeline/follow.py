@@ -4,11 +4,11 @@ step as ``PlaceMap.track`` tracks the same run read from a file.
 For each item, what offline ``track`` decides from the whole run is decided
 from the item alone:
 
-* **truth**: a scan's pose within the map's place radius of a place centre
-  (the nearest), or an observation's label when it names a place;
-* **observe** (``observe="queries"``, the default): a scan with a pose observes
-  only when it has a true place (the others only predict), as offline;
-  ``"all"``, an observation, or a scan without a pose: always;
+* **truth**: a labelled observation's label when it names a place; else the
+  place whose centre is nearest to the item's pose, within the map's radius;
+* **observe** (``observe="queries"``, the default): an item with a pose and no
+  label observes only when it has a true place (the others only predict), as
+  offline; ``"all"``, a labelled observation, or an item without a pose: always;
 * **motion**: the differences of the items' poses (a log's poses, as offline),
   or of their odometry poses when they have no pose; with ``odometry_error``
   the tracker adds simulated wheel-odometry errors to them, one step at a time.
@@ -58,11 +58,15 @@ class StreamStepper:
         self._centres = None if place_map.positions is None else np.asarray(place_map.positions, dtype=np.float64)
         self._radius = None if place_map.calibration is None else float(place_map.calibration.radius)
 
+    def _labelled(self, item: StreamItem) -> bool:
+        return item.observation is not None and item.observation.label is not None
+
     def truth(self, item: StreamItem) -> str | None:
-        """The item's true place: an observation's label, or the place within the radius of a scan's pose."""
-        if item.observation is not None:
-            label = item.observation.label
-            return str(label) if label is not None and str(label) in self._known else None
+        """The item's true place: an observation's label, or the place within the radius of the item's pose."""
+        if self._labelled(item):
+            assert item.observation is not None
+            label = str(item.observation.label)
+            return label if label in self._known else None
         if item.pose is None or self._centres is None or self._radius is None:
             return None
         idx, near = nearest_within(
@@ -74,7 +78,12 @@ class StreamStepper:
         """Step the tracker with one item."""
         truth = self.truth(item)
         observe = True
-        if self.observe == "queries" and item.scan is not None and item.pose is not None and self._centres is not None:
+        if (
+            self.observe == "queries"
+            and not self._labelled(item)
+            and item.pose is not None
+            and self._centres is not None
+        ):
             observe = truth is not None
         motion = item.pose if item.pose is not None else item.odometry
         return self.tracker.step(item.item, odometry=motion, stamp=item.stamp, observe=observe, truth=truth,
