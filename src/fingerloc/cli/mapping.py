@@ -69,6 +69,9 @@ def map_cmd(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
     ),
     lock_timeout: float = LOCK_TIMEOUT_OPTION,
+    tum: Path | None = typer.Option(
+        None, "--tum", help="Also write the run's poses (every scan) as a TUM trajectory here: the reference for evo."
+    ),
 ) -> None:
     """Make a place map from a recorded run's poses.
 
@@ -101,6 +104,7 @@ def map_cmd(
     check_db_target(db, overwrite)
     check_output(json_out, "--json")
     check_output(queries_out, "--queries")
+    check_output(tum, "--tum")
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
@@ -140,6 +144,10 @@ def map_cmd(
         q = run.observations(sp.query_idx, features=features)
         n = write_observations(queries_out, [o.with_label(pm.labels[j]) for o, j in zip(q, sp.query_labels.tolist(), strict=True)])
         err_console.print(f"wrote {n} labelled queries to {queries_out}", markup=False)
+    if tum is not None:
+        from ._follow import write_reference
+
+        write_reference(tum, run.timestamps, run.poses, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
         map_report(report, model=pm.model, centres=pm.positions, radius=radius, edges=pm.graph.edges(),
                    trajectory=run.poses, scans=run.scans, data=runs[0], db=db)  # fmt: skip

@@ -39,7 +39,9 @@ __all__ = ["track_cmd"]
 @app.command("track")
 @all_or_nothing  # outputs renamed together at the end, the database's writer lock held to the end
 def track_cmd(
-    data: Path = typer.Argument(..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag."),
+    data: Path = typer.Argument(
+        ..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag ('-': standard input, tracked as it arrives)."
+    ),
     db: Path = typer.Option(..., "--db", help="Place database ('fingerloc map', or 'learn' with the place graph)."),
     json_out: Path | None = typer.Option(None, "--json", help="Write every step's posterior summary as JSON here."),
     map_log: bool = typer.Option(
@@ -114,6 +116,19 @@ def track_cmd(
     base_frame: str | None = BASE_FRAME_OPTION,
     skip_bad: bool = SKIP_BAD_OPTION,
     lock_timeout: float = LOCK_TIMEOUT_OPTION,
+    follow: bool = typer.Option(
+        False, "--follow", help="Track line by line as the input arrives (a file: as it grows), one JSON line out "
+        "per step, flushed (docs/ROBOT.md); standard input ('-') always is."
+    ),
+    idle_timeout: float | None = typer.Option(
+        None, "--idle-timeout", help="--follow on a file: stop after this many seconds without a new line [never]."
+    ),
+    max_range: float | None = typer.Option(
+        None, "--max-range", help="Standard input / --follow, CARMEN: metres at and beyond which a reading is no "
+        "return [a known no-return code seen in the stream]."
+    ),
+    tum: Path | None = typer.Option(None, "--tum", help="Write the pose filter's poses as a TUM trajectory here."),
+    kitti: Path | None = typer.Option(None, "--kitti", help="Write the pose filter's poses as KITTI poses here."),
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
@@ -128,11 +143,31 @@ def track_cmd(
     pose filter's pose estimate with its covariance.
     """
     from ..pipeline.readers import detect_kind
+    from ._follow import write_trajectories
     from .reports import check_report, track_report
 
     check_report(report)
     _check_options(observe, filter_kind, odometry_error, radius, scale, metres_per_move, alpha, uniform_mix, scan_gamma)
     check_output(json_out, "--json")
+    check_output(tum, "--tum")
+    check_output(kitti, "--kitti")
+    if (tum is not None or kitti is not None) and filter_kind != "pose":
+        raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)")
+    if str(data) == "-" or follow:
+        from .track_follow import track_follow
+
+        unused = {"--map": map_log, "--overwrite": overwrite, "--graph-from": graph_from, "--report": report,
+                  "--radius": radius, "--topic": topic, "--base-frame": base_frame}  # fmt: skip
+        track_follow(data, db, unused=unused, json_out=json_out, tum=tum, kitti=kitti, quiet=quiet, kind=kind,
+                     skip_bad=skip_bad, idle_timeout=idle_timeout, max_range=max_range, observe=observe,
+                     tracker_options={"filter": filter_kind, "seed": seed, "scan": scan, "heading": heading,
+                                      "beta": scale, "metres_per_move": metres_per_move, "alpha": alpha,
+                                      "uniform_mix": uniform_mix, "scan_gamma": scan_gamma},
+                     odometry_error=odometry_error)  # fmt: skip
+        return
+    if idle_timeout is not None or max_range is not None:
+        raise InvalidParameterError(f"{'--idle-timeout' if idle_timeout is not None else '--max-range'} goes with "
+                                    "--follow or standard input ('-')")  # fmt: skip
     bag = bag_options(topic, pose_source, base_frame)
     raw_kind = (detect_kind(data) if kind == "auto" else kind) or "jsonl"
     _check_db_flags(raw_kind, db, map_log, graph_from, overwrite)
@@ -163,6 +198,7 @@ def track_cmd(
     _print_summary(tr)
     warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
+    write_trajectories(tr.answers, tum=tum, kitti=kitti, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
         beta = tr.summary["likelihood_scale"]
         track_report(report, result=tr.result, log_likelihood=beta * tr.log_likelihood, truth=tr.truth,
