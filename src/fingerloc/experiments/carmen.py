@@ -67,6 +67,7 @@ __all__ = [
     "PLACE_RADIUS_M",
     "PLACE_SPACING_M",
     "BenchmarkRun",
+    "Hardening",
     "HistogramBaseline",
     "LogRun",
     "Method",
@@ -82,6 +83,7 @@ __all__ = [
     "rank_metrics",
     "register_method",
     "run_benchmark",
+    "harden_scans",
     "run_log",
     "true_place_ranks",
 ]
@@ -424,12 +426,114 @@ class LogRun:
         }
 
 
+@dataclass(frozen=True, slots=True)
+class Hardening:
+    """A benchmark run made harder than the fixed protocol (``bench carmen`` options); the defaults are the protocol.
+
+    Attributes
+    ----------
+    seed : int, default 0
+        Seeds every method that draws random numbers (the pose filter's
+        particles and simulated odometry: a method's ``seed`` attribute).
+    odometry_error : float, default 1.0
+        Factor on the simulated odometry errors of every method that
+        simulates them (times the method's own factor; 0 = exact odometry).
+    mapping_part : float, default 0.5
+        Fraction of the scans that maps (``floor(mapping_part * n)``): a
+        shorter mapping part gives fewer places, fewer training scans and a
+        longer query pass.
+    query_start : float, default 0.0
+        Fraction of the query pass left out at its start: the robot starts
+        somewhere else along its route (global localization from there).
+    query_cut : (float, float) or None
+        ``(start, length)``, fractions of the query pass: that block is left
+        out (a gap in the log; the odometry sees the jump).
+    reverse : bool, default False
+        The query pass in reverse order: the route driven backwards (the
+        scans are the recorded ones, so the robot moves in reverse).
+    """
+
+    seed: int = 0
+    odometry_error: float = 1.0
+    mapping_part: float = 0.5
+    query_start: float = 0.0
+    query_cut: tuple[float, float] | None = None
+    reverse: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise InvalidParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if not (math.isfinite(self.odometry_error) and self.odometry_error >= 0):
+            raise InvalidParameterError(f"odometry_error must be a finite factor >= 0, got {self.odometry_error!r}")
+        if not (isinstance(self.mapping_part, (int, float)) and 0 < self.mapping_part < 1):
+            raise InvalidParameterError(f"mapping_part must be a fraction in (0, 1), got {self.mapping_part!r}")
+        if not (isinstance(self.query_start, (int, float)) and 0 <= self.query_start < 1):
+            raise InvalidParameterError(f"query_start must be a fraction in [0, 1), got {self.query_start!r}")
+        if self.query_cut is not None:
+            a, b = (float(v) for v in self.query_cut)
+            if not (0 <= a < 1 and 0 < b < 1 and a + b <= 1):
+                raise InvalidParameterError(
+                    f"query_cut must be (start, length) fractions with start + length <= 1, got {self.query_cut!r}"
+                )
+            object.__setattr__(self, "query_cut", (a, b))
+
+    def is_protocol(self) -> bool:
+        """True when the run is the fixed protocol (every field at its default)."""
+        return self == Hardening()
+
+    def to_json(self) -> dict[str, Any]:
+        """Every field (``query_cut`` as a list or None)."""
+        return {
+            "seed": int(self.seed),
+            "odometry_error": float(self.odometry_error),
+            "mapping_part": float(self.mapping_part),
+            "query_start": float(self.query_start),
+            "query_cut": None if self.query_cut is None else list(self.query_cut),
+            "reverse": bool(self.reverse),
+        }
+
+
+def harden_scans(scans: Sequence[Scan], hardening: Hardening) -> tuple[list[Scan], int]:
+    """A log's scans as a hardened run sees them, and the number of mapping scans.
+
+    The mapping pass (the first ``floor(mapping_part * n)`` scans, ``n // 2``
+    at the default) is kept as recorded; the query pass loses its first
+    ``query_start`` and the ``query_cut`` block (fractions of its scans) and
+    is reversed with ``reverse``.
+    """
+    n = len(scans)
+    n_map = n // 2 if hardening.mapping_part == 0.5 else math.floor(hardening.mapping_part * n)
+    rest = list(scans[n_map:])
+    nq = len(rest)
+    keep = np.ones(nq, dtype=bool)
+    keep[: math.floor(hardening.query_start * nq)] = False
+    if hardening.query_cut is not None:
+        a = math.floor(hardening.query_cut[0] * nq)
+        keep[a : a + math.floor(hardening.query_cut[1] * nq)] = False
+    rest = [s for s, k in zip(rest, keep.tolist(), strict=True) if k]
+    if hardening.reverse:
+        rest.reverse()
+    return list(scans[:n_map]) + rest, n_map
+
+
+def _apply_hardening(m: Method, hardening: Hardening) -> Method:
+    """``m`` with the run's seed and odometry-error factor, when it has those attributes (the pose filters)."""
+    if hardening.is_protocol():
+        return m
+    if hasattr(m, "seed"):
+        m.seed = int(hardening.seed)  # type: ignore[attr-defined]
+    if hasattr(m, "odometry_error"):
+        m.odometry_error = float(m.odometry_error) * hardening.odometry_error  # type: ignore[attr-defined]
+    return m
+
+
 @dataclass(slots=True)
 class BenchmarkRun:
     """All logs of one run; :meth:`to_json` gives the issue's JSON layout."""
 
     logs: list[LogRun]
     method_names: list[str]
+    hardening: Hardening = field(default_factory=lambda: Hardening())
 
     def pooled(self) -> dict[str, Any]:
         """Figures over every query of every log (each query weighs the same)."""
@@ -458,8 +562,10 @@ class BenchmarkRun:
             "protocol": {
                 "place_spacing_m": PLACE_SPACING_M,
                 "radius_m": PLACE_RADIUS_M,
-                "mapping": "index < n // 2",
+                "mapping": "index < n // 2" if self.hardening.mapping_part == 0.5 else
+                           f"index < floor({self.hardening.mapping_part:g} n)",
                 "ties": "count against",
+                **({} if self.hardening.is_protocol() else {"hardening": self.hardening.to_json()}),
             },
         }
 
@@ -503,6 +609,7 @@ def run_benchmark(
     on_progress: Callable[[str], None] | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
+    hardening: Hardening | None = None,
 ) -> BenchmarkRun:
     """Run the benchmark's protocol on CARMEN logs.
 
@@ -522,6 +629,10 @@ def run_benchmark(
         a local cluster of ``workers`` processes, or an existing cluster at
         ``scheduler``. Every method is seeded by its own parameters, so the
         figures are those of the serial run.
+    hardening : Hardening, optional
+        A harder run than the protocol (seed, odometry errors, a shorter
+        mapping part, the query pass cut, started later or reversed);
+        default the protocol itself.
 
     Returns
     -------
@@ -534,12 +645,13 @@ def run_benchmark(
     for n in names:
         if n not in METHODS:
             raise InvalidParameterError(f"unknown method {n!r} (known: {', '.join(METHODS)})")
-    tasks: list[tuple[str, str, list[str], bool]] = []
+    hard = Hardening() if hardening is None else hardening
+    tasks: list[tuple[str, str, list[str], bool, Hardening]] = []
     seen: dict[str, int] = {}
     for path in paths:
         name = log_name(path)
         seen[name] = seen.get(name, 0) + 1
-        tasks.append((str(path), name if seen[name] == 1 else f"{name}#{seen[name]}", names, skip_bad))
+        tasks.append((str(path), name if seen[name] == 1 else f"{name}#{seen[name]}", names, skip_bad, hard))
     if workers is None and scheduler is None:
         logs = [_bench_log(t, on_progress) for t in tasks]
     else:
@@ -547,25 +659,30 @@ def run_benchmark(
 
         done = None if on_progress is None else (lambda k: on_progress(f"{k} of {len(tasks)} logs done"))
         logs = run_tasks(_bench_log, tasks, workers=workers, scheduler=scheduler, on_done=done)
-    return BenchmarkRun(logs=logs, method_names=names)
+    return BenchmarkRun(logs=logs, method_names=names, hardening=hard)
 
 
-def _bench_log(task: tuple[str, str, list[str], bool], on_progress: Callable[[str], None] | None = None) -> LogRun:
-    """One log of :func:`run_benchmark`: ``(path, name, method names, skip_bad)`` -> its :class:`LogRun`."""
-    path, name, names, skip_bad = task
+def _bench_log(
+    task: tuple[str, str, list[str], bool, Hardening], on_progress: Callable[[str], None] | None = None
+) -> LogRun:
+    """One log of :func:`run_benchmark`: ``(path, name, method names, skip_bad, hardening)`` -> its :class:`LogRun`."""
+    path, name, names, skip_bad, hard = task
     load_methods()  # in a fresh worker process too
     if on_progress is not None:
         on_progress(f"{name}: reading")
     scans, skipped = load_log_scans(path, skip_bad=skip_bad)
+    n_map = None
+    if not hard.is_protocol():
+        scans, n_map = harden_scans(scans, hard)
     pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
-    split = make_split(pos)
+    split = make_split(pos, n_mapping=n_map)
     lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
     if split.n_queries:
         with shared_results():  # one fit, one scoring, one feature extraction per scan, for every method
             lg.methods = run_log(
                 scans,
                 split,
-                [_shareable(make_method(n)) for n in names],
+                [_shareable(_apply_hardening(make_method(n), hard)) for n in names],
                 on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
             )
     return lg
