@@ -74,6 +74,7 @@ __all__ = [
     "MethodRun",
     "ScanContextBaseline",
     "Split",
+    "harden_scans",
     "load_log_scans",
     "load_methods",
     "log_name",
@@ -83,7 +84,6 @@ __all__ = [
     "rank_metrics",
     "register_method",
     "run_benchmark",
-    "harden_scans",
     "run_log",
     "true_place_ranks",
 ]
@@ -255,6 +255,17 @@ class FingerprintMethod:
     extremities, beacons; the scan's own field of view); ``score`` is the
     model's log-posterior over places.
 
+    With ``verify`` (and a pose on every training scan) the answer is
+    verified against the mapping run's laser end points
+    (:mod:`fingerloc.map.scan_verify`): each query scan is fitted into the
+    scan map at every place, and the program's log-posterior and the fits
+    are combined with weights fitted on held-out training scans
+    (:func:`fit_verification_inputs`). The scan map is made of the mapping
+    run of the enclosing :func:`mapping_context` (the benchmark's runner
+    opens one per log: every mapping-pass scan but the training scans this
+    fit does not hold and their neighbours along the run), else of the
+    training scans themselves.
+
     Parameters
     ----------
     feature_params : dict, optional
@@ -264,17 +275,36 @@ class FingerprintMethod:
         bearings are in the map frame: the heading is then *given* to the
         method (the baselines do not get it). False keeps robot-frame
         bearings (heading unknown).
+    verify : bool, default False
+        Verify the answers against the scan map (above).
+    search : VerifySearch, optional
+        The verifier's search (:class:`~fingerloc.map.scan_verify.VerifySearch`).
     **model_params
         Arguments of :class:`~fingerloc.model.PlaceModel`.
+
+    Attributes
+    ----------
+    model_ : PlaceModel
+    verification_ : Verification or None
+        The fitted weights (``verify``).
+    verifier_ : ScanVerifier or None
     """
 
     name = "fingerprint"
 
     def __init__(
-        self, feature_params: dict[str, Any] | None = None, *, world_frame: bool = False, **model_params: Any
+        self,
+        feature_params: dict[str, Any] | None = None,
+        *,
+        world_frame: bool = False,
+        verify: bool = False,
+        search: Any = None,
+        **model_params: Any,
     ) -> None:
         self.feature_params = dict(feature_params or {})
         self.world_frame = world_frame
+        self.verify = verify
+        self.search = search
         self.model_params = model_params
 
     def _observations(self, scans: Sequence[Scan]) -> list[Any]:
@@ -288,21 +318,41 @@ class FingerprintMethod:
             obs = [o.rotated(s.pose[2]) if s.pose is not None else o for o, s in zip(obs, scans, strict=True)]
         return obs
 
-    def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
-        """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
+    def _program(self, scans: Sequence[Scan], y: IArray) -> Any:
         from ..model import PlaceModel
         from ..pipeline.places import place_label
 
+        return PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
+        """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...);
+        with ``verify``, build the scan map and fit the verification's weights."""
         y = _check_fit_input(scans, labels)
         self.n_places_ = int(y.max()) + 1
-        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
+        self.model_ = self._program(scans, y)
+        self.verification_ = None
+        self.verifier_ = None
+        if self.verify and all(s.pose is not None for s in scans):
+            from .verify import fit_verified
+
+            self.verifier_, self.verification_ = fit_verified(self, scans, y, self.search)
         return self
 
-    def score(self, scans: Sequence[Scan]) -> FArray:
-        """Log-posterior of each place, shape (n_queries, n_places)."""
+    def program_scores(self, scans: Sequence[Scan]) -> FArray:
+        """The program's log-posterior of each place, shape (n_queries, n_places) (before any verification)."""
         from ..pipeline.tracker import posterior_columns
 
         return posterior_columns(self.model_, self._observations(scans) if scans else [], self.n_places_)
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """Log-posterior of each place, shape (n_queries, n_places) (verified with ``verify``)."""
+        lp = self.program_scores(scans)
+        if self.verifier_ is None or self.verification_ is None or not len(scans):
+            return lp
+        from ..map.scan_map import end_points
+        from ..map.scan_verify import verify_candidates
+
+        return verify_candidates(lp, [end_points(s) for s in scans], self.verifier_, verification=self.verification_)
 
 
 @register_method("baseline-scancontext")
@@ -345,7 +395,13 @@ def best_fingerprint_params() -> dict[str, Any]:
 
 @register_method("fingerprint")
 def _fingerprint() -> Method:
-    # Our best configuration for 2D laser logs (see best_fingerprint_params).
+    # Our best configuration for 2D laser logs (see best_fingerprint_params), verified against the scan map.
+    return FingerprintMethod(**best_fingerprint_params(), verify=True)
+
+
+@register_method("fingerprint-program", default=False)
+def _fingerprint_program() -> Method:
+    # The program alone (no scan verification): the single shot before the verification.
     return FingerprintMethod(**best_fingerprint_params())
 
 
@@ -578,27 +634,42 @@ def run_log(
     on_method: Callable[[str], None] | None = None,
 ) -> dict[str, MethodRun]:
     """Fit and score every method on one log's split."""
+    from .verify import mapping_context
+
     train = [scans[i] for i in split.train_idx.tolist()]
     queries = [scans[i] for i in split.query_idx.tolist()]
     out: dict[str, MethodRun] = {}
-    for m in methods:
-        if on_method is not None:
-            on_method(m.name)
-        set_context = getattr(m, "set_context", None)
-        if set_context is not None:  # methods that need the trajectory (the Markov filter)
-            set_context(scans, split)
-        t0 = time.perf_counter()
-        m.fit(train, split.train_labels.copy())
-        t1 = time.perf_counter()
-        s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
-        t2 = time.perf_counter()
-        if s.shape != (split.n_queries, split.n_places):
-            raise RuntimeError(f"method {m.name} returned scores of shape {s.shape}, expected "
-                               f"({split.n_queries}, {split.n_places})")  # fmt: skip
-        ranks = true_place_ranks(s, split.query_labels)
-        pred = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=1) if s.size else np.zeros(0, np.int64)
-        out[m.name] = MethodRun(ranks=ranks, predicted=pred.astype(np.int64), learn_s=t1 - t0, score_s=t2 - t1)
+    with mapping_context(scans, split):
+        for m in methods:
+            out[m.name] = _run_method(m, scans, split, train, queries, on_method)
     return out
+
+
+def _run_method(
+    m: Method,
+    scans: Sequence[Scan],
+    split: Split,
+    train: list[Scan],
+    queries: list[Scan],
+    on_method: Callable[[str], None] | None,
+) -> MethodRun:
+    """One method of :func:`run_log`: fit, score, ranks."""
+    if on_method is not None:
+        on_method(m.name)
+    set_context = getattr(m, "set_context", None)
+    if set_context is not None:  # methods that need the trajectory (the Markov filter)
+        set_context(scans, split)
+    t0 = time.perf_counter()
+    m.fit(train, split.train_labels.copy())
+    t1 = time.perf_counter()
+    s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
+    t2 = time.perf_counter()
+    if s.shape != (split.n_queries, split.n_places):
+        raise RuntimeError(f"method {m.name} returned scores of shape {s.shape}, expected "
+                           f"({split.n_queries}, {split.n_places})")  # fmt: skip
+    ranks = true_place_ranks(s, split.query_labels)
+    pred = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=1) if s.size else np.zeros(0, np.int64)
+    return MethodRun(ranks=ranks, predicted=pred.astype(np.int64), learn_s=t1 - t0, score_s=t2 - t1)
 
 
 def run_benchmark(
