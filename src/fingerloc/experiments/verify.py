@@ -43,6 +43,8 @@ __all__ = ["CALIBRATION_ROWS", "MappingRun", "fit_verified", "mapping_context", 
 
 #: Held-out training scans the verification's weights are fitted on, at most (evenly spaced).
 CALIBRATION_ROWS = 120
+#: A held-out row's scan map leaves out its fold's scans and every scan within this many metres of travel of one.
+MAP_GUARD_M = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,14 +177,17 @@ def fit_verified(method: Any, scans: Sequence[Scan], y: IArray, search: Any = No
     rows = np.arange(held.index.size)
     if rows.size > CALIBRATION_ROWS:
         rows = np.unique(np.linspace(0, rows.size - 1, CALIBRATION_ROWS).round().astype(np.int64))
+    from ..pipeline.tracker import scan_folds
+
+    sfold = scan_folds(at, y)  # alternate visits in time order: a row's map keeps the neighbouring visits
     fits = np.zeros((rows.size, k))
     for f in (0, 1):
-        mine = rows[held.fold[held.index[rows]] == f]
+        mine = rows[sfold[held.index[rows]] == f]
         if mine.size == 0:
             continue
         ex = excluded.copy()
-        ex[at[held.fold == f]] = True
-        fmap = verification_map(pts, poses, travel, ex)
+        ex[at[sfold == f]] = True
+        fmap = verification_map(pts, poses, travel, ex, guard=MAP_GUARD_M)
         if fmap is None:
             return verifier, Verification()
         fv = ScanVerifier(fmap, centres, radius, search)
