@@ -48,12 +48,15 @@ from ..errors import InvalidParameterError
 from .scan_map import ScanMap
 
 __all__ = [
+    "CALIBRATION_ROWS",
     "MAX_PROGRAM_WEIGHT",
     "MAX_SCAN_WEIGHT",
     "ScanVerifier",
     "Verification",
     "VerifySearch",
+    "calibrate_verification",
     "fit_verification",
+    "map_without",
     "verify_candidates",
 ]
 
@@ -61,6 +64,8 @@ __all__ = [
 MAX_PROGRAM_WEIGHT = 4.0
 #: Largest weight of the scan fit (nats per unit of mean end-point log-likelihood).
 MAX_SCAN_WEIGHT = 60.0
+#: Held-out rows :func:`calibrate_verification` fits the weights on, at most (evenly spaced).
+CALIBRATION_ROWS = 120
 
 
 @dataclass(frozen=True, slots=True)
@@ -455,3 +460,119 @@ def verify_candidates(
     if ver.scan > 0:
         fits = verifier.fit_rows(pts)[0]
     return ver.combine(lp, fits)
+
+
+def map_without(
+    points: Sequence[Any], poses: Any, excluded: Any, *, travel: Any = None, guard: float = 0.0
+) -> ScanMap | None:
+    """The :class:`~fingerloc.map.scan_map.ScanMap` of a run's scans without the ``excluded`` ones.
+
+    Parameters
+    ----------
+    points : sequence of (m, 2) arrays, length n
+        Each scan's end points, robot frame.
+    poses : array_like, shape (n, 3)
+        The scans' poses, mapping frame.
+    excluded : array_like of bool, shape (n,)
+    travel : array_like, shape (n,), optional
+        Metres travelled along the run at each scan (non-decreasing): with
+        ``guard`` > 0 every scan within ``guard`` metres of travel of an
+        excluded one is left out too.
+    guard : float, default 0.0
+
+    Returns
+    -------
+    ScanMap or None
+        None when no end point is left.
+    """
+    ex = np.asarray(excluded, dtype=bool).reshape(-1)
+    pts = list(points)
+    ps = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if not len(pts) == ps.shape[0] == ex.size:
+        raise InvalidParameterError(f"points, poses and excluded need one entry per scan, got {len(pts)}, {ps.shape[0]}, {ex.size}")
+    drop = ex.copy()
+    if guard > 0 and ex.any():
+        if travel is None:
+            raise InvalidParameterError("a guard needs the travel along the run")
+        from scipy.spatial import cKDTree
+
+        tv = np.asarray(travel, dtype=np.float64).reshape(-1)
+        d, _ = cKDTree(tv[ex, None]).query(tv[:, None], k=1)
+        drop |= np.asarray(d) <= float(guard)
+    keep = [i for i in np.flatnonzero(~drop).tolist() if pts[i] is not None and np.size(pts[i])]
+    if not keep:
+        return None
+    return ScanMap.from_scans([pts[i] for i in keep], ps[keep])
+
+
+def calibrate_verification(
+    held_scores: Any,
+    held_labels: Any,
+    held_scans: Any,
+    points: Sequence[Any],
+    poses: Any,
+    fold: Any,
+    centres: Any,
+    radius: float,
+    *,
+    excluded: Any = None,
+    search: VerifySearch | None = None,
+    max_rows: int = CALIBRATION_ROWS,
+) -> Verification:
+    """The verification's weights for a map, from its mapping part (:func:`fit_verification` on held-out rows).
+
+    Each held-out row was scored by a program fit without it (``held_scores``,
+    e.g. :func:`fingerloc.pipeline.tracker.held_out_calibration`'s); here it
+    is also fitted into a scan map without its fold: the mapping part's
+    scans minus ``excluded`` minus every scan of the row's ``fold``
+    (alternate visits in time order, :func:`fingerloc.pipeline.tracker.scan_folds`:
+    the row's own visit goes, the neighbouring visits stay). At most
+    ``max_rows`` rows, evenly spaced in the held-out order.
+
+    Parameters
+    ----------
+    held_scores : array_like, shape (n, P)
+    held_labels : array_like of int, shape (n,)
+    held_scans : array_like of int, shape (n,)
+        Each held-out row's scan among ``points`` / ``poses``.
+    points : sequence of (m, 2) arrays, length N
+        The mapping part's scans' end points (robot frame).
+    poses : array_like, shape (N, 3)
+    fold : array_like of int, shape (N,)
+        Each scan's map fold (0 / 1; -1: in every fold's map).
+    centres : array_like, shape (P, 2)
+    radius : float
+    excluded : array_like of bool, shape (N,), optional
+        Scans no map holds.
+    search : VerifySearch, optional
+    max_rows : int, default CALIBRATION_ROWS
+
+    Returns
+    -------
+    Verification
+    """
+    sc = np.asarray(held_scores, dtype=np.float64)
+    y = np.asarray(held_labels, dtype=np.int64).reshape(-1)
+    at = np.asarray(held_scans, dtype=np.int64).reshape(-1)
+    fd = np.asarray(fold, dtype=np.int64).reshape(-1)
+    n_scans = len(points)
+    if sc.ndim != 2 or sc.shape[0] != y.size or at.size != y.size:
+        raise InvalidParameterError(f"held_scores (n, P), held_labels and held_scans (n,) must agree, got {sc.shape}, {y.size}, {at.size}")
+    if fd.size != n_scans or (at.size and (at.min() < 0 or at.max() >= n_scans)):
+        raise InvalidParameterError("fold needs one entry per scan and held_scans must index the scans")
+    ex = np.zeros(n_scans, dtype=bool) if excluded is None else np.asarray(excluded, dtype=bool).reshape(-1)
+    if y.size == 0:
+        return Verification()
+    rows = np.arange(y.size)
+    if rows.size > max_rows:
+        rows = np.unique(np.linspace(0, rows.size - 1, max_rows).round().astype(np.int64))
+    fits = np.zeros((rows.size, sc.shape[1]))
+    for f in np.unique(fd[at[rows]]).tolist():
+        mine = np.flatnonzero(fd[at[rows]] == f)
+        fmap = map_without(points, poses, ex | (fd == f))
+        if fmap is None:
+            return Verification()
+        v = ScanVerifier(fmap, centres, radius, search)
+        for r in mine.tolist():
+            fits[r] = v.fits(points[int(at[rows[r]])])[0]
+    return fit_verification(sc[rows], fits, y[rows])
