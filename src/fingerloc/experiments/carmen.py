@@ -260,11 +260,11 @@ class FingerprintMethod:
     (:mod:`fingerloc.map.scan_verify`): each query scan is fitted into the
     scan map at every place, and the program's log-posterior and the fits
     are combined with weights fitted on held-out training scans
-    (:func:`fit_verification_inputs`). The scan map is made of the mapping
-    run of the enclosing :func:`mapping_context` (the benchmark's runner
-    opens one per log: every mapping-pass scan but the training scans this
-    fit does not hold and their neighbours along the run), else of the
-    training scans themselves.
+    (:func:`fingerloc.experiments.verify.fit_verified`). The scan map is made
+    of the mapping run of the enclosing
+    :func:`~fingerloc.experiments.verify.mapping_context` (the benchmark's
+    runner opens one per log: every mapping-pass scan but the training scans
+    this fit does not hold), else of the training scans themselves.
 
     Parameters
     ----------
@@ -656,11 +656,12 @@ def _run_method(
     """One method of :func:`run_log`: fit, score, ranks."""
     if on_method is not None:
         on_method(m.name)
-    set_context = getattr(m, "set_context", None)
-    if set_context is not None:  # methods that need the trajectory (the Markov filter)
-        set_context(scans, split)
+    fit_log = getattr(m, "fit_log", None)
     t0 = time.perf_counter()
-    m.fit(train, split.train_labels.copy())
+    if fit_log is not None:  # methods that need the trajectory (the filters)
+        fit_log(scans, split)
+    else:
+        m.fit(train, split.train_labels.copy())
     t1 = time.perf_counter()
     s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
     t2 = time.perf_counter()
@@ -761,7 +762,7 @@ def _bench_log(
 
 def _shareable(m: Method) -> Method:
     """``m`` as a :class:`~.shared.SharedMethod` when it is a registered single-shot method (no trajectory)."""
-    if getattr(m, "set_context", None) is not None or m.name not in METHODS:
+    if getattr(m, "fit_log", None) is not None or m.name not in METHODS:
         return m
     shared: Method = shared_method(m.name)
     return shared
