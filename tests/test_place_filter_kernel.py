@@ -16,7 +16,7 @@ from fingerloc.map.filter import (
     run_filter,
 )
 from fingerloc.map.graph import PlaceGraph
-from fingerloc.pipeline.tracker import step_distances
+from fingerloc.pipeline.calibration import step_distances
 from tests._paths import polyline, truth_places
 
 _CENTRES = np.column_stack([np.arange(0.0, 40.0, 2.0), np.zeros(20)])  # a corridor, a place every 2 m

@@ -340,7 +340,7 @@ class FingerprintMethod:
 
     def program_scores(self, scans: Sequence[Scan]) -> FArray:
         """The program's log-posterior of each place, shape (n_queries, n_places) (before any verification)."""
-        from ..pipeline.tracker import posterior_columns
+        from ..pipeline.calibration import posterior_columns
 
         return posterior_columns(self.model_, self._observations(scans) if scans else [], self.n_places_)
 

@@ -15,9 +15,9 @@ fits the program, then (:func:`fit_verified`):
   (:func:`~fingerloc.map.scan_verify.calibrate_verification`) on held-out
   training scans: each scored by a program fit on the other fold of
   alternate visits (as the filters' calibration,
-  :func:`~fingerloc.pipeline.tracker.held_out_calibration`) and fitted into
+  :func:`~fingerloc.pipeline.calibration.held_out_calibration`) and fitted into
   a scan map without its own fold of alternate visits in time order
-  (:func:`~fingerloc.pipeline.tracker.scan_folds`: its visit goes, the
+  (:func:`~fingerloc.pipeline.calibrate.scan_folds`: its visit goes, the
   neighbouring visits stay); at most
   :data:`~fingerloc.map.scan_verify.CALIBRATION_ROWS` rows, evenly spaced.
 * the place centres: the split's (inside the context), else each place's
@@ -117,7 +117,8 @@ def fit_verified(method: Any, scans: Sequence[Scan], y: IArray, search: Any = No
     run has no laser end point to map.
     """
     from ..map.scan_verify import ScanVerifier, Verification, calibrate_verification, map_without
-    from ..pipeline.tracker import held_out_calibration, posterior_columns, scan_folds
+    from ..pipeline.calibrate import scan_folds
+    from ..pipeline.calibration import held_out_calibration, posterior_columns
 
     pool, poses, at, excluded, radius, centres = _pool(scans, y)
     pts = _end_points(pool)

@@ -522,10 +522,10 @@ def calibrate_verification(
     """The verification's weights for a map, from its mapping part (:func:`fit_verification` on held-out rows).
 
     Each held-out row was scored by a program fit without it (``held_scores``,
-    e.g. :func:`fingerloc.pipeline.tracker.held_out_calibration`'s); here it
+    e.g. :func:`fingerloc.pipeline.calibration.held_out_calibration`'s); here it
     is also fitted into a scan map without its fold: the mapping part's
     scans minus ``excluded`` minus every scan of the row's ``fold``
-    (alternate visits in time order, :func:`fingerloc.pipeline.tracker.scan_folds`:
+    (alternate visits in time order, :func:`fingerloc.pipeline.calibrate.scan_folds`:
     the row's own visit goes, the neighbouring visits stay). At most
     ``max_rows`` rows, evenly spaced in the held-out order.
 
