@@ -185,7 +185,7 @@ def test_cli_track_picks_the_filter_the_data_allow(rooms_log, tmp_path, capsys):
     write_observations(jl, obs)
     db2 = tmp_path / "labels.sqlite"
     assert _run_cli(capsys, "learn", str(jl), "--db", str(db2))[0] == 0
-    code, text, err = _run_cli(capsys, "track", str(jl), "--db", str(db2), "--json", str(out), "-q")
+    code, _, err = _run_cli(capsys, "track", str(jl), "--db", str(db2), "--json", str(out), "-q")
     assert code == 0, err
     assert "filter: places" in err and "positions" in err
     assert json.loads(out.read_text())["summary"]["filter"] == "places"
