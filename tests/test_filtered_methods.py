@@ -173,7 +173,7 @@ def test_cli_track_picks_the_filter_the_data_allow(rooms_log, tmp_path, capsys):
     place filter when the map has no positions (JSON Lines learned from labels)."""
     db = tmp_path / "rooms.sqlite"
     out = tmp_path / "t.json"
-    code, text, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--map", "--json", str(out), "-q")
+    code, _, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--map", "--json", str(out), "-q")
     assert code == 0, err
     assert "filter: pose" in err and "odometry" in err
     assert json.loads(out.read_text())["summary"]["filter"] == "pose"
