@@ -404,6 +404,8 @@ def _register() -> None:
     register_method("fingerprint-odometry-noheading", default=False)(_pose(calibration={"heading": False}))
     register_method("fingerprint-odometry-heading-untempered", default=False)(_pose(calibration={"heading_temper_m": 0.0}))
     register_method("fingerprint-odometry-reset", default=False)(_pose(pose_filter={"strategy": "reset"}))
+    # The former lost re-draw: its prior entirely the place filter's belief.
+    register_method("fingerprint-odometry-lostplace", default=False)(_pose(scan=True, pose_filter={"lost_uniform_share": 0.0}))
     for factor in (2.0, 4.0):  # the simulated odometry errors times 2 and 4
         register_method(f"fingerprint-odometry-x{factor:g}", default=False)(_pose(scan=True, odometry_error=factor))
         register_method(f"odometry-only-x{factor:g}", default=False)(_pose(observe=False, odometry_error=factor))

@@ -91,6 +91,7 @@ def pose_filter_of(
         lost_after=pf.lost_after,
         lost_statistic=pf.lost_statistic,
         lost_uniform=pf.lost_uniform,
+        lost_uniform_share=pf.lost_uniform_share,
         random_state=seed if rng is None else rng,
     )
 
