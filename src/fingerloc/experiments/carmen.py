@@ -537,6 +537,16 @@ class Hardening:
         """True when the run is the fixed protocol (every field at its default)."""
         return self == Hardening()
 
+    def apply(self, method: Method) -> Method:
+        """``method`` with this run's seed and odometry-error factor, when it has those attributes (the pose filters)."""
+        if self.is_protocol():
+            return method
+        if hasattr(method, "seed"):
+            method.seed = int(self.seed)
+        if hasattr(method, "odometry_error"):
+            method.odometry_error = float(method.odometry_error) * self.odometry_error
+        return method
+
     def to_json(self) -> dict[str, Any]:
         """Every field (``query_cut`` as a list or None)."""
         return {
@@ -570,17 +580,6 @@ def harden_scans(scans: Sequence[Scan], hardening: Hardening) -> tuple[list[Scan
     if hardening.reverse:
         rest.reverse()
     return list(scans[:n_map]) + rest, n_map
-
-
-def _apply_hardening(m: Method, hardening: Hardening) -> Method:
-    """``m`` with the run's seed and odometry-error factor, when it has those attributes (the pose filters)."""
-    if hardening.is_protocol():
-        return m
-    if hasattr(m, "seed"):
-        m.seed = int(hardening.seed)  # type: ignore[attr-defined]
-    if hasattr(m, "odometry_error"):
-        m.odometry_error = float(m.odometry_error) * hardening.odometry_error  # type: ignore[attr-defined]
-    return m
 
 
 @dataclass(slots=True)
@@ -754,7 +753,7 @@ def _bench_log(
             lg.methods = run_log(
                 scans,
                 split,
-                [_shareable(_apply_hardening(make_method(n), hard)) for n in names],
+                [_shareable(hard.apply(make_method(n))) for n in names],
                 on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
             )
     return lg
