@@ -141,14 +141,16 @@ def track_cmd(
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     pm = _place_map(run, db, map_log=map_log, graph_from=graph_from, radius=radius, heading=heading, scan=scan,
                     pose=filter_kind == "pose", pending=pending, load_scan=filter_kind != "places")  # fmt: skip
+    why = None
     if filter_kind == "auto":
         filter_kind, why = pm.default_filter(run)
-        err_console.print(why, markup=False)
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
         on_note=lambda s: err_console.print(s, markup=False),
     )  # fmt: skip
+    if why is not None:  # after the tracking: a failed command prints its one error line only
+        err_console.print(why, markup=False)
     for write in pending:
         write()
     steps = tr.steps
