@@ -73,11 +73,12 @@ def track_cmd(
         "'learn'); their consecutive places give the graph, stored into --db (and odometry when they have poses).",
     ),
     filter_kind: str = typer.Option(
-        "places",
+        "auto",
         "--filter",
-        help="'places': discrete filter over the places; 'pose': particle filter over the robot's pose with the "
-        "odometry increments (needs poses, and place positions: a database made by 'fingerloc map', or "
-        "JSON Lines with --graph-from, both with poses).",
+        help="'pose': particle filter over the robot's pose with the odometry increments (needs poses, and place "
+        "positions: a database made by 'fingerloc map', or JSON Lines with --graph-from, both with poses); "
+        "'places': discrete filter over the places; 'auto': the pose filter when the run and the map allow it, "
+        "else the places (printed on stderr).",
     ),
     odometry_error: float | None = typer.Option(
         None,
@@ -134,9 +135,12 @@ def track_cmd(
 
     Per step: the best place, its probability and the posterior's entropy
     (bits); with known places, the filtered and single-shot top-1 and mean
-    rank of the true place. ``--filter places`` (default) is the discrete
-    Bayes filter on the place graph; ``--filter pose`` the particle filter,
-    which follows the odometry's direction and turn, not only the distance.
+    rank of the true place. ``--filter pose`` is the particle filter, which
+    follows the odometry's direction and turn, not only the distance;
+    ``--filter places`` the discrete Bayes filter over the places (when it was
+    below the single shot on the map's mapping part, it answers the single
+    shot at the observations and says so). Without ``--filter``: the pose
+    filter when the run has poses and the map place positions, else places.
     With a database made by 'fingerloc map', both use its calibration
     (likelihood scale, metres per place change, tempering, kidnapping
     probability). ``--json`` also gives each step's clock (``stamp``) and the
@@ -175,13 +179,18 @@ def track_cmd(
     pending: list[Any] = []
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     pm = _place_map(run, db, map_log=map_log, graph_from=graph_from, radius=radius, heading=heading, scan=scan,
-                    pose=filter_kind == "pose", pending=pending)  # fmt: skip
+                    pose=filter_kind == "pose", pending=pending, load_scan=filter_kind != "places")  # fmt: skip
     doubts = compat.check_map(pm) if map_log else compat.check_run(pm, run)  # what does not fit: an error now, doubts
+    why = None
+    if filter_kind == "auto":
+        filter_kind, why = pm.default_filter(run)
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
         on_note=lambda s: err_console.print(s, markup=False),
     )  # fmt: skip
+    if why is not None:  # after the tracking: a failed command prints its one error line only
+        err_console.print(why, markup=False)
     for write in pending:
         write()
     steps = tr.steps
@@ -220,8 +229,8 @@ def _check_options(
     """One-line errors for the filter's options, before anything is read."""
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
-    if filter_kind not in ("places", "pose"):
-        raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
+    if filter_kind not in ("places", "pose", "auto"):
+        raise InvalidParameterError(f"--filter must be 'pose', 'places' or 'auto', got {filter_kind!r}")
     for flag, v in (("--odometry-error", odometry_error), ("--alpha", alpha), ("--scan-gamma", scan_gamma)):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InvalidParameterError(f"{flag} must be a finite number >= 0, got {v!r}")
@@ -250,7 +259,7 @@ def _check_db_flags(raw_kind: str, db: Path, map_log: bool, graph_from: Path | N
 
 def _place_map(
     run: Any, db: Path, *, map_log: bool, graph_from: Path | None, radius: float | None, heading: bool, scan: bool,
-    pose: bool, pending: list[Any],
+    pose: bool, pending: list[Any], load_scan: bool = True,
 ) -> PlaceMap:  # fmt: skip
     """The map to track against: made from the run (``--map``, saved later), or the database's (with the visits of
     ``--graph-from``, whose graph is saved later)."""
@@ -277,7 +286,7 @@ def _place_map(
         return pm
     if graph_from is not None:
         hold_lock(db)  # the writer lock from this read to the graph's store (a concurrent learn waits)
-    pm = load_map(db, scan=scan and pose)
+    pm = load_map(db, scan=scan and load_scan)
     if run.kind != "jsonl" or (graph_from is None and pm.has_positions):
         return pm
     if graph_from is not None:
@@ -320,5 +329,10 @@ def _print_summary(tr: TrackResult) -> None:
         console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g}{evidence})", soft_wrap=True)
     else:
         metres = s["metres_per_move"]
-        odometry = "off" if metres is None else f"{metres:.2f} m per place change"
-        console.print(head + f"uniform mixing {s['uniform_mix']:.3g}, odometry {odometry}", soft_wrap=True)
+        if s.get("transitions") == "metric":
+            odometry = "metric transitions over the place positions (the place spacing, widened by the distance travelled)"
+        else:
+            odometry = "odometry off" if metres is None else f"odometry {metres:.2f} m per place change"
+        console.print(head + f"uniform mixing {s['uniform_mix']:.3g}, {odometry}", soft_wrap=True)
+        if s.get("place_filter"):
+            console.print(s["place_filter"], soft_wrap=True, markup=False)
