@@ -31,7 +31,7 @@ def sweep_cell(task: tuple[str, int, str]) -> dict[str, Any]:
     import numpy as np
 
     from fingerloc.experiments.carmen import FingerprintMethod, load_log_scans, log_name, make_split, run_log
-    from fingerloc.experiments.markov import PoseFilteredMethod
+    from fingerloc.experiments.filtered import PoseFilteredMethod
     from fingerloc.experiments.protocol import METHODS, register_method
     from fingerloc.experiments.shared import shared_method, shared_results
     from fingerloc.pipeline.presets import model_options

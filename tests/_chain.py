@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fingerloc.experiments.markov import TrackingData, step_distances, with_synthetic_likelihood
+from fingerloc.experiments.kidnap import TrackingData, with_synthetic_likelihood
 from fingerloc.map.filter import TransitionModel
 from fingerloc.map.graph import PlaceGraph
+from fingerloc.pipeline.calibration import step_distances
 
 
 def chain_data(p=30, per_place=3, seed=0):

@@ -4,7 +4,7 @@ Each log's methods run inside :func:`fingerloc.experiments.shared.shared_results
 here the default methods run once that way (``run_benchmark``) and once
 without any sharing (``run_log`` outside the context, every method fitting
 and scoring on its own, as before issue 17), and every query's rank and
-answer must agree. ``scripts/compare_bench.py`` does the same for two
+answer must agree. ``fingerloc bench compare`` does the same for two
 ``--json`` files (e.g. the main branch's and this one's on the shared logs).
 """
 

@@ -1,4 +1,4 @@
-"""The challenger filter (issue 15): a second pose filter started from the sensor, adopted when its trajectory fits better."""
+"""The challenger strategy: a second pose filter started from the sensor, adopted when its trajectory fits better."""
 
 import math
 
@@ -7,13 +7,9 @@ import pytest
 from scipy.special import logsumexp
 
 from fingerloc.errors import InvalidParameterError
-from fingerloc.map.pose_filter import (
-    Challenger,
-    PoseFilter,
-    odometry_increments,
-    run_challenged_pose_filter,
-    run_pose_filter,
-)
+from fingerloc.map.driver import Challenger, PoseTracking, run_pose_filter
+from fingerloc.map.motion import odometry_increments
+from fingerloc.map.pose_filter import PoseFilter
 
 from ._paths import polyline as _polyline
 from ._paths import sensor_scores as _sensor
@@ -30,13 +26,10 @@ def _kidnapped(seed, challenger):
     truth = _truth(poses, CORRIDOR)
     ll = _sensor(truth, 10, 3.0, seed)
     f = PoseFilter(CORRIDOR, 1.0, kidnap=0.0, start=np.array([[0.0, 0.0, 0.0]]), random_state=seed)
-    inc = odometry_increments(poses)
-    if challenger is None:
-        res = run_pose_filter(ll, inc, f, temper=(2.0, math.pi))
-    else:
-        res = run_challenged_pose_filter(ll, inc, f, challenger, temper=(2.0, math.pi))
+    drv = PoseTracking(f, strategy=challenger, temper=(2.0, math.pi))
+    res = run_pose_filter(ll, odometry_increments(poses), drv)
     q = truth >= 0
-    return res.best[q] == truth[q], f
+    return res.best[q] == truth[q], drv
 
 
 @pytest.mark.parametrize(("seed", "tempered"), [(0, True), (1, True), (2, True), (0, False)])
@@ -63,9 +56,10 @@ def _confident_mistakes(seed, challenger):
         ll[t] = rng.normal(size=10)
         ll[t, wrong] += 6.0
     f = PoseFilter(CORRIDOR, 1.0, kidnap=0.005, start=np.array([[0.0, 0.0, 0.0]]), random_state=seed)
-    res = run_challenged_pose_filter(ll, odometry_increments(poses), f, challenger, temper=(2.0, math.pi))
+    drv = PoseTracking(f, strategy=challenger, temper=(2.0, math.pi))
+    res = run_pose_filter(ll, odometry_increments(poses), drv)
     after = q[q > bad[-1]]
-    return float(np.mean(res.best[after] == truth[after])), f
+    return float(np.mean(res.best[after] == truth[after])), drv
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -109,23 +103,28 @@ def test_challenger_settings_are_checked(kw):
         Challenger(**kw)
 
 
-def test_the_tracker_runs_the_challenger_from_the_calibration():
-    """`Calibration.challenger` is what `track --filter pose` and the benchmark read: the same run as the function."""
+def test_the_tracker_runs_the_challenger_from_the_config():
+    """``config.pose_filter.strategy`` is what ``track --filter pose`` and the benchmark read: the same run as the driver's."""
+    from fingerloc.config import Config
     from fingerloc.map.filter import MarkovFilter
-    from fingerloc.pipeline.tracker import Calibration, Tracker, challenger_of, mapping_graph
+    from fingerloc.pipeline.calibration import Calibration, mapping_graph
+    from fingerloc.pipeline.filters import pose_filter_of, pose_tracking, strategy_of, transition_of
 
     poses = _polyline([(0, 0), (27, 0), (0, 0)], 0.5)
     truth = _truth(poses, CORRIDOR)
     ll = _sensor(truth, 10, 3.0, 0)
     graph, metres = mapping_graph(poses[:, :2], CORRIDOR)
-    cal = Calibration(metres_per_move=metres, kidnap=0.01, challenger=True, challenger_switch_nats=2.0)
-    assert challenger_of(cal) == Challenger(switch_nats=2.0) and challenger_of(Calibration()) is None
-    tracker = Tracker(CORRIDOR, graph, cal, n_particles=200)
-    got = tracker.run(ll, poses, filter="pose", seed=3)
-    f = tracker.pose_filter(3)
-    want = run_challenged_pose_filter(
-        ll, odometry_increments(poses), f, Challenger(switch_nats=2.0), temper=(2.0, math.pi),
-        place_filter=MarkovFilter(tracker.transition_), start_at_first_observation=True,
+    cal = Calibration(metres_per_move=metres, kidnap=0.01)
+    cfg = Config().with_(pose_filter={"strategy": "challenger", "challenger_switch_nats": 2.0, "n_particles": 200})
+    assert strategy_of(cfg) == Challenger(switch_nats=2.0) and strategy_of(Config()) is None
+    transition = transition_of(graph, cal, cfg)
+    drv = pose_tracking(pose_filter_of(CORRIDOR, cal, cfg, seed=3), transition, cal, cfg)
+    got = run_pose_filter(ll, odometry_increments(poses), drv)
+    f = PoseFilter(CORRIDOR, 1.0, n_particles=200, kidnap=0.01, random_state=3)
+    want_drv = PoseTracking(
+        f, strategy=Challenger(switch_nats=2.0), temper=(2.0, math.pi), place_filter=MarkovFilter(transition),
+        start_at_first_observation=True, hold_margin=0.05, tie_break=0.02,
     )  # fmt: skip
-    assert np.array_equal(got.log_posterior, want.log_posterior)
-    assert f.challenger_trace_  # challengers were started
+    want = run_pose_filter(ll, odometry_increments(poses), want_drv)
+    assert np.array_equal(got.log_posterior, want.log_posterior) and np.array_equal(got.best, want.best)
+    assert want_drv.challenger_trace_  # challengers were started

@@ -24,11 +24,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fingerloc import Observation
+from fingerloc.config import Config
 from fingerloc.errors import DatabaseError
 from fingerloc.map._records import decode_observation, encode_observation
 from fingerloc.map.database import SCHEMA_VERSION, load_model, save_model
 from fingerloc.model import PlaceModel
-from fingerloc.pipeline.mapping import load_map
+from fingerloc.pipeline.placemap import load_map
 from fingerloc.pipeline.readers import read_run
 
 from ._places import dataset
@@ -82,12 +83,12 @@ def test_version_2_model_saved_as_version_3_answers_alike(tmp_path, rooms_log, n
 
 
 def test_version_3_round_trip_is_exact(tmp_path, rooms_log):
-    from fingerloc.pipeline.mapping import make_map, save_map
+    from fingerloc.pipeline.mapping import make_map
 
     run = read_run(rooms_log)
-    pm = make_map(run, calibrate=False)
+    pm = make_map(run, Config().with_(calibration={"enabled": False}))
     db = tmp_path / "m.sqlite"
-    save_map(pm, db)
+    pm.save(db)
     with sqlite3.connect(db) as con:
         assert con.execute("SELECT count(*) FROM fingerprints").fetchone() == (0,)  # every one recomputed exactly
         assert {r[0] for r in con.execute("SELECT encoding FROM range_descriptors")} <= {"|u1", "<u2"}

@@ -106,7 +106,7 @@ def test_no_import_cycle():
 def test_the_graph_sees_lazy_imports():
     """The checker itself: a function-level import is an edge, a TYPE_CHECKING one is not."""
     g = import_graph()
-    assert g.has_edge("fingerloc.cli.track", "fingerloc.map.filter")  # imported inside track_cmd
+    assert g.has_edge("fingerloc.cli.track", "fingerloc.pipeline.mapping")  # imported inside a command function
     assert not g.has_edge("fingerloc.pipeline.presets", "fingerloc.observation")  # TYPE_CHECKING only
 
 
@@ -123,3 +123,44 @@ def test_test_modules_do_not_import_each_other():
                 if last.startswith("test_"):
                     bad.append(f"{path.name}: from {node.module}")
     assert not bad, bad
+
+
+#: The layers, lowest first: a module imports only modules of its own layer or lower ones.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("_estimator", "_lazy", "_lse", "_mog_kernels", "_numba_guard", "_seed_kernels", "_types", "_version", "angles",
+     "config", "errors", "metrics", "parallel", "sensors", "validation"),
+    ("observation", "fingerprint", "keypoints"),
+    ("io", "features", "sim", "mog", "align"),
+    ("terms",),
+    ("model",),
+    ("map",),
+    ("pipeline",),
+    ("plot", "reporting"),
+    ("experiments",),
+    ("cli", "ros"),
+)  # fmt: skip
+
+
+def layer_of(module: str) -> int:
+    """The layer of ``fingerloc.X...`` (its first component after the package)."""
+    top = module.split(".")[1]
+    for k, names in enumerate(LAYERS):
+        if top in names:
+            return k
+    raise AssertionError(f"{module}: not in any layer (add {top!r} to LAYERS)")
+
+
+def test_every_import_points_down_the_layers():
+    g = import_graph()
+    bad = [
+        f"{a} ({layer_of(a)}) -> {b} ({layer_of(b)})"
+        for a, b in g.edges()
+        if a != "fingerloc" and b != "fingerloc" and layer_of(b) > layer_of(a)
+    ]
+    assert not bad, "imports up the layers: " + "; ".join(sorted(bad))
+
+
+def test_the_layer_check_can_fail():
+    assert layer_of("fingerloc.observation") < layer_of("fingerloc.features.keypoints") < layer_of("fingerloc.cli.track")
+    with pytest.raises(AssertionError, match="not in any layer"):
+        layer_of("fingerloc.nowhere")

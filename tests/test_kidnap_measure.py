@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fingerloc.experiments.markov import KidnapResult, TrackingData, _settles, kidnap_experiment
+from fingerloc.experiments.kidnap import KidnapResult, TrackingData, _settles, kidnap_experiment
 from fingerloc.map.filter import FilterResult
 
 P = 3

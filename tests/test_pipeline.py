@@ -12,10 +12,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fingerloc import Observation
+from fingerloc.config import Config
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.carmen import make_split, run_benchmark
 from fingerloc.model import PlaceModel
-from fingerloc.pipeline.mapping import load_map, make_map, save_map
+from fingerloc.pipeline.mapping import make_map
+from fingerloc.pipeline.placemap import load_map
 from fingerloc.pipeline.places import mapping_count, places_from_trajectory
 from fingerloc.pipeline.presets import PRESETS, choose_preset, model_options, resolve_preset
 from fingerloc.pipeline.readers import read_run
@@ -98,9 +100,9 @@ def rooms(tmp_path_factory):
 
 def test_map_round_trip(rooms, tmp_path):
     run = read_run(rooms)
-    pm = make_map(run, calibrate=False)
+    pm = make_map(run, Config().with_(calibration={"enabled": False}))
     assert pm.preset.name == "laser2d" and pm.split.n_places == 4 and pm.split.n_train == 12
-    save_map(pm, tmp_path / "m.sqlite")
+    pm.save(tmp_path / "m.sqlite")
     lm = load_map(tmp_path / "m.sqlite")
     assert lm.labels == pm.labels
     assert np.allclose(lm.positions, pm.split.centres)
@@ -204,8 +206,8 @@ def test_empty_terms_are_named():
 
 def test_learn_into_a_map_keeps_its_preset(rooms, tmp_path, capsys):
     db, extra = tmp_path / "m.sqlite", tmp_path / "extra.jsonl"
-    pm = make_map(read_run(rooms), calibrate=False)
-    save_map(pm, db)
+    pm = make_map(read_run(rooms), Config().with_(calibration={"enabled": False}))
+    pm.save(db)
     from fingerloc.io.jsonl import write_observations
 
     write_observations(extra, [pm.training[0].rotated(0.5).with_label("new-place")])
@@ -248,7 +250,7 @@ def test_another_run_is_queried_whole(rooms, tmp_path, capsys):
     from ._runs import walk
 
     db, out = tmp_path / "m.sqlite", tmp_path / "o.json"
-    save_map(make_map(read_run(rooms), calibrate=False), db)
+    make_map(read_run(rooms), Config().with_(calibration={"enabled": False})).save(db)
     other = write_carmen(tmp_path / "other.log", walk(passes=1)[::-1])
     code, _, err = run_cli(capsys, "localize", other, "--db", db, "--json", out, "-q")
     assert code == 0, err

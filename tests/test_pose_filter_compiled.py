@@ -1,4 +1,4 @@
-"""The pose filter's compiled step equals the former NumPy step bit for bit (issue 17).
+"""The pose filter's compiled step equals the plain NumPy step bit for bit.
 
 ``_NumpyPoseFilter`` keeps the NumPy code of ``PoseFilter.predict``,
 ``update``, ``_particle_places``, ``_sample_at_places`` and ``_resample`` as
@@ -13,18 +13,18 @@ import numpy as np
 import pytest
 
 from fingerloc.angles import wrap
+from fingerloc.config import Config
 from fingerloc.map import _pf_kernels as k
 from fingerloc.map import pose_filter as pf
+from fingerloc.map.driver import Challenger, PoseTracking, SensorReset, run_pose_filter
 from fingerloc.map.filter import MarkovFilter, TransitionModel
 from fingerloc.map.graph import PlaceGraph
-from fingerloc.map.pose_filter import (
-    Challenger,
-    PoseFilter,
-    observation_weights,
-    run_challenged_pose_filter,
-    run_pose_filter,
-    simulate_odometry,
-)
+from fingerloc.map.heading import HeadingModel
+from fingerloc.map.motion import simulate_odometry
+from fingerloc.map.pose_filter import PoseFilter, observation_weights
+from fingerloc.map.replay import SharedDraws
+from fingerloc.pipeline.calibrate import tune_pose_filter
+from fingerloc.pipeline.calibration import Calibration, HeldOut
 
 logsumexp = pf.logsumexp
 
@@ -56,7 +56,9 @@ class _NumpyPoseFilter(PoseFilter):
         self._place_log_posterior = self._particle_places()
         return self.place_log_posterior()
 
-    def update(self, log_likelihood, weight=1.0, kidnap_prior=None, kidnap=None):
+    def update(self, log_likelihood, weight=1.0, kidnap_prior=None, kidnap=None, headings=None, heading_weight=None,
+               points=None, scan_map=None):  # fmt: skip
+        assert headings is None and points is None and scan_map is None  # the former step had no such evidence
         w_obs = float(weight)
         lp = w_obs * self.place_likelihood(log_likelihood)
         P = self.n_places
@@ -90,7 +92,8 @@ class _NumpyPoseFilter(PoseFilter):
         self._resample(np.concatenate(parts), np.concatenate(logw))
         return self.place_log_posterior()
 
-    def log_evidence(self, log_likelihood, weight=1.0):
+    def log_evidence(self, log_likelihood, weight=1.0, headings=None):
+        assert headings is None
         w_obs = float(weight)
         lp = w_obs * self.place_likelihood(log_likelihood)
         floor = w_obs * math.log(self.off_place / self.n_places) if self.off_place > 0 else -np.inf
@@ -168,12 +171,12 @@ def test_compiled_run_equals_the_numpy_run(seed, n_places, outlier, off_place, s
     for cls in (PoseFilter, _NumpyPoseFilter):
         f = cls(centres, 0.6, n_particles=900, kidnap=0.01, outlier=outlier, off_place=off_place,
                 place_poses=poses if poses_known else None, random_state=seed)  # fmt: skip
-        out = run_pose_filter(ll, inc, f, weights=observation_weights(inc, q, metres=1.5),
-                              place_filter=MarkovFilter(TransitionModel.from_graph(g, metres_per_move=2.0)),
-                              start_at_first_observation=start_at_first, reset_threshold=reset,
-                              gap_metres=5.0, answer_untempered=seed % 2 == 1)  # fmt: skip
+        drv = PoseTracking(f, place_filter=MarkovFilter(TransitionModel.from_graph(g, metres_per_move=2.0)),
+                           start_at_first_observation=start_at_first, gap_metres=5.0,
+                           strategy=None if reset is None else SensorReset(reset))  # fmt: skip
+        out = run_pose_filter(ll, inc, drv, weights=observation_weights(inc, q, metres=1.5))
         res.append(out.log_posterior)
-        state.append((f.particles_.tobytes(), f.log_weights_.tobytes(), f.resets_, f._rng.uniform()))
+        state.append((f.particles_.tobytes(), f.log_weights_.tobytes(), drv.resets_, f._rng.uniform()))
     assert res[0].tobytes() == res[1].tobytes()
     assert state[0] == state[1]
     assert np.isfinite(res[0][q]).any(axis=1).all()
@@ -184,9 +187,10 @@ def test_compiled_challenged_run_equals_the_numpy_run():
     res = []
     for cls in (PoseFilter, _NumpyPoseFilter):
         f = cls(centres, 0.6, n_particles=600, kidnap=0.01, outlier=0.2, off_place=0.1, random_state=3)
-        out = run_challenged_pose_filter(ll, inc, f, Challenger(n_particles=200, spawn_nats=-1.0),
-                                         temper=(1.5, math.inf), start_at_first_observation=True)  # fmt: skip
-        res.append((out.log_posterior.tobytes(), f.particles_.tobytes(), f.challenger_trace_))
+        drv = PoseTracking(f, strategy=Challenger(n_particles=200, spawn_nats=-1.0), temper=(1.5, math.inf),
+                           start_at_first_observation=True)  # fmt: skip
+        out = run_pose_filter(ll, inc, drv)
+        res.append((out.log_posterior.tobytes(), f.particles_.tobytes(), drv.challenger_trace_))
     assert res[0] == res[1]
     assert any(e == "spawn" for _, e, _ in res[0][2])
 
@@ -253,7 +257,7 @@ def _calls(g, variant):
 
 
 def test_shared_draws_are_those_of_a_fresh_generator():
-    shared = pf.SharedDraws(11)
+    shared = SharedDraws(11)
     for variant in (0, 0, 3, 0, 1):
         got = _calls(shared.generator(), variant)
         ref = _calls(np.random.default_rng(11), variant)
@@ -266,37 +270,35 @@ def test_shared_draws_are_those_of_a_fresh_generator():
     assert not rec.flags.writeable  # recorded arrays are shared: read only
 
 
-def test_tuning_grid_with_shared_draws_equals_separate_runs():
-    from fingerloc.pipeline.tracker import Calibration, HeldOut, Tracker, tune_pose_filter
+def _tuning_config(share: bool) -> Config:
+    return Config().with_(pose_filter={"n_particles": 300}, calibration={"share_draws": share})
 
+
+def test_tuning_grid_with_shared_draws_equals_separate_runs():
     ll, _, q, centres, poses, g = _corridor(8, 6)
     rows = np.flatnonzero(q)
     truth = np.argmin(np.linalg.norm(poses[rows, None, :2] - centres[None], axis=2), axis=1)
     held = HeldOut(beta=1.0, rows=rows.size, scores=ll[rows], labels=truth, index=np.arange(rows.size))
-    cal = Calibration(radius=0.6, kidnap=0.01, start_at_first_observation=True)
-    tr = Tracker(centres, g, cal, n_particles=300)
-    a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3)
-    b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, share_draws=False)
+    cal = Calibration(radius=0.6, kidnap=0.01)
+    a = tune_pose_filter(cal, _tuning_config(True), centres, g, held, rows, poses, odometry_error=1.0, seed=3)
+    b = tune_pose_filter(cal, _tuning_config(False), centres, g, held, rows, poses, odometry_error=1.0, seed=3)
     assert a == b
     assert len({x["top1"] for x in a[1]}) > 1  # the grid's runs differ
 
 
 def test_tuning_grid_with_headings_shares_draws_exactly():
     """Heading evidence draws von Mises headings for fresh particles: those draws are shared too."""
-    from fingerloc.pipeline.tracker import Calibration, HeldOut, Tracker, tune_pose_filter
-
     ll, _, q, centres, poses, g = _corridor(8, 5)
     rows = np.flatnonzero(q)
     truth = np.argmin(np.linalg.norm(poses[rows, None, :2] - centres[None], axis=2), axis=1)
     held = HeldOut(beta=1.0, rows=rows.size, scores=ll[rows], labels=truth, index=np.arange(rows.size))
     rng = np.random.default_rng(5)
     headings = poses[rows, 2:3] + 0.1 * rng.standard_normal((rows.size, centres.shape[0]))  # implied at every place
-    cal = Calibration(radius=0.6, kidnap=0.05, start_at_first_observation=True, heading_kappa=30.0,
-                      heading_intercept=1.0, heading_cap=0.9, heading_temper_metres=3.0)  # fmt: skip
-    tr = Tracker(centres, g, cal, n_particles=300)
-    a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, headings=headings)
-    b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, share_draws=False, headings=headings)
-    assert a == b
+    cal = Calibration(radius=0.6, kidnap=0.05, heading=HeadingModel(kappa=30.0, intercept=1.0, cap=0.9),
+                      heading_temper_metres=3.0)  # fmt: skip
+    runs = [tune_pose_filter(cal, _tuning_config(share), centres, g, held, rows, poses, odometry_error=1.0, seed=3,
+                             headings=headings) for share in (True, False)]  # fmt: skip
+    assert runs[0] == runs[1]
 
 
 def test_shared_place_steps_are_the_filter_own_beliefs():

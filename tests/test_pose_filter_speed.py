@@ -7,9 +7,11 @@ from scipy.spatial import cKDTree
 
 from fingerloc.map import pose_filter as pf
 from fingerloc.map._nearest import nearest_centres
+from fingerloc.map.driver import run_pose_filter
 from fingerloc.map.filter import MarkovFilter, TransitionModel
 from fingerloc.map.graph import PlaceGraph
-from fingerloc.map.pose_filter import PoseFilter, observation_weights, run_pose_filter, simulate_odometry
+from fingerloc.map.motion import simulate_odometry
+from fingerloc.map.pose_filter import PoseFilter, observation_weights
 
 
 def test_nearest_equals_the_tree():

@@ -8,8 +8,11 @@ from scipy.special import i0e, logsumexp
 
 from fingerloc.angles import wrap
 from fingerloc.errors import InvalidParameterError
-from fingerloc.map.pose_filter import HeadingModel, PoseFilter, fit_heading_model, odometry_increments, run_pose_filter
-from fingerloc.pipeline.tracker import Calibration, heading_of
+from fingerloc.map.driver import run_pose_filter
+from fingerloc.map.heading import HeadingModel, fit_heading_model
+from fingerloc.map.motion import odometry_increments
+from fingerloc.map.pose_filter import PoseFilter
+from fingerloc.pipeline.calibration import Calibration
 
 from ._paths import polyline, sensor_scores, truth_places
 
@@ -58,8 +61,8 @@ def test_bad_heading_inputs_are_refused():
         f.update(np.zeros(GRID.shape[0]), headings=np.zeros(3))
     with pytest.raises(InvalidParameterError):
         f.update(np.zeros(GRID.shape[0]), headings=np.full(GRID.shape[0], np.inf))
-    assert heading_of(Calibration()) is None  # off by default
-    on = heading_of(Calibration(heading_kappa=30.0, heading_intercept=2.0, heading_cap=0.9))
+    assert Calibration().heading is None  # off by default
+    on = Calibration.from_json({"heading_kappa": 30.0, "heading_intercept": 2.0, "heading_cap": 0.9}).heading
     assert on == HeadingModel(30.0, 2.0, 0.0, 0.0, 0.9)
 
 
@@ -187,8 +190,8 @@ def test_a_reversed_traversal_falls_to_the_outlier_part():
 
 def test_implied_headings_follow_the_alignment_sign_convention():
     """A view turned by theta at a training view's spot implies theta (not -theta: bearing in the view = bearing in the query - h)."""
-    from fingerloc.experiments import markov
     from fingerloc.experiments.carmen import FingerprintMethod, best_fingerprint_params
+    from fingerloc.pipeline.calibration import implied_headings
 
     from ._logs import box_scan
 
@@ -196,28 +199,26 @@ def test_implied_headings_follow_the_alignment_sign_convention():
              box_scan(8, 3, 3, 1.5, 0.0), box_scan(8, 3, 3.2, 1.5, 0.0)]  # fmt: skip
     fm = FingerprintMethod(**best_fingerprint_params()).fit(train, np.array([0, 0, 1, 1]))
     for theta in (0.3, -0.4):
-        h = markov.implied_headings(fm, [box_scan(8, 3, 3.1, 1.5, theta, noise=0.005)], 2)
+        h = implied_headings(fm.model_, fm._observations([box_scan(8, 3, 3.1, 1.5, theta, noise=0.005)]), ["0", "1"])
         assert h.shape == (1, 2)
         assert abs(float(wrap(h[0, 1] - theta))) < 0.1
-    assert markov.implied_headings(object(), [], 2) is None  # a baseline: no headings
 
 
 def test_the_heading_is_the_pose_filter_default_can_be_switched_off_and_round_trips():
-    from fingerloc.experiments.markov import PoseFilteredMethod
+    from fingerloc.experiments.filtered import PoseFilteredMethod
     from fingerloc.experiments.protocol import METHODS, load_methods
 
     load_methods()
-    assert PoseFilteredMethod("fingerprint").heading is True  # the default (docs/RESULTS.md)
-    assert PoseFilteredMethod("fingerprint").heading_temper_metres == 8.0
-    assert METHODS["fingerprint-odometry-noheading"]().heading is False
-    assert METHODS["fingerprint-odometry-heading-untempered"]().heading_temper_metres == 0.0
-    cal = Calibration(heading_kappa=50.0, heading_intercept=1.5, heading_slope=2.0, heading_reverse=0.1, heading_cap=0.95,
-                      heading_temper_metres=8.0)  # fmt: skip
+    cc = PoseFilteredMethod("fingerprint").config.calibration
+    assert cc.heading is True and cc.heading_temper_m == 8.0  # the default
+    assert METHODS["fingerprint-odometry-noheading"]().config.calibration.heading is False
+    assert METHODS["fingerprint-odometry-heading-untempered"]().config.calibration.heading_temper_m == 0.0
+    cal = Calibration(heading=HeadingModel(50.0, 1.5, 2.0, 0.1, 0.95), heading_temper_metres=8.0)
     back = Calibration.from_json(cal.to_json())
     assert back == cal
-    assert heading_of(back) == HeadingModel(50.0, 1.5, 2.0, 0.1, 0.95)
+    assert back.heading == HeadingModel(50.0, 1.5, 2.0, 0.1, 0.95)
     old = {k: v for k, v in cal.to_json().items() if not k.startswith("heading")}  # a database from before: off
-    assert heading_of(Calibration.from_json(old)) is None
+    assert Calibration.from_json(old).heading is None
 
 
 def test_cli_track_pose_filter_with_and_without_heading(rooms_log, tmp_path, capsys):

@@ -1,8 +1,7 @@
 """The scan map in the place database (schema version 4) and on the library path: map -> database -> track.
 
 ``tests/data/v3_rooms.sqlite`` is ``fingerloc map`` of the rooms log of
-``tests/_logs.py`` written by fingerloc at commit 7d13470 (schema version 3,
-before the scan map).
+``tests/_logs.py`` written by fingerloc's schema version 3 (before the scan map).
 """
 
 from __future__ import annotations
@@ -16,10 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fingerloc.config import Config
 from fingerloc.errors import DatabaseError
 from fingerloc.map.database import SCHEMA_VERSION, read_map_info, save_model
 from fingerloc.map.scan_map import ScanMap
-from fingerloc.pipeline.mapping import load_map, make_map, run_end_points
+from fingerloc.pipeline.mapping import make_map, run_end_points
+from fingerloc.pipeline.placemap import load_map
 from fingerloc.pipeline.readers import read_run
 
 from ._cli import run_cli as run
@@ -72,8 +73,9 @@ def test_older_databases_load_without_scan_evidence(name):
     assert lm.scan_map is None and read_map_info(DATA / f"{name}.sqlite").scan_map is None
     assert lm.calibration is not None and lm.calibration.scan_gamma == 0
     tr = dataclasses.replace(lm, calibration=dataclasses.replace(lm.calibration, scan_gamma=3.0)).tracker()
-    f = tr.pose_filter(0)
-    assert tr.scan_map is None and f.scan_map is None and f.scan_gamma == 0  # a stored gamma alone does nothing
+    f = tr.pose_filter
+    assert tr.scan_map is None and not tr.uses_scan  # a stored gamma alone does nothing
+    assert f is not None and f.scan_map is None and f.scan_gamma == 0
 
 
 def _corrupt(db: Path, sql: str, *args: object) -> None:
@@ -184,27 +186,26 @@ def test_run_end_points_of_scans_and_records(rooms_log):
 
 def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
     """make_map gives tune_pose_filter the held-out rows' end points, the folds and the two folds' scan maps."""
-    import fingerloc.pipeline.mapping as mapping
-    import fingerloc.pipeline.tracker as tracker
+    import fingerloc.pipeline.calibrate as calibrate
 
     seen: dict[str, object] = {}
 
-    def fake_tune(tr, held, train_idx, mapping_poses, **kw):
+    def fake_tune(cal, config, centres, graph, held, train_idx, mapping_poses, **kw):
         seen.update(kw, held=held)
-        return dataclasses.replace(tr.calibration, scan_gamma=2.5), []
+        return dataclasses.replace(cal, scan_gamma=2.5), []
 
-    def fake_folds(points, poses, fold, *, travel=None):
+    def fake_folds(points, poses, fold, *, guard=1.0, travel=None):
         seen["fold_args"] = (len(points), np.asarray(poses).shape, np.asarray(fold).copy(), np.asarray(travel))
         return (ScanMap.from_scans(points, poses), ScanMap.from_scans(points, poses))
 
     def fake_scan_folds(train_idx, labels):
         return np.arange(len(train_idx)) % 2
 
-    monkeypatch.setattr(mapping, "tune_pose_filter", fake_tune)
-    monkeypatch.setattr(tracker, "fold_scan_maps", fake_folds)
-    monkeypatch.setattr(tracker, "scan_folds", fake_scan_folds)
+    monkeypatch.setattr(calibrate, "tune_pose_filter", fake_tune)
+    monkeypatch.setattr(calibrate, "fold_scan_maps", fake_folds)
+    monkeypatch.setattr(calibrate, "scan_folds", fake_scan_folds)
     run_ = read_run(rooms_log)
-    pm = make_map(run_, heading=False)
+    pm = make_map(run_, Config().with_(calibration={"heading": False}))
     assert pm.scan_map is not None
     held = seen["held"]
     n_train = pm.split.n_train
@@ -218,5 +219,5 @@ def test_make_map_passes_the_scan_inputs_to_the_tuning(monkeypatch, rooms_log):
     assert np.array_equal(seen["scan_points"][0], run_end_points(run_, rows[:1])[0])
     assert pm.calibration.scan_gamma == 2.5
     seen.clear()
-    pm = make_map(run_, heading=False, scan=False)
+    pm = make_map(run_, Config().with_(calibration={"heading": False, "scan": False}))
     assert pm.scan_map is None and "scan_maps" not in seen

@@ -1,6 +1,6 @@
 """A pose filter that does not stay locked on a wrong pose (issue 15): a denser proposal at a (re)initialisation
 from the sensor (``fresh_factor``) and lost detection by the scan fit (``lost_fit``, ``lost_kidnap``,
-:func:`fingerloc.pipeline.tracker.calibrate_lost`)."""
+:func:`fingerloc.pipeline.calibrate.calibrate_lost`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 
 from fingerloc.errors import FingerlocError
-from fingerloc.map.pose_filter import PoseFilter, run_pose_filter, wheel_odometry
+from fingerloc.map.driver import run_pose_filter
+from fingerloc.map.motion import wheel_odometry
+from fingerloc.map.pose_filter import PoseFilter
 from fingerloc.map.scan_map import ScanMap
-from fingerloc.pipeline.tracker import Calibration, calibrate_lost
+from fingerloc.pipeline.calibrate import calibrate_lost
+from fingerloc.pipeline.calibration import Calibration
 from tests._paths import polyline, truth_places
 
 
@@ -138,5 +141,5 @@ def test_calibrate_lost_and_bad_input():
     for kw in ({"fresh_factor": 0}, {"fresh_factor": 1.5}, {"lost_kidnap": 2.0}, {"lost_fit": math.nan}):
         with pytest.raises(FingerlocError):
             PoseFilter(_CENTRES, 1.0, **kw)
-    cal = Calibration(scan_fresh=10, lost_fit=-0.7, lost_kidnap=0.2)
+    cal = Calibration(lost_fit=-0.7, lost_kidnap=0.2)
     assert Calibration.from_json(cal.to_json()) == cal

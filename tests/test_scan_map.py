@@ -11,7 +11,9 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from fingerloc.errors import FingerlocError
-from fingerloc.map.pose_filter import PoseFilter, run_pose_filter, wheel_odometry
+from fingerloc.map.driver import run_pose_filter
+from fingerloc.map.motion import wheel_odometry
+from fingerloc.map.pose_filter import PoseFilter
 from fingerloc.map.scan_map import SCAN_MAX_CELLS, ScanMap, scan_points
 from tests._paths import polyline, truth_places
 

@@ -1,4 +1,4 @@
-"""The scan evidence's power chosen on the mapping part (issue 15): fold maps, tuning, shared draws.
+"""The scan evidence's power chosen on the mapping part: fold maps, tuning, shared draws.
 
 A synthetic corridor, there and back, with walls whose doors and pillars
 differ from place to place: the "fingerprint" rows cannot tell a place from
@@ -10,21 +10,23 @@ import math
 import numpy as np
 import pytest
 
+from fingerloc.config import Config
+from fingerloc.map.driver import run_pose_filter
 from fingerloc.map.graph import PlaceGraph
-from fingerloc.map.pose_filter import PoseFilter, run_pose_filter, simulate_odometry
+from fingerloc.map.heading import HeadingModel
+from fingerloc.map.motion import simulate_odometry
+from fingerloc.map.pose_filter import PoseFilter
 from fingerloc.map.scan_map import ScanMap
-from fingerloc.pipeline.tracker import (
-    SCAN_GAMMAS,
-    Calibration,
-    HeldOut,
-    Tracker,
-    fold_scan_maps,
-    scan_folds,
-    step_distances,
-    tune_pose_filter,
-)
+from fingerloc.pipeline.calibrate import fold_scan_maps, scan_folds, tune_pose_filter
+from fingerloc.pipeline.calibration import Calibration, HeldOut, step_distances
+from fingerloc.pipeline.filters import pose_filter_of, pose_tracking, transition_of
 
 SPACING = 2.0
+SCAN_GAMMAS = Config().calibration.scan_gammas
+
+
+def _cfg(n_particles: int, **calibration: object) -> Config:
+    return Config().with_(pose_filter={"n_particles": n_particles}, calibration=calibration)
 
 
 def _world(n_places, rng):
@@ -147,18 +149,19 @@ def test_fold_map_guard_leaves_out_the_same_pass_neighbours():
 
 def test_tuning_without_scan_points_is_the_former_tuning():
     poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 3)
-    cal = Calibration(radius=0.6, kidnap=0.01, start_at_first_observation=True, scan_gamma=2.0)
-    tr = Tracker(centres, g, cal, n_particles=300)
-    a, tried_a = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3)
+    cal = Calibration(radius=0.6, kidnap=0.01, scan_gamma=2.0)
+    cfg = _cfg(300)
+    a, tried_a = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, odometry_error=1.0, seed=3)
     assert a.scan_gamma == 0.0 and all("scan_gamma" not in t for t in tried_a)
-    # the former tuning (commit 7d13470, before the scan evidence, on the same inputs) gave these, bit for bit
+    # the tuning without the scan evidence gave these on the same inputs, bit for bit
     former = [36 / 38, 37 / 38, 33 / 38, 36 / 38, 37 / 38, 31 / 38, 36 / 38, 37 / 38, 34 / 38]
     assert [t["top1"] for t in tried_a] == former
     assert (a.outlier, a.temper_metres) == (0.1, 1.0)
-    b, tried_b = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3, scan_points=[points[i] for i in rows])
+    b, tried_b = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, odometry_error=1.0, seed=3,
+                                  scan_points=[points[i] for i in rows])  # fmt: skip
     assert (b, tried_b) == (a, tried_a)  # points without maps: ignored
     # with the scan evidence the grid's first runs are the same runs (gamma 0), then one per power
-    _c, tried_c = tune_pose_filter(tr, held, rows, poses, odometry_error=1.0, seed=3,
+    _c, tried_c = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, odometry_error=1.0, seed=3,
                                   scan_points=[points[i] for i in rows], scan_maps=maps, scan_fold=sfold)  # fmt: skip
     assert [t["top1"] for t in tried_c[: len(former)]] == former
     assert [t["scan_gamma"] for t in tried_c[len(former) :]] == list(SCAN_GAMMAS)
@@ -187,19 +190,19 @@ def _headings(poses, rows, n_places, rng):
     return poses[rows, 2:3] + 0.03 * rng.standard_normal((rows.size, n_places))
 
 
-HEADING = {"heading_kappa": 400.0, "heading_intercept": 1.0, "heading_cap": 0.9, "heading_temper_metres": 3.0}
+HEADING = {"heading": HeadingModel(kappa=400.0, intercept=1.0, cap=0.9), "heading_temper_metres": 3.0}
 
 
 def test_scan_evidence_is_chosen_and_helps_where_the_fingerprint_is_ambiguous():
     poses, centres, truth, rows, held, points, g, sfold, maps = _tuning_inputs(9, 0)
     # the fingerprint's implied headings let fresh particles face the right way (without them 400 particles
     # at random headings rarely fit a scan, on the shared logs as here)
-    cal = Calibration(radius=0.6, kidnap=0.01, start_at_first_observation=True, metres_per_move=SPACING, **HEADING)
-    tr = Tracker(centres, g, cal, n_particles=1500)
+    cal = Calibration(radius=0.6, kidnap=0.01, metres_per_move=SPACING, **HEADING)
+    cfg = _cfg(1500)
     kw = {"odometry_error": 1.0, "seed": 2, "headings": _headings(poses, rows, 9, np.random.default_rng(3))}
-    without, _ = tune_pose_filter(tr, held, rows, poses, **kw)
-    chosen, tried = tune_pose_filter(tr, held, rows, poses, scan_points=[points[i] for i in rows], scan_maps=maps,
-                                     scan_fold=sfold, **kw)  # fmt: skip
+    without, _ = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, **kw)
+    chosen, tried = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, scan_points=[points[i] for i in rows],
+                                     scan_maps=maps, scan_fold=sfold, **kw)  # fmt: skip
     assert chosen.scan_gamma > 0, tried
     # later runs along the same corridor (other sensor noise and odometry): the query-time map is the whole first run
     world = _world(9, np.random.default_rng(1000))  # _corridor(9, 0)'s
@@ -216,8 +219,8 @@ def test_scan_evidence_is_chosen_and_helps_where_the_fingerprint_is_ambiguous():
         pts = [_scan(world, poses[i], rng) if truth[i] >= 0 else None for i in range(n)]
         inc = np.vstack([np.zeros((1, 3)), simulate_odometry(poses, random_state=200 + run)])
         for name, c in (("without", without), ("with", chosen)):
-            t = Tracker(centres, g, c, n_particles=1500, scan_map=full_map)
-            res = t.run_pose(ll, inc, t.pose_filter(run), temper=True, headings=hd, points=pts)
+            drv = pose_tracking(pose_filter_of(centres, c, cfg, seed=run, scan_map=full_map), transition_of(g, c, cfg), c, cfg)
+            res = run_pose_filter(c.beta * ll, inc, drv, headings=hd, points=pts)
             top1[name].append(float(np.mean(res.best[q] == truth[q])))
     assert np.mean(top1["with"]) >= np.mean(top1["without"]) + 0.05, top1
     assert min(top1["with"]) >= 0.9, (top1, chosen.scan_gamma)
@@ -226,11 +229,9 @@ def test_scan_evidence_is_chosen_and_helps_where_the_fingerprint_is_ambiguous():
 @pytest.mark.parametrize("starts", [1, 3])
 def test_tuning_with_scan_evidence_shares_draws_exactly(starts):
     poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(7, 5)
-    cal = Calibration(radius=0.6, kidnap=0.05, start_at_first_observation=True)
-    tr = Tracker(centres, g, cal, n_particles=300)
-    kw = {"odometry_error": 1.0, "seed": 3, "scan_points": [points[i] for i in rows], "scan_maps": maps, "scan_fold": sfold,
-          "scan_starts": starts}
-    a = tune_pose_filter(tr, held, rows, poses, **kw)
-    b = tune_pose_filter(tr, held, rows, poses, share_draws=False, **kw)
+    cal = Calibration(radius=0.6, kidnap=0.05)
+    kw = {"odometry_error": 1.0, "seed": 3, "scan_points": [points[i] for i in rows], "scan_maps": maps, "scan_fold": sfold}
+    a = tune_pose_filter(cal, _cfg(300, scan_starts=starts), centres, g, held, rows, poses, **kw)
+    b = tune_pose_filter(cal, _cfg(300, scan_starts=starts, share_draws=False), centres, g, held, rows, poses, **kw)
     assert a == b
     assert len({t["top1"] for t in a[1] if "scan_gamma" in t}) > 1  # the powers' runs differ

@@ -38,7 +38,7 @@ from .angles import TWO_PI, deg_to_rad, wrap
 from .errors import InvalidParameterError
 
 if TYPE_CHECKING:
-    from .features.keypoints import Keypoints
+    from .keypoints import Keypoints
 
 __all__ = ["FEATURE_TYPES", "FULL_FOV", "Observation", "fov_from_degrees"]
 
@@ -231,11 +231,11 @@ class Observation:
             prof.setflags(write=False)
             object.__setattr__(self, "profile", prof)
         if self.keypoints is not None:
-            from .features.keypoints import Keypoints
+            from .keypoints import Keypoints
 
             if not isinstance(self.keypoints, Keypoints):
                 raise InvalidParameterError(
-                    f"keypoints: must be a fingerloc.features.keypoints.Keypoints or None, got {type(self.keypoints).__name__}"
+                    f"keypoints: must be a fingerloc.keypoints.Keypoints or None, got {type(self.keypoints).__name__}"
                 )
 
     def _init_walls_and_ranges(self) -> None:

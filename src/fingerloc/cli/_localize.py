@@ -16,156 +16,22 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import threading
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..errors import DatabaseError, DataFormatError, EmptyInputError
+from ..pipeline.localize import LOCALIZE_CHUNK, ChunkAnswers, answer_chunk
 from ._io import strict_json
 
-__all__ = ["LOCALIZE_CHUNK", "ChunkAnswers", "LinesTask", "answer_chunk", "answer_lines", "encode_record", "jsonl_chunks"]
-
-#: Observations answered at once: ``localize``'s memory does not grow with the file's length.
-LOCALIZE_CHUNK = 256
-
-
-def shows_heading(model: Any) -> bool:
-    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP``."""
-    return bool(model.cyclic or "AP" in model.terms_)
-
+__all__ = ["LinesTask", "answer_lines", "encode_record", "jsonl_chunks"]
 
 def encode_record(record: Any) -> tuple[str, dict[str, str]]:
     """One record as strict JSON text (non-finite numbers as ``null``) and where those nulls are (paths inside it)."""
     clean, nulls = strict_json(record)
     return json.dumps(clean, allow_nan=False), nulls
-
-
-def _finite(v: float, where: str, nulls: dict[str, str]) -> float | None:
-    """``v``, or None (noted in ``nulls`` as :func:`encode_record` notes it) when it is not finite."""
-    if math.isfinite(v):
-        return v
-    nulls[where] = f"not a finite number: {v!r}"
-    return None
-
-
-def _float_map(keys: list[str], values: list[float], finite: bool, where: str, nulls: dict[str, str]) -> dict[str, Any]:
-    """``dict(zip(keys, values))`` with non-finite values as None, as :func:`encode_record` writes it; ``finite``: all are."""
-    if finite:
-        return dict(zip(keys, values, strict=True))
-    return {k: _finite(v, f"{where}/{k}", nulls) for k, v in zip(keys, values, strict=True)}
-
-
-@dataclass(slots=True)
-class ChunkAnswers:
-    """``localize``'s answers for one chunk, as plain data (what a Dask task returns).
-
-    Attributes
-    ----------
-    n : int
-        Observations answered.
-    records : list of str
-        Each observation's JSON record, encoded (empty unless asked for).
-    nulls : list of dict
-        Per record: path inside it -> why a number was written as ``null``.
-    rows : list of list of str
-        The table's rows (empty unless asked for).
-    rank_of_true : list of int
-        Rank of the labelled place per observation, 0 when it has none.
-    pairs : list of (str, str)
-        (true place, best place) of each labelled observation.
-    logp, ranks : ndarray or None
-        The log posterior and every place's rank, kept only for ``--report``.
-    """
-
-    n: int
-    records: list[str] = field(default_factory=list)
-    nulls: list[dict[str, str]] = field(default_factory=list)
-    rows: list[list[str]] = field(default_factory=list)
-    rank_of_true: list[int] = field(default_factory=list)
-    pairs: list[tuple[str, str]] = field(default_factory=list)
-    logp: Any = None
-    ranks: Any = None
-
-
-def answer_chunk(
-    model: Any, obs: list[Any], names: list[str], start: int, top: int, *, table: bool, records: bool, keep: bool = False
-) -> ChunkAnswers:
-    """Posterior, ranks and headings of one chunk (the terms computed once); its records and table rows.
-
-    ``start`` is the index of the chunk's first observation among all the
-    answered ones; ``keep`` keeps the log posterior and rank matrix (for the report).
-    """
-    from ..metrics import rank_scores
-    from ..model import normalise_log
-
-    classes = [str(c) for c in model.classes_]
-    n = len(obs)
-    terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
-    logp = normalise_log(model.combine(terms))
-    best_cols = np.argmax(logp, axis=1) if n else np.zeros(0, dtype=np.int64)
-    col = {c: j for j, c in enumerate(classes)}
-    truth = np.array([col.get(str(o.label), -1) if o.label is not None else -1 for o in obs], dtype=np.int64)
-    rows_n = np.arange(n)
-    ranks = rank_scores(logp) if keep else None
-    # rank of the true place: how many places score at least as high (ties count against), as rank_scores
-    at_truth = logp[rows_n, np.maximum(truth, 0)] if n else np.zeros(0)
-    rank_all = (logp >= at_truth[:, None]).sum(axis=1) if n else np.zeros(0, dtype=np.int64)
-    rank_of_true = np.where(truth >= 0, rank_all, 0)
-    headings = np.full(n, np.nan)
-    refs = np.full(n, -1, dtype=np.int64)
-    with_heading = shows_heading(model)
-    if with_heading and n:
-        # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
-        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
-        headings = np.mod(-h, 360.0)
-    unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
-    out = ChunkAnswers(n, rank_of_true=[int(r) for r in rank_of_true])
-    out.pairs = [(str(o.label), classes[int(best_cols[i])]) for i, o in enumerate(obs) if rank_of_true[i] > 0]
-    if keep:
-        out.logp, out.ranks = logp, ranks
-    post = np.exp(logp) if (table or records) else None
-    if records:
-        assert post is not None
-        places = list(model.places_.values())
-        term_rows = {t: (ll.tolist(), np.isfinite(ll).all(axis=1).tolist()) for t, ll in terms.items()}
-        post_rows: list[list[float]] = post.tolist()
-        post_finite = np.asarray(np.isfinite(post).all(axis=1), dtype=bool).tolist()
-        for i, o in enumerate(obs):
-            best = classes[int(best_cols[i])]
-            ref = places[int(best_cols[i])].observations[int(refs[i])] if refs[i] >= 0 else None
-            nulls: dict[str, str] = {}
-            rec: dict[str, Any] = {
-                "index": start + i,
-                "name": names[i],
-                "place": o.label,
-                "best": best,
-                "posterior": _float_map(classes, post_rows[i], bool(post_finite[i]), "/posterior", nulls),
-                "rank_of_true": int(rank_of_true[i]) if rank_of_true[i] > 0 else None,
-                "terms": {t: _float_map(classes, ll[i], bool(ok[i]), f"/terms/{t}", nulls) for t, (ll, ok) in term_rows.items()},
-                "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
-                "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
-            }
-            if unknown is not None:
-                rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)
-            # what encode_record gives for this record (tests/test_localize_stream.py), without walking every number
-            out.records.append(json.dumps(rec, allow_nan=False))
-            out.nulls.append(nulls)
-    if table:
-        assert post is not None
-        for i, o in enumerate(obs):
-            order = np.argsort(-logp[i], kind="stable")[:top]
-            topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
-            r = rank_of_true[i]
-            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if with_heading:
-                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
-            out.rows.append(row)
-    return out
 
 
 # -- JSON Lines in chunks ---------------------------------------------------------------------------
@@ -258,7 +124,7 @@ def file_sha256(path: Path) -> str:
 
 
 def _worker_map(db: str, sha: str) -> Any:
-    from ..pipeline.mapping import load_map
+    from ..pipeline.placemap import load_map
 
     with _MAPS_LOCK:
         lm = _MAPS.get((db, sha))

@@ -95,9 +95,9 @@ def learn_cmd(
     """
     from ..map.database import MapInfo, locked, observation_hash, read_graph_edges, read_map_info, save_model
     from ..map.graph import PlaceGraph
-    from ..pipeline.mapping import load_map
+    from ..pipeline.calibration import calibrate_labelled
+    from ..pipeline.placemap import load_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms, resolve_preset
-    from ..pipeline.tracker import calibrate_labelled
 
     if preset is not None and preset not in PRESET_NAMES:
         raise InvalidParameterError(f"--preset must be one of {', '.join(PRESET_NAMES)}, got {preset!r}")

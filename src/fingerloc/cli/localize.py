@@ -65,7 +65,7 @@ def localize_cmd(
     the answers are written as they come (memory does not grow with the file).
     """
     from ..parallel import check_cluster_options
-    from ..pipeline.mapping import load_map
+    from ..pipeline.placemap import load_map
     from ..pipeline.readers import detect_kind
     from .reports import check_report, localize_report
 
@@ -83,7 +83,7 @@ def localize_cmd(
         raise InvalidParameterError("--workers/--scheduler: localize runs on Dask for JSON Lines input only")
     if cluster and report is not None:
         raise InvalidParameterError("--report keeps every answer in memory: give it without --workers/--scheduler")
-    from ._localize import shows_heading
+    from ..pipeline.localize import shows_heading
 
     lm = load_map(db)
     model = lm.model
@@ -96,9 +96,9 @@ def localize_cmd(
         chunks = _serial_chunks(data, model, top, table=not quiet, records=records)
     else:
         run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
-        obs, names = queries_of_run(run, lm)
+        obs, names = lm.queries(run, on_note=lambda s: err_console.print(s, markup=False))
         keep = report is not None
-        from ._localize import LOCALIZE_CHUNK, answer_chunk
+        from ..pipeline.localize import LOCALIZE_CHUNK, answer_chunk
 
         chunks = (
             answer_chunk(model, obs[s : s + LOCALIZE_CHUNK], names[s:], s, top, table=not quiet, records=records, keep=keep)
@@ -156,7 +156,8 @@ def _answers_table(rows: list[list[str]], top: int, *, cyclic: bool) -> Table:
 
 def _serial_chunks(data: Path, model: Any, top: int, *, table: bool, records: bool) -> Iterator[Any]:
     """Answers of a JSON Lines file, chunk after chunk, in this process (a stream: bounded memory)."""
-    from ._localize import answer_chunk, jsonl_chunks, parse_lines
+    from ..pipeline.localize import answer_chunk
+    from ._localize import jsonl_chunks, parse_lines
 
     for start, lines in jsonl_chunks(data):
         obs = parse_lines(data, lines)
@@ -185,44 +186,8 @@ def _cluster_chunks(
 
 
 #: Observations per Dask task of ``localize --workers`` (each task answers them in chunks of
-#: ``_localize.LOCALIZE_CHUNK``, also 256: that module imports numpy, which ``--help`` must not).
+#: ``pipeline.localize.LOCALIZE_CHUNK``, also 256: that module imports numpy, which ``--help`` must not).
 LOCALIZE_TASK = 256
-
-
-def queries_of_run(run: Any, lm: Any) -> tuple[list[Any], list[str]]:
-    """The observations ``localize`` answers for a run, with their names.
-
-    JSON Lines: every observation as it is. A laser log: its scans through
-    the database's preset; with poses and stored place positions, only the
-    scans within the stored radius of a place, labelled with the nearest
-    (on the run the map was made from, only those after its mapping part).
-    """
-    from ..pipeline.places import nearest_within
-
-    if run.records is not None:
-        return list(run.records), list(run.names)
-    features = {} if lm.preset is None else lm.preset.features
-    poses = run.poses
-    if poses is None or lm.positions is None or lm.calibration is None:
-        why = "its scans have no poses" if poses is None else "the database has no place positions"
-        err_console.print(f"{run.paths[0]}: {why}: every scan is a query, unlabelled", markup=False)
-        return run.observations(features=features), list(run.names)
-    start = 0
-    mapped = lm.mapped_run(run.key)
-    if mapped is not None:
-        start = int(mapped["n_mapping"])
-        err_console.print(
-            f"{run.paths[0]} is the run the map was made from: querying its scans after the mapping part "
-            f"(from scan {start} of {len(run)})",
-            markup=False,
-        )
-    idx, near = nearest_within(poses[start:, :2], lm.positions, lm.calibration.radius)
-    idx = idx + start
-    obs = [o.with_label(lm.labels[j]) for o, j in zip(run.observations(idx, features=features), near.tolist(), strict=True)]
-    err_console.print(
-        f"{idx.size} scan(s) within {lm.calibration.radius:g} m of a place are the queries", markup=False
-    )
-    return obs, [run.names[i] for i in idx.tolist()]
 
 
 def _print_confusion(pairs: list[tuple[str, str]], classes: list[str]) -> None:

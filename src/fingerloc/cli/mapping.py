@@ -76,7 +76,8 @@ def map_cmd(
     graph (visiting order) and the filters' calibration, so that
     'fingerloc localize' and 'fingerloc track' need only the database.
     """
-    from ..pipeline.mapping import make_map, save_map
+    from ..config import Config
+    from ..pipeline.mapping import make_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms
 
     if preset not in PRESET_NAMES:
@@ -98,26 +99,20 @@ def map_cmd(
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    config = Config().with_(
+        places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,
+                "until_s": until},
+        calibration={"enabled": not no_calibration, "heading": heading, "scan": scan},
+    )  # fmt: skip
     with err_console.status("mapping...") as status:
-        pm = make_map(
-            run,
-            preset=preset,
-            overrides=overrides,
-            mapping_part=0.5 if mapping_part is None else mapping_part,
-            until=until,
-            spacing=spacing,
-            radius=radius,
-            calibrate=not no_calibration,
-            heading=heading,
-            scan=scan,
-            on_step=lambda s: status.update(s),
-        )
+        pm = make_map(run, config, preset=preset, overrides=overrides, on_step=lambda s: status.update(s))
+    assert pm.preset is not None and pm.calibration is not None and pm.split is not None and pm.training is not None
     err_console.print(pm.preset.reason, markup=False)
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
         err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
                           "places apart (see --preset / --terms)", markup=False)  # fmt: skip
-    size = save_map(pm, db)
+    size = pm.save(db)
     sp, cal = pm.split, pm.calibration
     sm = pm.scan_map
     scan_note = "" if sm is None else f"; scan map of {sm.cells.shape[0]} cells, scan gamma {cal.scan_gamma:g}"

@@ -62,14 +62,15 @@ def places_cmd(
 def _map_info(db: Path) -> dict[str, Any]:
     """``preset``, ``calibration``, ``positions`` (label -> [x, y] metres), ``runs`` and ``scan_map`` (its grid:
     ``cells`` occupied, ``shape``, ``resolution`` and ``origin`` in metres) of a database (None / empty when absent)."""
-    from ..pipeline.mapping import load_map
+    from ..pipeline.calibration import stored_calibration
+    from ..pipeline.placemap import load_map
 
     lm = load_map(db)
     sm = lm.scan_map
     pos = {} if lm.positions is None else {lab: lm.positions[j].tolist() for j, lab in enumerate(lm.labels)}
     return {
         "preset": None if lm.preset is None else lm.preset.to_json(),
-        "calibration": None if lm.calibration is None else lm.calibration.to_json(),
+        "calibration": None if lm.calibration is None else stored_calibration(lm.calibration, lm.config),
         "positions": pos,
         "runs": lm.runs,
         "scan_map": None if sm is None else {"cells": int(sm.cells.shape[0]), "shape": list(sm.shape),

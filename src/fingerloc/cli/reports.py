@@ -184,8 +184,8 @@ def track_report(
 
 def carmen_report(report: Path, run: Any, method: str | None) -> None:
     """The benchmark's report: per log, a map report and a localize report of ``method``'s answers."""
-    from ..experiments.markov import mapping_graph
     from ..features.laser import observation_from_scan
+    from ..pipeline.calibration import mapping_graph
     from ..reporting import FeatureView, Page, scan_end_points, write_localize_report, write_map_report
 
     out = Path(report)
@@ -203,7 +203,7 @@ def carmen_report(report: Path, run: Any, method: str | None) -> None:
         sp = lg.split
         names = [str(j) for j in range(sp.n_places)]
         pos = np.array([s.pose[:2] if s.pose is not None else (np.nan, np.nan) for s in lg.scans], dtype=np.float64)
-        graph, _ = mapping_graph(pos, sp)
+        graph, _ = mapping_graph(pos[: sp.n_mapping], sp.centres)
         mr = lg.methods.get(method) if method is not None else None
         sub = f"log{k + 1}"
         q = pos[sp.query_idx] if mr is not None else None

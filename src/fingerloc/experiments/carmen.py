@@ -478,11 +478,12 @@ def run_log(
     for m in methods:
         if on_method is not None:
             on_method(m.name)
-        set_context = getattr(m, "set_context", None)
-        if set_context is not None:  # methods that need the trajectory (the Markov filter)
-            set_context(scans, split)
+        fit_log = getattr(m, "fit_log", None)
         t0 = time.perf_counter()
-        m.fit(train, split.train_labels.copy())
+        if fit_log is not None:  # methods that need the trajectory (the filters)
+            fit_log(scans, split)
+        else:
+            m.fit(train, split.train_labels.copy())
         t1 = time.perf_counter()
         s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
         t2 = time.perf_counter()
@@ -573,7 +574,7 @@ def _bench_log(task: tuple[str, str, list[str], bool], on_progress: Callable[[st
 
 def _shareable(m: Method) -> Method:
     """``m`` as a :class:`~.shared.SharedMethod` when it is a registered single-shot method (no trajectory)."""
-    if getattr(m, "set_context", None) is not None or m.name not in METHODS:
+    if getattr(m, "fit_log", None) is not None or m.name not in METHODS:
         return m
     shared: Method = shared_method(m.name)
     return shared

@@ -46,7 +46,7 @@ __all__ = [
 
 
 #: Modules whose import registers benchmark methods (loaded by :func:`load_methods`).
-METHOD_MODULES: tuple[str, ...] = ("fingerloc.experiments.carmen", "fingerloc.experiments.markov")
+METHOD_MODULES: tuple[str, ...] = ("fingerloc.experiments.carmen", "fingerloc.experiments.filtered")
 
 
 #: D: a mapping scan strictly farther than this from every centre makes a new place, metres.

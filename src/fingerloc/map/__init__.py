@@ -1,4 +1,4 @@
-"""The map: the place database (SQLite), the place graph, the Markov filter over it and the pose filter.
+"""The map: the place database (SQLite), the place graph, the Markov filter over it, the pose filter and its driver.
 
 The names below are imported on first use (PEP 562), so that reading a place
 database does not import the filters (scipy.optimize, scipy.spatial).
@@ -19,7 +19,8 @@ _LAZY = {
     "PlaceGraph": ".graph",
     "load_graph": ".graph",
     "PoseFilter": ".pose_filter",
-    "run_pose_filter": ".pose_filter",
+    "PoseTracking": ".driver",
+    "run_pose_filter": ".driver",
     "ScanMap": ".scan_map",
     "scan_points": ".scan_map",
 }
@@ -29,6 +30,7 @@ __all__ = [
     "MarkovFilter",
     "PlaceGraph",
     "PoseFilter",
+    "PoseTracking",
     "ScanMap",
     "TransitionModel",
     "load_graph",
@@ -41,9 +43,10 @@ __all__ = [
 
 if TYPE_CHECKING:
     from .database import SCHEMA_VERSION, load_model, save_model
+    from .driver import PoseTracking, run_pose_filter
     from .filter import MarkovFilter, TransitionModel, run_filter
     from .graph import PlaceGraph, load_graph
-    from .pose_filter import PoseFilter, run_pose_filter
+    from .pose_filter import PoseFilter
     from .scan_map import ScanMap, scan_points
 
 

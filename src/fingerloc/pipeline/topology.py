@@ -50,15 +50,17 @@ from typing import Any
 import numpy as np
 
 from .._types import IArray
+from ..config import Config
 from ..errors import InvalidParameterError
 from ..map.graph import PlaceGraph
 from ..observation import Observation
 from ..validation import check_int
+from .calibration import Calibration
+from .placemap import PlaceMap
 from .places import mapping_count, place_label
 from .presets import ResolvedPreset, resolve_preset
 from .readers import Run
 from .revisits import LEAVE_PROBABILITY, RECENT_VIEWS, background_log_likelihood, revisit_filter, square_distances
-from .tracker import Calibration
 
 __all__ = [
     "JOIN_PROBABILITY",
@@ -235,26 +237,25 @@ class FingerprintMap:
         return {"name": self.run_name, "key": self.run_key, "n_scans": self.n_scans, "n_mapping": self.n_mapping,
                 "places": "fingerprints"}  # fmt: skip
 
+    def place_map(self, config: Config | None = None) -> PlaceMap:
+        """The map as a :class:`~fingerloc.pipeline.placemap.PlaceMap` without place positions.
+
+        ``localize``, the discrete place filter (``track --filter places``) and
+        :meth:`PlaceMap.save` use it like any other; the pose filter needs
+        positions and refuses it. ``config``: stored with the map (default
+        :class:`~fingerloc.config.Config` with this map's mapping part).
+        """
+        from ..map.database import observation_hash
+
+        cfg = config if config is not None else Config()
+        return PlaceMap(
+            self.model, list(self.labels), None, self.preset, self.calibration, cfg, self.graph,
+            [self.run_record()], {observation_hash(o) for o in self.training}, None, None, list(self.training),
+        )  # fmt: skip
+
     def save(self, path: str | Path) -> int:
         """Write the map to a place database (replacing the file), without place positions; returns its size in bytes."""
-        from ..map.database import MapInfo, observation_hash, save_model
-
-        info = MapInfo(
-            preset=self.preset.to_json(),
-            positions={},
-            calibration=self.calibration.to_json(),
-            content_hashes={observation_hash(o) for o in self.training},
-            runs=[self.run_record()],
-        )
-        return save_model(self.model, path, graph_edges=self.graph.edges(), info=info)
-
-    def loaded(self) -> Any:
-        """The map as :func:`fingerloc.pipeline.mapping.load_map` reads it back from :meth:`save`'s database."""
-        from ..map.database import observation_hash
-        from .mapping import LoadedMap
-
-        return LoadedMap(self.model, list(self.labels), None, self.preset, self.calibration, self.graph,
-                         [self.run_record()], {observation_hash(o) for o in self.training})  # fmt: skip
+        return self.place_map().save(path)
 
 
 def places_from_fingerprints(
@@ -300,7 +301,7 @@ def places_from_fingerprints(
     FingerprintMap
     """
     from ..terms import FingerprintTerm, consensus_fingerprint
-    from .tracker import held_out_calibration, model_fit_score
+    from .calibration import held_out_calibration, model_fit_score
     from .view_distances import KEYFRAME_CHANGE, keyframes, view_distance_matrix
 
     note = on_step or (lambda s: None)
@@ -341,7 +342,11 @@ def places_from_fingerprints(
         held = held_out_calibration(model_fit_score(resolved.options, kobs), keys, place, n_places)
         beta, rows = held.beta, held.rows
     cal = Calibration(
-        beta=float(beta), kidnap=1.0 / (keys.size + 2), n_train=int(keys.size), calibration_rows=int(rows)
+        beta=float(beta),
+        metres_per_move=None,
+        kidnap=1.0 / (keys.size + 2),
+        n_train=int(keys.size),
+        calibration_rows=int(rows),
     )
     return FingerprintMap(
         model=model,

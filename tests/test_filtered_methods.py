@@ -5,13 +5,9 @@ import pytest
 
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.carmen import make_method, make_split, run_benchmark
-from fingerloc.experiments.markov import (
-    FilteredMethod,
-    kidnap_experiment,
-    mapping_graph,
-    step_distances,
-    with_synthetic_likelihood,
-)
+from fingerloc.experiments.filtered import FilteredMethod
+from fingerloc.experiments.kidnap import kidnap_experiment, with_synthetic_likelihood
+from fingerloc.pipeline.calibration import mapping_graph, step_distances
 from fingerloc.pipeline.places import visit_folds
 
 from ._chain import chain_data as _chain_data
@@ -32,7 +28,7 @@ def test_visit_folds_alternate_per_place():
 def test_mapping_graph_counts_consecutive_cells():
     pos = np.array([[0, 0], [0.5, 0], [3, 0], [3.2, 0], [6, 0], [0, 0], [3, 0], [6, 0]], dtype=float)
     sp = make_split(pos)
-    g, metres = mapping_graph(pos, sp)
+    g, metres = mapping_graph(pos[: sp.n_mapping], sp.centres)
     assert sp.n_mapping == 4 and sp.n_places == 2
     assert g.edges() == {("0", "0"): 1, ("0", "1"): 1, ("1", "1"): 1}
     assert metres == pytest.approx(3.2)  # 3.2 m travelled, one change of place
@@ -40,7 +36,7 @@ def test_mapping_graph_counts_consecutive_cells():
 
 def test_filtered_method_needs_the_trajectory():
     m = FilteredMethod("baseline-histogram")
-    with pytest.raises(InvalidParameterError, match="set_context"):
+    with pytest.raises(InvalidParameterError, match="fit_log"):
         m.fit([], np.zeros(0))
     with pytest.raises(InvalidParameterError, match="unknown base method"):
         FilteredMethod("nope")._factory()
@@ -61,8 +57,7 @@ def test_filtered_method_steps_every_query_pass_scan(rooms_log):
     sp = make_split(np.array([s.pose[:2] for s in scans]))
     m = make_method("baseline-histogram-filtered")
     assert isinstance(m, FilteredMethod)
-    m.set_context(scans, sp)
-    m.fit([scans[i] for i in sp.train_idx], sp.train_labels)
+    m.fit_log(scans, sp)
     out = m.score([scans[i] for i in sp.query_idx])
     assert out.shape == (sp.n_queries, sp.n_places)
     assert m.result_.log_posterior.shape == (sp.n_scans - sp.n_mapping, sp.n_places)

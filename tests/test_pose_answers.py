@@ -1,4 +1,4 @@
-"""The pose filter's answer between observations (held_best) and Augmented MCL with a reserve (issue 15)."""
+"""The pose filter's answer between observations (held, tie-broken) and Augmented MCL with a reserve."""
 
 import math
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from fingerloc.errors import InvalidParameterError
-from fingerloc.map.filter import FilterResult
-from fingerloc.map.pose_filter import PoseFilter, odometry_increments, run_pose_filter
-from fingerloc.map.relocalize import Augmented, held_best, run_augmented_pose_filter
+from fingerloc.map.driver import AnswerRule, Augmented, PoseTracking, _update_with_reserve, run_pose_filter
+from fingerloc.map.motion import odometry_increments
+from fingerloc.map.pose_filter import PoseFilter
 
 from ._paths import polyline as _polyline
 from ._paths import sensor_scores as _sensor
@@ -17,26 +17,27 @@ from ._paths import truth_places as _truth
 CORRIDOR = np.column_stack([np.arange(10) * 3.0, np.zeros(10)])
 
 
-def _posterior(rows):
-    return FilterResult.from_log_posterior(np.log(np.asarray(rows, dtype=np.float64)))
+def _answers(rows, observed, hold_margin=None, tie_break=None, beliefs=None):
+    """The answer rule along rows of probabilities: (best places, their probabilities)."""
+    rule = AnswerRule(hold_margin, tie_break)
+    out = [rule.step(np.log(r), o, None if beliefs is None else beliefs[t]) for t, (r, o) in enumerate(zip(rows, observed, strict=True))]
+    return [b for b, _ in out], [p for _, p in out]
 
 
 def test_held_best_keeps_the_answer_through_a_near_tie():
     """Between observations a near-tie flips the argmax; held, the answer changes only when another leads by the margin."""
     rows = [[0.6, 0.4], [0.49, 0.51], [0.52, 0.48], [0.45, 0.55], [0.3, 0.7], [0.55, 0.45], [0.45, 0.55]]
     observed = [True, False, False, False, False, False, True]
-    res = _posterior(rows)
-    assert res.best.tolist() == [0, 1, 0, 1, 1, 0, 1]
-    held = held_best(res, observed, 0.2)
-    assert held.best.tolist() == [0, 0, 0, 0, 1, 1, 1]  # 0.7 > 0.3 + 0.2 switches; 0.55 vs 0.45 does not switch back
-    assert held.best_probability[3] == pytest.approx(0.45)
-    np.testing.assert_array_equal(held.log_posterior, res.log_posterior)
-    assert held_best(res, observed, 0.0).best.tolist() == res.best.tolist()  # margin 0: the argmax
-    assert held_best(res, observed, math.inf).best.tolist() == [0, 0, 0, 0, 0, 0, 1]  # hold until the next observation
-    with pytest.raises(InvalidParameterError, match="margin"):
-        held_best(res, observed, -0.1)
-    with pytest.raises(InvalidParameterError, match="observed"):
-        held_best(res, observed[:3], 0.1)
+    argmax = [int(np.argmax(r)) for r in rows]
+    assert argmax == [0, 1, 0, 1, 1, 0, 1]
+    assert _answers(rows, observed)[0] == argmax  # no rule: the argmax
+    best, prob = _answers(rows, observed, 0.2)
+    assert best == [0, 0, 0, 0, 1, 1, 1]  # 0.7 > 0.3 + 0.2 switches; 0.55 vs 0.45 does not switch back
+    assert prob[3] == pytest.approx(0.45)
+    assert _answers(rows, observed, 0.0)[0] == argmax  # margin 0: the argmax
+    assert _answers(rows, observed, math.inf)[0] == [0, 0, 0, 0, 0, 0, 1]  # hold until the next observation
+    with pytest.raises(InvalidParameterError, match="hold_margin"):
+        AnswerRule(-0.1)
 
 
 def test_held_best_makes_two_runs_agree_more_between_observations():
@@ -48,15 +49,19 @@ def test_held_best_makes_two_runs_agree_more_between_observations():
     plain = held = 0
     for s in range(3):
         ll = _sensor(truth, 10, 3.0, s)
-        runs = [
-            run_pose_filter(ll, inc, PoseFilter(CORRIDOR, 0.5, n_particles=100, kidnap=0.01, outlier=0.3,
-                                                start=np.array([[0.0, 0.0, 0.0]]), random_state=seed),
-                            temper=(2.0, math.pi))
-            for seed in (2 * s + 1, 2 * s + 2)
-        ]  # fmt: skip
-        plain += int(np.sum(runs[0].best[~obs] != runs[1].best[~obs]))
-        h = [held_best(r, obs, 0.1) for r in runs]
-        held += int(np.sum(h[0].best[~obs] != h[1].best[~obs]))
+        for margin in (None, 0.1):
+            runs = [
+                run_pose_filter(ll, inc, PoseFilter(CORRIDOR, 0.5, n_particles=100, kidnap=0.01, outlier=0.3,
+                                                    start=np.array([[0.0, 0.0, 0.0]]), random_state=seed),
+                                temper=(2.0, math.pi), hold_margin=margin)
+                for seed in (2 * s + 1, 2 * s + 2)
+            ]  # fmt: skip
+            np.testing.assert_array_equal(runs[0].best[obs], np.argmax(runs[0].log_posterior[obs], axis=1))
+            differ = int(np.sum(runs[0].best[~obs] != runs[1].best[~obs]))
+            if margin is None:
+                plain += differ
+            else:
+                held += differ
     assert plain >= 4 and held <= plain // 2
 
 
@@ -68,14 +73,12 @@ def _kidnapped_run(seed, augmented):
     truth = np.r_[_truth(a, CORRIDOR), _truth(b, CORRIDOR)]
     ll = _sensor(truth, 10, 3.0, seed)
     f = PoseFilter(CORRIDOR, 1.0, n_particles=1000, kidnap=0.002, start=np.array([[0.0, 0.0, 0.0]]), random_state=seed)
-    if augmented is None:
-        res = run_pose_filter(ll, inc, f, temper=(2.0, math.pi))
-    else:
-        res = run_augmented_pose_filter(ll, inc, f, augmented, temper=(2.0, math.pi))
+    drv = PoseTracking(f, strategy=augmented, temper=(2.0, math.pi))
+    res = run_pose_filter(ll, inc, drv)
     after = np.flatnonzero(truth >= 0)
     after = after[after > a.shape[0]]
     right = res.best[after] == truth[after]
-    return right, f
+    return right, drv
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -92,15 +95,13 @@ def test_augmented_mcl_relocalizes_a_kidnapped_filter(seed):
 
 def test_a_reserve_keeps_the_exact_mixture():
     """The kidnapping share kept as m weighted particles: the answer is (1 - s) tracked + s sensor; weights sum to 1."""
-    from fingerloc.map.relocalize import _update_with_reserve
-
     f = PoseFilter(CORRIDOR, 1.0, n_particles=500, kidnap=0.0, outlier=0.2, start=np.array([[0.0, 0.0, 0.0]]),
                    random_state=0)  # fmt: skip
     g = PoseFilter(CORRIDOR, 1.0, n_particles=500, kidnap=0.0, outlier=0.2, start=np.array([[0.0, 0.0, 0.0]]),
                    random_state=0)  # fmt: skip
     row = np.where(np.arange(10) == 6, 4.0, 0.0)
     tracked = g.update(row, 0.5, None, kidnap=0.0)  # the same draws: the tracked part alone
-    post = _update_with_reserve(f, row, 0.5, None, 0.1, 200)
+    post = _update_with_reserve(f, row, 0.5, None, 0.1, 200, {})
     sensor = 0.5 * f.place_likelihood(row)
     sensor = np.exp(sensor - np.log(np.exp(sensor).sum()))
     np.testing.assert_allclose(np.exp(post), 0.9 * np.exp(tracked) + 0.1 * sensor, atol=1e-12)
@@ -121,41 +122,30 @@ def test_augmented_settings_are_checked():
             Augmented(**bad)
 
 
-def test_pose_filtered_method_options_are_checked():
-    from fingerloc.experiments.markov import PoseFilteredMethod
-
-    with pytest.raises(InvalidParameterError, match="hold_margin"):
-        PoseFilteredMethod("fingerprint", hold_margin=-0.1)
-    m = PoseFilteredMethod("fingerprint", hold_margin=0.05, augmented=Augmented(reserve=100, adaptive=False))
-    assert m.hold_margin == 0.05 and m.augmented is not None and m.augmented.reserve == 100
-
-
 def test_tie_broken_best_asks_the_deterministic_belief_between_observations():
     """Near-ties (within delta of the best) between observations go to the place the tie-breaker believes most."""
-    from fingerloc.map.relocalize import tie_broken_best
-
     rows = [[0.5, 0.3, 0.2], [0.36, 0.34, 0.30], [0.36, 0.34, 0.30], [0.6, 0.1, 0.3], [0.34, 0.36, 0.30]]
     observed = [True, False, False, False, True]
     tb = np.log([[0.1, 0.8, 0.1], [0.1, 0.8, 0.1], [0.1, 0.1, 0.8], [0.1, 0.8, 0.1], [0.8, 0.1, 0.1]])
-    res = _posterior(rows)
-    out = tie_broken_best(res, observed, tb, 0.05)
     # step 1: places 0 and 1 within 0.05 of the best -> 1, the tie-breaker's; step 2: the same candidates (place 2
     # is 0.06 below), the tie-breaker ranks them equal -> the first, 0; step 3: a clear lead stays; step 4 observed
-    assert out.best.tolist() == [0, 1, 0, 0, 1]
-    assert tie_broken_best(res, observed, tb, 0.1).best.tolist() == [0, 1, 2, 0, 1]
-    assert tie_broken_best(res, observed, tb, 0.0).best.tolist() == res.best.tolist()
-    np.testing.assert_array_equal(out.log_posterior, res.log_posterior)
-    with pytest.raises(InvalidParameterError, match="delta"):
-        tie_broken_best(res, observed, tb, -1.0)
+    assert _answers(rows, observed, tie_break=0.05, beliefs=tb)[0] == [0, 1, 0, 0, 1]
+    assert _answers(rows, observed, tie_break=0.1, beliefs=tb)[0] == [0, 1, 2, 0, 1]
+    assert _answers(rows, observed, tie_break=0.0, beliefs=tb)[0] == [0, 0, 0, 0, 1]
+    with pytest.raises(InvalidParameterError, match="tie_break"):
+        AnswerRule(tie_break=-1.0)
+    with pytest.raises(InvalidParameterError, match="belief"):
+        _answers(rows, observed, tie_break=0.05)
 
 
-def test_the_tracker_answers_between_observations_with_the_calibration_defaults():
-    """run_pose_steps with hold_margin and tie_break = the plain run's answers passed through answer_between."""
-    from fingerloc.map.filter import TransitionModel
-    from fingerloc.map.relocalize import answer_between
-    from fingerloc.pipeline.tracker import HOLD_MARGIN, TIE_BREAK, Calibration, run_pose_steps
+def test_the_map_default_answers_between_observations_with_the_place_filter():
+    """The config's defaults hold the answer (0.05) and break near-ties (0.02) by the place filter run alongside;
+    the posterior, and the answers at observed steps, are the plain run's."""
+    from fingerloc.config import Config
+    from fingerloc.map.filter import MarkovFilter, TransitionModel
 
-    assert (Calibration().hold_margin, Calibration().tie_break) == (HOLD_MARGIN, TIE_BREAK) == (0.05, 0.02)
+    pf = Config().pose_filter
+    assert (pf.hold_margin, pf.tie_break) == (0.05, 0.02)
     poses = _polyline([(0, 0), (27, 0)], 0.25)
     truth = _truth(poses, CORRIDOR, radius=0.5)
     ll = _sensor(truth, 10, 1.5, 0)
@@ -164,12 +154,12 @@ def test_the_tracker_answers_between_observations_with_the_calibration_defaults(
 
     def run(**kw):
         f = PoseFilter(CORRIDOR, 0.5, n_particles=200, kidnap=0.01, outlier=0.3, random_state=4)
-        return run_pose_steps(ll, inc, f, trans, temper=(2.0, math.pi), **kw)
+        drv = PoseTracking(f, place_filter=MarkovFilter(trans), temper=(2.0, math.pi), **kw)
+        return run_pose_filter(ll, inc, drv)
 
     plain = run()
     both = run(hold_margin=0.05, tie_break=0.02)
     np.testing.assert_array_equal(both.log_posterior, plain.log_posterior)
-    expected = answer_between(plain, ll, inc, trans, hold_margin=0.05, tie_break=0.02)
-    np.testing.assert_array_equal(both.best, expected.best)
     obs = truth >= 0
     np.testing.assert_array_equal(both.best[obs], plain.best[obs])  # observed steps: the argmax
+    assert np.any(both.best[~obs] != plain.best[~obs])  # between them the rule answers

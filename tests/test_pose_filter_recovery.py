@@ -1,4 +1,5 @@
-"""Failures of the pose filter found on the logs, each reproduced on a synthetic case, and their fixes (issue 15)."""
+"""How the pose filter finds the robot again: a start far from every place, sensor resetting, gaps, and the
+benchmark's reliability and tuning on the mapping pass, each on a synthetic case."""
 
 import math
 
@@ -6,11 +7,14 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
+from fingerloc.config import Config
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.carmen import DEFAULT_METHODS, METHODS
-from fingerloc.experiments.markov import PoseFilteredMethod
+from fingerloc.experiments.filtered import PoseFilteredMethod
+from fingerloc.map.driver import PoseTracking, SensorReset, run_pose_filter
 from fingerloc.map.filter import fit_outlier_weight
-from fingerloc.map.pose_filter import PoseFilter, odometry_increments, path_start_poses, run_pose_filter
+from fingerloc.map.motion import odometry_increments
+from fingerloc.map.pose_filter import PoseFilter, path_start_poses
 
 from ._paths import polyline as _polyline
 from ._paths import sensor_scores as _sensor
@@ -69,9 +73,10 @@ def _wrong_track(seed, threshold):
     ll = _sensor(truth, 10, 3.0, seed)
     seen = path_start_poses(_polyline([(0, 0), (27, 0)], 0.5), spacing=0.25)  # the mapping run, both ways
     f = PoseFilter(centres, 1.0, kidnap=0.0, start=np.array([[0.0, 0.0, 0.0]]), place_poses=seen, random_state=seed)
-    res = run_pose_filter(ll, odometry_increments(poses), f, temper=(2.0, math.pi), reset_threshold=threshold)
+    drv = PoseTracking(f, temper=(2.0, math.pi), strategy=None if threshold is None else SensorReset(threshold))
+    res = run_pose_filter(ll, odometry_increments(poses), drv)
     q = truth >= 0
-    return res.best[q] == truth[q], f.resets_
+    return res.best[q] == truth[q], drv.resets_
 
 
 def test_sensor_resetting_recovers_a_lost_filter():
@@ -177,8 +182,8 @@ def test_the_bench_runs_what_each_part_adds_by_default():
         assert name in METHODS and name not in DEFAULT_METHODS
     m = METHODS["odometry-only"]()
     assert isinstance(m, PoseFilteredMethod) and not m.observe
-    with pytest.raises(InvalidParameterError, match="outlier"):
-        PoseFilteredMethod("fingerprint", outlier="sometimes")
+    with pytest.raises(InvalidParameterError, match="odometry"):
+        PoseFilteredMethod("fingerprint", odometry="sometimes")
 
 
 def test_odometry_only_ignores_the_sensor(rooms_log):
@@ -189,8 +194,7 @@ def test_odometry_only_ignores_the_sensor(rooms_log):
     outs = []
     for shift in (0.0, 5.0):
         m = PoseFilteredMethod("baseline-histogram", observe=False)
-        m.set_context(scans, split)
-        m.fit([scans[i] for i in split.train_idx.tolist()], split.train_labels.copy())
+        m.fit_log(scans, split)
         n = split.n_scans - split.n_mapping
         ll = np.full((n, split.n_places), np.nan)
         ll[split.query_idx - split.n_mapping] = np.random.default_rng(int(shift)).normal(size=(split.n_queries, split.n_places))
@@ -204,7 +208,6 @@ def test_tuning_on_the_mapping_pass_never_sees_the_queries(rooms_log):
     from dataclasses import replace
 
     from fingerloc.experiments.carmen import load_log_scans, make_split
-    from fingerloc.pipeline.tracker import tune_grid
 
     scans, _ = load_log_scans(rooms_log)
     split = make_split(np.array([s.pose[:2] for s in scans]))
@@ -214,13 +217,15 @@ def test_tuning_on_the_mapping_pass_never_sees_the_queries(rooms_log):
     ]
     chosen = []
     for log in (scans, scrambled):
-        m = PoseFilteredMethod("baseline-histogram", n_particles=300)
-        m.set_context(log, split)
-        m.fit([log[i] for i in split.train_idx.tolist()], split.train_labels.copy())
-        assert len(m.tuning_) == len(tune_grid(0.5))
-        assert (m.outlier_, m.temper_metres_) in {(t["outlier"], t["temper_metres"]) for t in m.tuning_}
+        cfg = Config().with_(calibration={"scan": False}, pose_filter={"n_particles": 300})
+        m = PoseFilteredMethod("baseline-histogram", cfg)
+        m.fit_log(log, split)
+        cc = cfg.calibration
+        assert len(m.tuning_) == (len(cc.outliers) + 1) * len(cc.temper_m)
+        chosen_pair = (m.calibration_.outlier, m.calibration_.temper_metres)
+        assert chosen_pair in {(t["outlier"], t["temper_metres"]) for t in m.tuning_}
         best = max(t["top1"] for t in m.tuning_)
         first_best = next(t for t in m.tuning_ if t["top1"] == best)
-        assert (m.outlier_, m.temper_metres_) == (first_best["outlier"], first_best["temper_metres"])
+        assert chosen_pair == (first_best["outlier"], first_best["temper_metres"])
         chosen.append(m.tuning_)
     assert chosen[0] == chosen[1]
