@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .html import Page
 
-__all__ = ["draw_fingerprint_places", "draw_pr_curves", "write_loops_report"]
+__all__ = ["draw_fingerprint_places", "draw_pr_curves", "write_loops_report", "write_places_report"]
 
 _DPI = 100
 
@@ -229,6 +229,78 @@ def write_loops_report(
         "logs": {str(lg["name"]): {"metrics": lg.get("metrics", {}), "map": lg.get("map")} for lg in logs},
         "pooled": None if not pooled else {"metrics": pooled.get("metrics", {}), "map": pooled.get("map")},
         "protocol": dict(protocol or {}),
+    }
+    (out / "report.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+    return page.write(out)
+
+
+def write_places_report(
+    out_dir: str | Path,
+    *,
+    labels: Sequence[str],
+    assignment: Any,
+    keyframes: Any,
+    closures: Any = None,
+    consensus: Sequence[str | None] | None = None,
+    trajectory: Any = None,
+    notes: Sequence[str] = (),
+    figures: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write ``index.html`` (and ``report.json``) for a map made from fingerprints (``map --places fingerprints --report``).
+
+    Parameters
+    ----------
+    out_dir : path
+    labels : sequence of str
+        Place labels (place ``j`` is ``labels[j]``).
+    assignment : array_like of int, shape (m,)
+        The place of each of the run's first ``m`` views.
+    keyframes : array_like of int, shape (k,)
+        The keyframes' view indices.
+    closures : array_like of int, shape (c, 2), optional
+        Loop closures as view indices ``(view, earlier view)``.
+    consensus : sequence of str or None, optional
+        Per place, its consensus fingerprint's letters.
+    trajectory : array_like, shape (n, 2) or (n, 3), optional
+        True positions of the views (when the run has poses): the map is drawn over them.
+    notes : sequence of str
+        Lines shown under the title (the command...).
+    figures : mapping, optional
+        Numbers shown as a list and kept in ``report.json`` (purity...).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    lab = np.asarray(assignment, dtype=np.int64).reshape(-1)
+    keys = np.asarray(keyframes, dtype=np.int64).reshape(-1)
+    cl = np.zeros((0, 2), np.int64) if closures is None else np.asarray(closures, dtype=np.int64).reshape(-1, 2)
+    page = Page("Places from fingerprints")
+    for line in notes:
+        page.paragraph(line)
+    page.paragraph(
+        f"{len(labels)} places from {lab.size} views ({keys.size} keyframes), {cl.shape[0]} loop closures; no pose "
+        "was used to make them."
+    )
+    if figures:
+        page.items([f"{k}: {v}" for k, v in figures.items()])
+    if trajectory is not None:
+        draw_fingerprint_places(out / "places.png", trajectory=trajectory, assignment=lab, closures=cl,
+                                title=f"{len(labels)} places from fingerprints over the true trajectory")  # fmt: skip
+        page.figure("places.png", "places made from fingerprints, coloured by place, over the true trajectory")
+    key_place = lab[keys[keys < lab.size]]
+    rows = []
+    for j, name in enumerate(labels):
+        views = np.flatnonzero(lab == j)
+        cons = "" if consensus is None or j >= len(consensus) or consensus[j] is None else str(consensus[j])
+        first = int(views[0]) if views.size else -1
+        rows.append([name, int(views.size), int(np.count_nonzero(key_place == j)), first, cons])
+    page.heading("Places")
+    page.table(["place", "views", "keyframes", "first view", "consensus fingerprint"], rows,
+               numeric=[False, True, True, True, False])  # fmt: skip
+    data = {
+        "places": list(labels),
+        "views_per_place": [r[1] for r in rows],
+        "closures": cl.tolist(),
+        "figures": dict(figures or {}),
     }
     (out / "report.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     return page.write(out)
