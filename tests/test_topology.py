@@ -255,3 +255,40 @@ def test_observations_without_any_distance_term_are_refused():
     obs = [Observation(ve=np.array([0.1, 1.0])), Observation(ve=np.array([0.2, 2.0]))]
     with pytest.raises(InvalidParameterError, match="distance term"):
         view_distance_matrix(obs, {"terms": ["VE"]})
+
+
+def test_panoramas_in_order_give_one_place_per_room_and_the_place_filter_follows_them(tmp_path, capsys):
+    import fingerloc as fl
+    from fingerloc.features.vision import observation_from_views
+    from fingerloc.io.jsonl import write_observations
+    from fingerloc.pipeline.topology import places_from_fingerprints
+    from fingerloc.sim import make_offices
+    from fingerloc.sim.camera import render_panorama
+
+    offices = make_offices(4, similarity=0.3, random_state=1)
+    obs, room = [], []
+    for loop in range(2):  # twice through four offices, five panoramas a visit along a short path
+        for j, w in enumerate(offices):
+            cx, cy = np.asarray(w.room).mean(axis=0)
+            for k in range(5):
+                pose = (cx + 0.4 * (k - 2), cy + 0.2 * (k - 2) * (-1) ** loop, 0.5 * k + loop)
+                pano = render_panorama(
+                    w, pose, width=240, height=40, supersample=1, random_state=100 * loop + 10 * j + k
+                )
+                obs.append(observation_from_views(panorama=pano, appearance=True, profile=True))
+                room.append(j)
+    path = write_observations(tmp_path / "panoramas.jsonl", obs) and tmp_path / "panoramas.jsonl"
+    run = fl.read_run(path)
+    fm = places_from_fingerprints(run, preset="panorama")
+    half = np.array(room[: fm.n_mapping])
+    for j in range(4):  # a place never mixes two offices
+        assert not set(fm.assignment[half == j].tolist()) & set(fm.assignment[half != j].tolist())
+    code, _, err = run_cli(capsys, "map", path, "--places", "fingerprints", "--no-calibration", "--db", tmp_path / "p.sqlite")
+    assert code == 0, err
+    pm = fl.load_map(tmp_path / "p.sqlite")
+    res = pm.track(run, filter="places")  # the run the map was made from: the views after its mapping part
+    assert len(res.answers) == len(run) - fm.n_mapping
+    right = [
+        int(a.place) in set(fm.assignment[half == room[fm.n_mapping + t]].tolist()) for t, a in enumerate(res.answers)
+    ]
+    assert sum(right) >= len(right) - 1  # the second round through the offices: the first round's places

@@ -418,7 +418,7 @@ def _map_figures(run: Any, positions: FArray) -> tuple[Any, dict[str, Any]]:
     from ..pipeline.places import places_from_trajectory
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
 
-    fm = places_from_fingerprints(run, calibrate=False)
+    fm = places_from_fingerprints(run, calibrate=False, consensus=False)
     pose_places = places_from_trajectory(positions).n_places
     figures = {
         "places": fm.n_places,

@@ -201,7 +201,7 @@ class FingerprintMap:
     closures : ndarray of int, shape (m, 2)
         Loop closures as run indices: ``(view, earlier view it revisits)``.
     consensus : list of Fingerprint or None
-        Per place, its consensus fingerprint (None without the string term).
+        Per place, its consensus fingerprint (None when not computed: no string term, or ``consensus=False``).
     scales : dict of str -> float
         Each distance term's ``lambda``.
     unit : float
@@ -269,6 +269,7 @@ def places_from_fingerprints(
     join: float = JOIN_PROBABILITY,
     keyframe_change: float | None = None,
     calibrate: bool = True,
+    consensus: bool = True,
     on_step: Callable[[str], None] | None = None,
 ) -> FingerprintMap:
     """A place map of a run's mapping part from its views alone (module docstring).
@@ -293,6 +294,10 @@ def places_from_fingerprints(
         (default :data:`~fingerloc.pipeline.view_distances.KEYFRAME_CHANGE`; 0: every view).
     calibrate : bool, default True
         Fit the filters' likelihood scale ``beta`` on held-out keyframes (two more model fits).
+    consensus : bool, default True
+        Give each place its consensus fingerprint (when the model weighs the
+        fingerprint string; a greedy median-string search, the slowest step
+        for long strings).
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -302,7 +307,7 @@ def places_from_fingerprints(
     """
     from ..terms import FingerprintTerm, consensus_fingerprint
     from .calibration import held_out_calibration, model_fit_score
-    from .view_distances import KEYFRAME_CHANGE, keyframes, view_distance_matrix
+    from .view_distances import KEYFRAME_CHANGE, distance_term_weights, keyframes, view_distance_matrix
 
     note = on_step or (lambda s: None)
     n = len(run)
@@ -330,12 +335,12 @@ def places_from_fingerprints(
     graph = PlaceGraph.from_sequence(labels, [labels[j] for j in place.tolist()])
     owner = np.searchsorted(keys, np.arange(n_map), side="right") - 1
     assignment = place[owner]
-    consensus: list[Any] = [None] * n_places
+    cons: list[Any] = [None] * n_places
     fp = model.terms_.get("Fp")
-    if isinstance(fp, FingerprintTerm):
+    if consensus and isinstance(fp, FingerprintTerm) and distance_term_weights(resolved.options).get("Fp", 0.0) > 0:
         note("consensus fingerprints")
-        consensus = [consensus_fingerprint(fps, costs=fp.costs, cyclic=fp.cyclic) if fps else None
-                     for fps in fp.fingerprints_]  # fmt: skip
+        cons = [consensus_fingerprint(fps, costs=fp.costs, cyclic=fp.cyclic) if fps else None
+                for fps in fp.fingerprints_]  # fmt: skip
     beta, rows = 1.0, 0
     if calibrate and n_places > 1:
         note("fitting the likelihood scale on held-out keyframes")
@@ -358,7 +363,7 @@ def places_from_fingerprints(
         assignment=np.asarray(assignment, dtype=np.int64),
         keyframes=keys,
         closures=keys[closures] if closures.size else np.zeros((0, 2), np.int64),
-        consensus=consensus,
+        consensus=cons,
         scales=scales,
         unit=unit,
         run_name=" ".join(str(p) for p in run.paths),
