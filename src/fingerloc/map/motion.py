@@ -22,8 +22,10 @@ from ._checks import finite as _finite
 __all__ = [
     "MotionNoise",
     "OdometryError",
+    "OdometrySimulator",
     "as_poses",
     "compose_increments",
+    "corrupt_increments",
     "odometry_increments",
     "simulate_odometry",
     "wheel_odometry",
@@ -149,22 +151,64 @@ def simulate_odometry(
     For logs whose only poses are corrected ones (the shared CARMEN logs: their
     ``ODOM`` lines are corrected too), the exact increments would be an
     odometry without error; this corrupts them with ``error`` (default
-    :class:`OdometryError`), seeded.
+    :class:`OdometryError`), seeded. Each increment draws its three normal
+    errors (distance, turn, drift) in step order, so that a stream of poses
+    corrupted one step at a time (:class:`OdometrySimulator`) gets the same
+    increments.
     """
-    err = OdometryError() if error is None else error
-    inc = odometry_increments(poses)
-    rng = check_random_state(random_state)
-    n = inc.shape[0]
+    return corrupt_increments(odometry_increments(poses), OdometryError() if error is None else error,
+                              check_random_state(random_state))  # fmt: skip
+
+
+def corrupt_increments(increments: Any, error: OdometryError, rng: np.random.Generator) -> FArray:
+    """Increments with simulated wheel-odometry errors, shape (n, 3); three normal draws per increment, in order.
+
+    Increment ``(dx, dy, dtheta)`` over a distance ``d``: ``(dx, dy)`` times
+    ``(1 + scale)(1 + translation z1)``, and ``dtheta + rotation |dtheta| z2
+    + drift_per_metre d z3 + bias_per_metre d`` (wrapped); ``z1, z2, z3``
+    standard normal (:class:`OdometryError`).
+    """
+    inc = np.asarray(increments, dtype=np.float64).reshape(-1, 3)
+    z = rng.standard_normal((inc.shape[0], 3))
     dist = np.hypot(inc[:, 0], inc[:, 1])
     out = inc.copy()
-    out[:, :2] *= (1.0 + err.scale) * (1.0 + err.translation * rng.standard_normal((n, 1)))
+    out[:, :2] *= (1.0 + error.scale) * (1.0 + error.translation * z[:, :1])
     out[:, 2] = wrap(
-        inc[:, 2]
-        + err.rotation * np.abs(inc[:, 2]) * rng.standard_normal(n)
-        + err.drift_per_metre * dist * rng.standard_normal(n)
-        + err.bias_per_metre * dist
-    )
+        inc[:, 2] + error.rotation * np.abs(inc[:, 2]) * z[:, 1] + error.drift_per_metre * dist * z[:, 2]
+        + error.bias_per_metre * dist
+    )  # fmt: skip
     return out
+
+
+class OdometrySimulator:
+    """Simulated wheel-odometry errors one increment at a time: the increments of :func:`wheel_odometry`.
+
+    Fed the increments of a run in order, :meth:`corrupt` returns what
+    ``wheel_odometry(poses, error_factor, random_state=seed)`` gives for the
+    whole run, row by row (for a streaming replay of a log whose poses are
+    corrected ones).
+
+    Parameters
+    ----------
+    error_factor : float
+        Times every error of :class:`OdometryError` (0: the increments unchanged).
+    seed : int, default 0
+    """
+
+    def __init__(self, error_factor: float, seed: int = 0) -> None:
+        self.error = OdometryError().scaled(_finite("error_factor", error_factor))
+        self.exact = float(error_factor) == 0
+        self.seed = int(seed)
+        self.reset()
+
+    def reset(self) -> None:
+        """The first increment's draws again."""
+        self._rng = np.random.default_rng(self.seed)
+
+    def corrupt(self, increment: Any) -> FArray:
+        """One increment ``(dx, dy, dtheta)`` with its simulated errors, shape (3,)."""
+        inc = np.asarray(increment, dtype=np.float64).reshape(1, 3)
+        return inc[0].copy() if self.exact else corrupt_increments(inc, self.error, self._rng)[0]
 
 
 def wheel_odometry(poses: Any, error_factor: float = 1.0, *, random_state: int | np.random.Generator | None = 0) -> FArray:

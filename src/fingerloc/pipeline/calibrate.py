@@ -451,15 +451,15 @@ def tune_pose_filter(
     tried: list[dict[str, float]] = []
     best = (-1.0, cal)
     for rho in (*cc.outliers, fitted):
-        for metres in cc.temper_m:
-            trial = replace(cal, outlier=float(rho), temper_metres=float(metres))
+        for metres in cc.temper_m:  # these runs have no scan map: their scan power is 0
+            trial = replace(cal, outlier=float(rho), temper_metres=float(metres), scan_gamma=0.0)
             res, _ = run(trial)
             top1 = float(np.mean(res.best[rows] == truth))
             tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
             if top1 > best[0]:
                 best = (top1, trial)
     if scan_points is None or scan_maps is None:
-        return replace(best[1], scan_gamma=0.0), tried
+        return best[1], tried
     sfold = held.fold if scan_fold is None else np.asarray(scan_fold, dtype=np.int64).reshape(-1)
     if sfold is None or len(scan_maps) != 2:
         raise InvalidParameterError("scan evidence in the tuning needs the folds (scan_fold or held.fold) and two fold maps")

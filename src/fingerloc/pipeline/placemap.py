@@ -291,6 +291,7 @@ class PlaceMap:
         alpha: float | None = None,
         uniform_mix: float | None = None,
         scan_gamma: float | None = None,
+        odometry_error: float = 0.0,
     ) -> Tracker:
         """A streaming :class:`~fingerloc.pipeline.tracker.Tracker` over this map's places.
 
@@ -306,6 +307,9 @@ class PlaceMap:
             Override the calibration's likelihood scale, metres per place change,
             the transition counts' smoothing, the uniform mixing per step, the
             scan evidence's power.
+        odometry_error : float, default 0
+            Simulated wheel-odometry errors on the increments between the odometry
+            poses the steps give, times this factor (replaying a log of corrected poses).
         """
         if filter not in FILTERS:
             raise InvalidParameterError(f"filter must be one of {', '.join(FILTERS)}, got {filter!r}")
@@ -333,6 +337,7 @@ class PlaceMap:
             self.model, self.labels, self.graph, cal, cfg, centres=self.positions, filter=filter,
             features=None if self.preset is None else dict(self.preset.features), seed=seed,
             scan_map=self.scan_map if scan else None, heading=heading, transition=transition,
+            odometry_error=odometry_error,
         )  # fmt: skip
 
     def _steps(self, run: Run, *, filter: str, observe: str, use_scan: bool, use_heading: bool, note: Note) -> _Steps:
@@ -431,29 +436,23 @@ class PlaceMap:
         -------
         TrackResult
         """
-        from ..map.motion import wheel_odometry
-        from .calibration import step_distances
-
         note = on_note or _quiet
         if observe not in ("queries", "all"):
             raise InvalidParameterError(f"observe must be 'queries' or 'all', got {observe!r}")
+        factor = 0.0
+        if filter == "pose":
+            factor = odometry_error if odometry_error is not None else (1.0 if run.kind == "carmen" else 0.0)
         tracker = self.tracker(filter=filter, seed=seed, scan=scan, heading=heading, beta=beta,
                                metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix,
-                               scan_gamma=scan_gamma)  # fmt: skip
+                               scan_gamma=scan_gamma, odometry_error=factor)  # fmt: skip
         use_scan = tracker.uses_scan
         st = self._steps(run, filter=filter, observe=observe, use_scan=use_scan, use_heading=tracker.heading, note=note)
         n = st.ll.shape[0]
-        factor = 0.0
-        increments = distances = None
         if filter == "pose":
             if st.poses is None:
                 raise InvalidParameterError("the pose filter needs a pose at every step")
-            factor = odometry_error if odometry_error is not None else (1.0 if run.kind == "carmen" else 0.0)
             if odometry_error is None and factor:
                 note("CARMEN poses are corrected ones: simulating wheel-odometry errors (--odometry-error 1)")
-            increments = wheel_odometry(st.poses, factor, random_state=seed + 1)
-        elif st.poses is not None:
-            distances = step_distances(st.poses[:, :2])
         rows = scaled(st.ll, tracker.calibration.beta)
         stamps = run.timestamps
         if stamps is not None:
@@ -463,8 +462,7 @@ class PlaceMap:
             answers.append(
                 tracker.step_scores(
                     rows[t],
-                    increment=None if increments is None or t == 0 else increments[t - 1],
-                    distance=None if distances is None else float(distances[t]),
+                    odometry=None if st.poses is None else st.poses[t],
                     stamp=None if stamps is None else float(stamps[t]),
                     headings=None if st.headings is None else st.headings[t],
                     points=None if st.points is None else st.points[t],

@@ -43,7 +43,7 @@ from ..config import Config
 from ..errors import InvalidParameterError
 from ..map.driver import PoseTracking
 from ..map.filter import MarkovFilter, TransitionModel, entropy_bits
-from ..map.motion import odometry_increments
+from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
 from ..sensors import Scan
 from .calibration import Calibration, implied_headings, posterior_columns
@@ -199,6 +199,11 @@ class Tracker:
         Use the calibration's heading model (pose filter).
     transition : TransitionModel, optional
         The place filter's transition model (default from the graph and calibration).
+    odometry_error : float, default 0
+        Simulated wheel-odometry errors on the increments between the odometry
+        poses given to :meth:`step`, times this factor (a replay of a log whose
+        poses are corrected ones; :class:`~fingerloc.map.motion.OdometrySimulator`,
+        seeded with ``seed + 1``); 0: the poses' own increments.
     """
 
     def __init__(
@@ -216,6 +221,7 @@ class Tracker:
         scan_map: ScanMap | None = None,
         heading: bool = True,
         transition: TransitionModel | None = None,
+        odometry_error: float = 0.0,
     ) -> None:
         if filter not in FILTERS:
             raise InvalidParameterError(f"filter must be one of {', '.join(FILTERS)}, got {filter!r}")
@@ -226,6 +232,7 @@ class Tracker:
         self.filter = filter
         self.features = dict(features or {})
         self.seed = int(seed)
+        self.odometry = OdometrySimulator(odometry_error, self.seed + 1)
         self.transition = transition_of(graph, calibration, config) if transition is None else transition
         self.heading = bool(heading) and filter == "pose" and calibration.heading is not None
         self.scan_map = scan_map if filter == "pose" else None
@@ -266,6 +273,7 @@ class Tracker:
             self._places.reset()
         self._t = 0
         self._odometry: FArray | None = None
+        self.odometry.reset()
         return self
 
     # -- one step from raw data ---------------------------------------------------------------------
@@ -352,7 +360,7 @@ class Tracker:
             prev, self._odometry = self._odometry, pose
             if prev is None:
                 return None, distance
-            inc = odometry_increments(np.vstack([prev, pose]))[0]
+            inc = self.odometry.corrupt(odometry_increments(np.vstack([prev, pose]))[0])
             if distance is None:
                 distance = float(np.hypot(pose[0] - prev[0], pose[1] - prev[1]))
         else:
