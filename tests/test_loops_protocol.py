@@ -112,7 +112,7 @@ def test_bench_loops_on_a_synthetic_log_writes_the_json_others_read(rooms_log, t
     for m in lg["methods"].values():
         assert {"max_f1", "recall_at_100", "recall_at_99", "average_precision"} <= set(m)
     assert set(js["pooled"]["methods"]) == set(lg["methods"])
-    assert {"places", "pose_places", "purity"} <= set(lg["fingerprint_map"])
+    assert {"places", "pose_places", "purity", "localize_top1", "track_top1"} <= set(lg["fingerprint_map"])
     assert lg["window"] == "3 s"  # the synthetic log's timestamps rise by 1 s a scan
     assert (rep / "index.html").exists() and (rep / "pr-rooms.png").exists() and (rep / "places-rooms.png").exists()
 

@@ -19,7 +19,6 @@ def map_fingerprints(
     overrides: Mapping[str, Any] | None,
     mapping_part: float,
     until: float | None,
-    calibrate: bool,
     json_out: Path | None,
     report: Path | None,
     data: Path,
@@ -31,7 +30,7 @@ def map_fingerprints(
 
     with err_console.status("mapping from fingerprints...") as status:
         fm = places_from_fingerprints(
-            run, preset=preset, overrides=overrides, mapping_part=mapping_part, until=until, calibrate=calibrate,
+            run, preset=preset, overrides=overrides, mapping_part=mapping_part, until=until,
             on_step=lambda s: status.update(s),
         )  # fmt: skip
     err_console.print(fm.preset.reason, markup=False)
@@ -39,7 +38,7 @@ def map_fingerprints(
     if empty:
         err_console.print(f"warning: no view has {', '.join(empty)} bearings: those terms cannot tell places apart "
                           "(see --preset / --terms)", markup=False)  # fmt: skip
-    config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": calibrate})
+    config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
     size = fm.place_map(config).save(db)
     poses = run.poses
     figures: dict[str, Any] = {}

@@ -37,14 +37,25 @@ def print_loops(js: dict[str, Any]) -> None:
     maps = [(n, lg["fingerprint_map"]) for n, lg in rows if lg.get("fingerprint_map")]
     if maps:
         console.print("")
-        head2 = f"{'log':<{lw}} {'places':>6} {'pose_places':>11} {'ratio':>5} {'purity':>6}"
-        console.print("places from fingerprints (first half of each log) against the pose-based map", soft_wrap=True)
+        head2 = (
+            f"{'log':<{lw}} {'places':>6} {'pose_places':>11} {'ratio':>5} {'purity':>6} {'queries':>7} "
+            f"{'localize':>8} {'track':>6}"
+        )
+        console.print(
+            "places from fingerprints (first half of each log) against the pose-based map; the rest of the log "
+            "localized (queries: later scans within 3 m of a place's median position; top-1 of localize and of the "
+            "place filter)",
+            soft_wrap=True,
+        )
         console.print(head2, soft_wrap=True)
         console.print("-" * len(head2), soft_wrap=True)
         for name, mp in maps:
             ratio = mp["places"] / mp["pose_places"] if mp["pose_places"] else float("nan")
+            extra = ""
+            if "map_queries" in mp:
+                extra = f" {mp['map_queries']:>7} {mp['localize_top1']:>8.3f} {mp['track_top1']:>6.3f}"
             console.print(
-                f"{name:<{lw}} {mp['places']:>6} {mp['pose_places']:>11} {ratio:>5.2f} {mp['purity']:>6.3f}",
+                f"{name:<{lw}} {mp['places']:>6} {mp['pose_places']:>11} {ratio:>5.2f} {mp['purity']:>6.3f}{extra}",
                 soft_wrap=True,
             )
 

@@ -67,7 +67,8 @@ def map_cmd(
     ),
     places: str = typer.Option(
         "poses", "--places", help="'poses': a place every --spacing metres of the poses; 'fingerprints': places from "
-        "the views alone, no pose needed (docs/LOOPS.md; --spacing, --radius, --heading, --scan do not apply)."
+        "the views alone, no pose needed (docs/LOOPS.md; --spacing, --radius, --heading, --scan, --no-calibration do "
+        "not apply)."
     ),
 ) -> None:
     """Make a place map from a recorded run's poses.
@@ -110,7 +111,7 @@ def map_cmd(
     if places == "fingerprints":
         from .fingerprint_map import map_fingerprints
 
-        map_fingerprints(run, db, preset=preset, overrides=overrides, until=until, calibrate=not no_calibration,
+        map_fingerprints(run, db, preset=preset, overrides=overrides, until=until,
                          mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
                          report=report, data=runs[0])  # fmt: skip
         return

@@ -35,8 +35,11 @@ naming the candidate it finds most similar, its similarity the score.
 The fingerprint map (:func:`fingerloc.pipeline.topology.places_from_fingerprints`,
 defaults: the first half of the log) is scored against the poses: its
 places, the pose-based map's
-(:func:`~fingerloc.pipeline.places.places_from_trajectory`, defaults) and the
-purity at ``R`` = 3 m (:func:`~fingerloc.pipeline.topology.place_purity`).
+(:func:`~fingerloc.pipeline.places.places_from_trajectory`, defaults), the
+purity at ``R`` = 3 m (:func:`~fingerloc.pipeline.topology.place_purity`), and
+how it localizes the rest of the log: a later scan within ``R`` of some
+place's median position is a query, an answer naming such a place is right
+(``localize_top1``: single shot; ``track_top1``: the place filter).
 """
 
 from __future__ import annotations
@@ -376,10 +379,18 @@ class LoopBenchmark:
         maps = [lg.map_figures for lg in self.logs if lg.map_figures]
         if maps:
             views = sum(m["mapping_views"] for m in maps)
+            queries = sum(m.get("map_queries", 0) for m in maps)
             pooled_map = {
                 "places": sum(m["places"] for m in maps),
                 "pose_places": sum(m["pose_places"] for m in maps),
                 "purity": sum(m["purity"] * m["mapping_views"] for m in maps) / views if views else float("nan"),
+                "map_queries": queries,
+                **{
+                    k: sum(m[k] * m["map_queries"] for m in maps if m.get("map_queries")) / queries
+                    if queries
+                    else float("nan")
+                    for k in ("localize_top1", "track_top1")
+                },
             }
         pooled: dict[str, Any] = {
             "queries": sum(int(lg.queries.size) for lg in self.logs),
@@ -414,11 +425,11 @@ def _purity_radius() -> float:
 
 
 def _map_figures(run: Any, positions: FArray) -> tuple[Any, dict[str, Any]]:
-    """The fingerprint map of a log and its scores against the poses."""
+    """The fingerprint map of a log and its scores against the poses (module docstring)."""
     from ..pipeline.places import places_from_trajectory
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
 
-    fm = places_from_fingerprints(run, calibrate=False, consensus=False)
+    fm = places_from_fingerprints(run, consensus=False)
     pose_places = places_from_trajectory(positions).n_places
     figures = {
         "places": fm.n_places,
@@ -427,8 +438,45 @@ def _map_figures(run: Any, positions: FArray) -> tuple[Any, dict[str, Any]]:
         "loop_closures": int(fm.closures.shape[0]),
         "keyframes": int(fm.keyframes.size),
         "mapping_views": int(fm.n_mapping),
+        **_map_localization(fm, run, positions, PURITY_RADIUS_M),
     }
     return fm, figures
+
+
+def _map_localization(fm: Any, run: Any, positions: FArray, radius: float) -> dict[str, Any]:
+    """How the map made from fingerprints localizes the rest of the log, scored against the poses.
+
+    A *query* is a scan after the mapping part lying within ``radius`` of some
+    place's median position (the median of its views' positions); an answer is
+    right when the place it names is such a place. ``localize_top1``: the
+    single-shot answer (``fingerloc localize``); ``track_top1``: the place
+    filter's (``fingerloc track --filter places``, every scan observing).
+    """
+    from ..pipeline.calibration import posterior_columns
+
+    p = fm.n_places
+    pos_map = positions[: fm.n_mapping]
+    med = np.array([np.median(pos_map[fm.assignment == j], axis=0) for j in range(p)]).reshape(-1, 2)
+    steps = np.arange(fm.n_mapping, positions.shape[0])
+    if steps.size == 0 or p == 0:
+        return {"map_queries": 0, "localize_top1": float("nan"), "track_top1": float("nan")}
+    d = np.hypot(positions[steps, None, 0] - med[None, :, 0], positions[steps, None, 1] - med[None, :, 1])
+    near = d <= radius
+    answerable = near.any(axis=1)
+    pm = fm.place_map()
+    obs = run.observations(steps, features=fm.preset.features)
+    single = np.argmax(posterior_columns(pm.model, obs, p, pm.labels), axis=1)
+    res = pm.track(run, filter="places")
+    col = {lab: j for j, lab in enumerate(pm.labels)}
+    tracked = np.array([col[a.place] for a in res.answers], dtype=np.int64)
+    rows = np.flatnonzero(answerable)
+    if tracked.size != steps.size or rows.size == 0:
+        return {"map_queries": int(rows.size), "localize_top1": float("nan"), "track_top1": float("nan")}
+    return {
+        "map_queries": int(rows.size),
+        "localize_top1": float(np.mean(near[rows, single[rows]])),
+        "track_top1": float(np.mean(near[rows, tracked[rows]])),
+    }
 
 
 def run_loop_benchmark(

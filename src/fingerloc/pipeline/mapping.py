@@ -97,8 +97,8 @@ def make_map(
     places : {"poses", "fingerprints"}, default "poses"
         ``"fingerprints"``: the places come from the views alone, no pose
         (:func:`~fingerloc.pipeline.topology.places_from_fingerprints`, with
-        ``config.places``' mapping part and ``config.calibration.enabled``); the
-        map has no place positions (localize and the place filter use it).
+        ``config.places``' mapping part); the map has no place positions
+        (localize and the place filter use it).
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -115,9 +115,9 @@ def make_map(
 
         fm = places_from_fingerprints(
             run, preset=preset, overrides=overrides, mapping_part=cfg.places.mapping_part, until=cfg.places.until_s,
-            calibrate=cfg.calibration.enabled, on_step=on_step,
+            on_step=on_step,
         )  # fmt: skip
-        return fm.place_map(cfg)
+        return fm.place_map(cfg.with_(calibration={"enabled": False}))
     pc, cc = cfg.places, cfg.calibration
     poses = run.poses
     if poses is None:

@@ -27,9 +27,9 @@ themselves decide, with the place model's own evidence
    closure is an edge to an older place.
 5. **The model** (the preset's) learns every place from its keyframes; each
    place also gets a consensus fingerprint
-   (:func:`~fingerloc.terms.fingerprint.consensus_fingerprint`), and the
-   filters' likelihood scale ``beta`` is fitted on held-out keyframes
-   (:func:`~fingerloc.pipeline.tracker.held_out_calibration`).
+   (:func:`~fingerloc.terms.fingerprint.consensus_fingerprint`). The filters
+   use the model's posterior as it is (``beta = 1``; a fit on held-out
+   keyframes is an option, ``calibrate=True``).
 
 No threshold comes from poses: ``c`` and the scales are the run's own,
 ``change``, ``join`` and the filter's constants were chosen once on four
@@ -268,7 +268,7 @@ def places_from_fingerprints(
     change: float = PLACE_CHANGE,
     join: float = JOIN_PROBABILITY,
     keyframe_change: float | None = None,
-    calibrate: bool = True,
+    calibrate: bool = False,
     consensus: bool = True,
     on_step: Callable[[str], None] | None = None,
 ) -> FingerprintMap:
@@ -292,8 +292,13 @@ def places_from_fingerprints(
     keyframe_change : float, optional
         :func:`~fingerloc.pipeline.view_distances.keyframes`' ``change``
         (default :data:`~fingerloc.pipeline.view_distances.KEYFRAME_CHANGE`; 0: every view).
-    calibrate : bool, default True
-        Fit the filters' likelihood scale ``beta`` on held-out keyframes (two more model fits).
+    calibrate : bool, default False
+        Fit the filters' likelihood scale ``beta`` on held-out keyframes (two
+        more model fits). Off by default: a held-out keyframe is scored
+        against its place's neighbours in time, which the rule made alike, so
+        the fit distrusts the model (on four laser logs it gave beta 0.02 to
+        0.83 and a place filter worse than single-shot; with ``beta = 1`` the
+        place filter matches or beats it, docs/LOOPS.md).
     consensus : bool, default True
         Give each place its consensus fingerprint (when the model weighs the
         fingerprint string; a greedy median-string search, the slowest step

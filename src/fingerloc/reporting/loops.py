@@ -198,14 +198,23 @@ def write_loops_report(
         page.paragraph(
             "Places made from the views alone (no pose), scored against the poses: purity = share of the views "
             "within the purity radius of their place's median position; pose places = the pose-based map's "
-            "places (a place every 2 m) over the same part of the run."
+            "places (a place every 2 m) over the same part of the run. The rest of the run is localized with the "
+            "map: a later view within the purity radius of some place's median position is a query, answered "
+            "right when the named place is such a place (single shot, and the place filter)."
         )
+
+        def top1(mp: Mapping[str, Any], key: str) -> str:
+            v = mp.get(key)
+            return "" if v is None else f"{v:.3f}"
+
         page.table(
-            ["log", "places", "pose places", "ratio", "purity", "loop closures", "keyframes"],
+            ["log", "places", "pose places", "ratio", "purity", "loop closures", "keyframes", "queries",
+             "localize top-1", "place filter top-1"],
             [[lg["name"], lg["map"]["places"], lg["map"]["pose_places"],
               f"{lg['map']['places'] / max(lg['map']['pose_places'], 1):.2f}", f"{lg['map']['purity']:.3f}",
-              lg["map"].get("loop_closures", ""), lg["map"].get("keyframes", "")] for lg in maps],
-            numeric=[False, True, True, True, True, True, True],
+              lg["map"].get("loop_closures", ""), lg["map"].get("keyframes", ""), lg["map"].get("map_queries", ""),
+              top1(lg["map"], "localize_top1"), top1(lg["map"], "track_top1")] for lg in maps],
+            numeric=[False] + [True] * 9,
         )  # fmt: skip
     for lg in [*logs, *([{"name": "pooled", **pooled}] if pooled else [])]:
         slug = _slug(str(lg["name"]))
