@@ -23,7 +23,7 @@ __all__ = ["app", "bench_app", "main", "reproduce_app"]
 def _load() -> ModuleType:
     """Import the application and every command module (which register themselves)."""
     app_module = import_module(".app", __name__)  # not ``from . import app``: that would call __getattr__
-    for name in ("basic", "bench", "compare", "demo", "features", "kidnap", "learn", "live", "localize", "logs", "mapping", "mog", "places", "reports", "robot", "track"):
+    for name in ("basic", "bench", "compare", "demo", "features", "kidnap", "learn", "live", "localize", "logs", "loops", "mapping", "mog", "places", "reports", "robot", "track"):
         import_module(f".{name}", __name__)
 
     # importing the submodule ``app`` bound the package attribute ``app`` to it: bind the Typer objects

@@ -72,6 +72,11 @@ def map_cmd(
     tum: Path | None = typer.Option(
         None, "--tum", help="Also write the run's poses (every scan) as a TUM trajectory here: the reference for evo."
     ),
+    places: str = typer.Option(
+        "poses", "--places", help="'poses': a place every --spacing metres of the poses; 'fingerprints': places from "
+        "the views alone, no pose needed (docs/LOOPS.md; --spacing, --radius, --heading, --scan, --no-calibration do "
+        "not apply)."
+    ),
 ) -> None:
     """Make a place map from a recorded run's poses.
 
@@ -99,6 +104,10 @@ def map_cmd(
     for flag, v in (("--spacing", spacing), ("--radius", radius)):
         if not (math.isfinite(v) and v > 0):
             raise InvalidParameterError(f"{flag} must be a positive number of metres, got {v!r}")
+    if places not in ("poses", "fingerprints"):
+        raise InvalidParameterError(f"--places must be 'poses' or 'fingerprints', got {places!r}")
+    if places == "fingerprints" and queries_out is not None:
+        raise InvalidParameterError("--queries needs place positions: it goes with --places poses")
     overrides = model_overrides(components=components, terms=terms, laser_letters=laser_letters,
                                 fp_likelihood=fp_likelihood, cyclic=cyclic, costs=costs)  # fmt: skip
     check_db_target(db, overwrite)
@@ -108,6 +117,13 @@ def map_cmd(
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    if places == "fingerprints":
+        from .fingerprint_map import map_fingerprints
+
+        map_fingerprints(run, db, preset=preset, overrides=overrides, until=until,
+                         mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
+                         report=report, data=runs[0])  # fmt: skip
+        return
     doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     config = Config().with_(
         places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,

@@ -74,9 +74,10 @@ def make_map(
     *,
     preset: str = "auto",
     overrides: Mapping[str, Any] | None = None,
+    places: str = "poses",
     on_step: Callable[[str], None] | None = None,
 ) -> PlaceMap:
-    """Places from a run's poses, learned with a preset, with the filters' calibration.
+    """Places from a run's poses (or its fingerprints), learned with a preset, with the filters' calibration.
 
     Parameters
     ----------
@@ -93,6 +94,11 @@ def make_map(
         A name of :data:`~fingerloc.pipeline.presets.PRESET_NAMES`.
     overrides : mapping, optional
         Explicit model options (JSON form) over the preset's.
+    places : {"poses", "fingerprints"}, default "poses"
+        ``"fingerprints"``: the places come from the views alone, no pose
+        (:func:`~fingerloc.pipeline.topology.places_from_fingerprints`, with
+        ``config.places``' mapping part); the map has no place positions
+        (localize and the place filter use it).
     on_step : callable, optional
         Called with a short text before each stage.
 
@@ -102,6 +108,16 @@ def make_map(
         With ``split``, ``training`` and ``tuning`` (what a map read back lacks).
     """
     cfg = Config() if config is None else config
+    if places not in ("poses", "fingerprints"):
+        raise InvalidParameterError(f"places must be 'poses' or 'fingerprints', got {places!r}")
+    if places == "fingerprints":
+        from .topology import places_from_fingerprints
+
+        fm = places_from_fingerprints(
+            run, preset=preset, overrides=overrides, mapping_part=cfg.places.mapping_part, until=cfg.places.until_s,
+            on_step=on_step,
+        )  # fmt: skip
+        return fm.place_map(cfg.with_(calibration={"enabled": False}))
     pc, cc = cfg.places, cfg.calibration
     poses = run.poses
     if poses is None:

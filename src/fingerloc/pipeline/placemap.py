@@ -374,6 +374,13 @@ class PlaceMap:
             if use_heading:
                 steps.headings = implied_headings(self.model, obs, self.labels)
             return steps
+        if filter == "places" and (poses is None or not self.has_positions):
+            # the place filter needs neither: every scan observes, no true place is known
+            start = self._start(run, "tracking", note)
+            obs = run.observations(np.arange(start, len(run)), features=features)
+            n = len(obs)
+            return _Steps(posterior_columns(self.model, obs, p, self.labels), np.full(n, -1, dtype=np.int64),
+                          None if poses is None else poses[start:], run.names[start:])  # fmt: skip
         if poses is None:
             raise InvalidParameterError(f"{run.paths[0]}: tracking a raw run needs a pose on every scan")
         if not self.has_positions:
@@ -426,7 +433,9 @@ class PlaceMap:
         ----------
         run : Run
             A laser log or bag with poses (tracked against a map made from poses),
-            or JSON Lines observations in order.
+            or JSON Lines observations in order. The place filter also tracks a
+            laser log or bag without poses, or against a map without place
+            positions (a map made from fingerprints): every scan observes.
         filter : {"pose", "places"}, default "pose"
         seed : int, default 0
             Seeds the particles (``seed``) and the simulated odometry errors (``seed + 1``).
