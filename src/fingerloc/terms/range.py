@@ -102,7 +102,7 @@ class RangeTerm(DistanceTerm):
         self._refs = np.vstack(self.descriptors_) if self.descriptors_ else np.zeros((0, width))
         self._owner = np.repeat(np.arange(len(self.descriptors_)), [d.shape[0] for d in self.descriptors_])
 
-    def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
+    def _loo_matrix(self, rows: NDArray[np.int64], cols: NDArray[np.int64] | None = None) -> FArray | None:
         """Distances between training views; the views without ranges are never anyone's neighbour."""
         from scipy.spatial.distance import cdist
 
@@ -112,8 +112,12 @@ class RangeTerm(DistanceTerm):
         has = self._has_ranges
         desc = np.zeros((has.size, self._refs.shape[1]))
         desc[has] = self._refs
-        d = cdist(desc[rows], desc, metric="cityblock")
-        d[:, ~has] = np.inf
+        if cols is None:
+            d = cdist(desc[rows], desc, metric="cityblock")
+            d[:, ~has] = np.inf
+        else:
+            d = cdist(desc[rows], desc[cols], metric="cityblock")
+            d[:, ~has[cols]] = np.inf
         d[~has[rows]] = np.inf
         return d
 
