@@ -93,6 +93,7 @@ def campus_observations(
     n_queries: int = 1,
     n_beams: int = 360,
     camera: bool = False,
+    random_heading: bool = True,
     seed: int = 20040426,
 ) -> tuple[list[Observation], list[Observation]]:
     """Training and query views of the first ``n_places`` places of the campus (module docstring).
@@ -104,7 +105,9 @@ def campus_observations(
     """
     train: list[Observation] = []
     queries: list[Observation] = []
-    for ch in campus_chunks(n_places, n_train=n_train, n_queries=n_queries, n_beams=n_beams, camera=camera, seed=seed):
+    for ch in campus_chunks(
+        n_places, n_train=n_train, n_queries=n_queries, n_beams=n_beams, camera=camera, random_heading=random_heading, seed=seed
+    ):
         train += ch.train
         queries += ch.queries
     return train, queries
@@ -117,6 +120,7 @@ def campus_chunks(
     n_queries: int = 1,
     n_beams: int = 360,
     camera: bool = False,
+    random_heading: bool = True,
     seed: int = 20040426,
     start: int = 0,
 ) -> Iterator[CampusChunk]:
@@ -133,6 +137,9 @@ def campus_chunks(
     camera : bool
         Also the camera's features (vertical edges, colour patches): the paper's robot. Without, a
         laser-only robot (the ``laser2d`` preset's); the laser features are the same either way.
+    random_heading : bool
+        Each view with its own random heading (a robot that does not know its heading); False:
+        every view at heading 0, the paper's protocol (its mixtures of bearings need it).
     seed : int
         Seed of the campus.
     start : int
@@ -154,6 +161,8 @@ def campus_chunks(
         pid = np.repeat(np.arange(CHUNK), views)
         is_train = np.tile(np.arange(views) < n_train, CHUNK)
         poses = _draw_poses(rng, places, pid, is_train)
+        if not random_heading:
+            poses[:, 2] = 0.0
         labels = [f"place-{first + int(p)}" if p < count else None for p in pid]
         obs = _observe(rng, places, pid, poses, n_beams, camera, labels)
         train = [o for o, t in zip(obs, is_train, strict=True) if o is not None and t]

@@ -97,6 +97,8 @@ class FingerprintTerm(DistanceTerm):
         """:meth:`fingerprint` of each observation, computed as one batch (the same strings and bearings)."""
         from .._fingerprints import make_fingerprints
 
+        if len(observations) < 4:  # the batch's set-up costs more than a few single ones
+            return [self.fingerprint(o) for o in observations]
         return make_fingerprints(
             observations, empty_step_deg=self.empty_step_deg, merge_tol_deg=self.merge_tol_deg, laser_letters=self.laser_letters
         )
@@ -229,6 +231,56 @@ class FingerprintTerm(DistanceTerm):
         if not recent:
             self._recent = ({id(o): (o, f, -1) for o, f in zip(obs, qfps, strict=True)}, None)
         return out
+
+    def place_references(self, places: Sequence[int] | np.ndarray) -> NDArray[np.int64]:
+        """Indices into the references (``_refs``) of the given places, place after place."""
+        counts = np.diff(np.append(self._starts, len(self._refs)))
+        pl = np.asarray(places, dtype=np.int64)
+        if pl.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        first = self._starts[pl]
+        n = counts[pl]
+        return np.repeat(first - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+    def distances_at(
+        self,
+        observations: Sequence[Observation],
+        places: Sequence[int] | np.ndarray,
+        *,
+        fingerprints: Sequence[Fingerprint] | None = None,
+    ) -> FArray:
+        """:meth:`distances` at the given places only, shape ``(n, len(places))``: the same values.
+
+        ``fingerprints``: those of the observations, when already at hand.
+        """
+        from ..align import alignment_costs
+
+        obs = list(observations)
+        pl = np.asarray(places, dtype=np.int64)
+        out = np.full((len(obs), pl.size), np.inf)
+        refs_idx = self.place_references(pl)
+        counts = np.diff(np.append(self._starts, len(self._refs)))[pl]
+        has = counts > 0
+        if not obs or refs_idx.size == 0:
+            return out
+        starts = (np.cumsum(counts) - counts)[has]
+        qfps = self.fingerprints(obs) if fingerprints is None else list(fingerprints)
+        groups: dict[Any, list[int]] = {}
+        for i, o in enumerate(obs):
+            groups.setdefault(FULL_FOV if self.cyclic else o.fov, []).append(i)
+        for fov, idx in groups.items():
+            full = self.cyclic or any(width >= TWO_PI - 1e-12 for _, width in fov)
+            refs = [self._refs[int(r)] for r in refs_idx]
+            if not full:
+                refs = [crop_fingerprint(fp, fov) for fp in refs]
+            d = alignment_costs([qfps[i] for i in idx], refs, cyclic=self.cyclic, costs=self.costs)
+            sub = out[idx]
+            sub[:, has] = min_per_place_groups(d, starts)
+            out[idx] = sub
+        return out
+
+    def log_likelihood_at(self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray) -> FArray:
+        return self._likelihood_of(self.distances_at(observations, places))
 
     def remember(self, observations: Sequence[Observation]) -> None:
         """Align the observations against every training view in one batch, for the next :meth:`heading_at` calls.
