@@ -17,6 +17,7 @@ every place has log-likelihood ``-inf`` gets the uniform posterior.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
@@ -294,7 +295,22 @@ class PlaceModel(ParamsMixin):
         self.weights_: dict[str, float] = {}
         if checked["weights"] == "fit":
             self.weights_ = self._fit_term_weights(checked["terms"])
+        self._drop_scans()
         return self
+
+    def _drop_scans(self) -> None:
+        """Keep the places' views without their raw laser scans once the range term has described them.
+
+        The range term keeps each view's beam counts; nothing else of the model reads a stored
+        view's ranges, and the place database does not store them either (a model read back has
+        none). A scan is most of a view's memory (1,081 float64 ranges and bearings: 17 KB): a map
+        of 300,000 views would hold gigabytes of them.
+        """
+        if not isinstance(self.terms_.get("R"), RangeTerm):
+            return
+        for place in self.places_.values():
+            if any(o.ranges is not None for o in place.observations):
+                place.observations = [_without_scan(o) for o in place.observations]
 
     def _fit_terms(self, names: tuple[str, ...], groups: list[list[Observation]]) -> dict[str, Term]:
         terms = self._make_terms(names)
@@ -328,6 +344,7 @@ class PlaceModel(ParamsMixin):
         for t in self.terms_.values():
             if not isinstance(t, MixtureTerm):
                 t.update(groups, changed)
+        self._drop_scans()
         return self
 
     def _fit_term_weights(self, names: tuple[str, ...]) -> dict[str, float]:
@@ -611,7 +628,21 @@ class PlaceModel(ParamsMixin):
                 t.set_state(stored[name], groups)
         model.terms_ = fresh
         model.weights_ = {str(k): float(v) for k, v in state.get("weights", {}).items()}
+        model._drop_scans()
         return model
+
+
+def _without_scan(o: Observation) -> Observation:
+    """``o`` without its raw scan (``ranges``, ``range_bearings``): a shallow copy, the other fields shared."""
+    if o.ranges is None:
+        return o
+    out = object.__new__(Observation)
+    for name in _OBSERVATION_FIELDS:  # a frozen dataclass: its fields are set once, here on a new copy
+        object.__setattr__(out, name, None if name in ("ranges", "range_bearings") else getattr(o, name))
+    return out
+
+
+_OBSERVATION_FIELDS = tuple(f.name for f in dataclasses.fields(Observation))
 
 
 def _observations(observations: Sequence[Observation]) -> list[Observation]:
