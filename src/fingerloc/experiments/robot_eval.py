@@ -12,9 +12,9 @@ from numpy.typing import ArrayLike, NDArray
 from .._types import FArray
 from ..metrics import min_per_place, true_place_ranks
 from ..observation import Observation
-from .robot_sim import TABLE2_TYPES, TABLE4_FITTED, TABLE4_TERMS, RobotProtocol, TrialData
+from .robot_sim import TABLE2_TYPES, TABLE4_EXP, TABLE4_FITTED, TABLE4_TERMS, RobotProtocol, TrialData
 
-__all__ = ["CI_LEVEL", "TrialEvaluation", "evaluate_trial", "t_interval", "wilson_interval"]
+__all__ = ["CI_LEVEL", "TrialEvaluation", "evaluate_trial", "t_interval", "term_scale", "wilson_interval"]
 
 
 def _cell(ranks: NDArray[np.int64]) -> tuple[float, float]:
@@ -96,6 +96,15 @@ class TrialEvaluation:
         Feature type -> count per measurement, shape (n_measurements,) (what ``features`` averages).
     features_by_visit : dict
         ``"train"`` / ``"test"`` -> feature type -> mean count per measurement of that visit.
+    term_scale : dict
+        k (str) -> term -> how far the term moves the places' log-likelihoods, nats: the
+        median over the test queries of (largest - smallest log-likelihood over the places).
+        Terms ``"VE"``, ``"Ex"``, ``"Fp"`` (the paper's ``1 / (cost + 1)``) and ``"Fp-exp"``
+        (``exp(-lambda cost)``, :data:`~fingerloc.experiments.robot_sim.TABLE4_EXP`).
+    term_weights : dict
+        k (str) -> term -> weight fit on the training views (``PlaceModel(weights="fit")``).
+    fp_lambda : dict
+        k (str) -> ``lambda`` of the ``exp(-lambda cost)`` fingerprint likelihood, per unit of cost.
     """
 
     features: dict[str, float]
@@ -109,6 +118,26 @@ class TrialEvaluation:
     model: Any = None
     models: dict[int, Any] = field(default_factory=dict)
     features_by_visit: dict[str, dict[str, float]] = field(default_factory=dict)
+    term_scale: dict[str, dict[str, float]] = field(default_factory=dict)
+    term_weights: dict[str, dict[str, float]] = field(default_factory=dict)
+    fp_lambda: dict[str, float] = field(default_factory=dict)
+
+
+def term_scale(ll: FArray) -> float:
+    """How far one term moves the places: median over queries of (max - min) of its log-likelihood, nats.
+
+    Parameters
+    ----------
+    ll : ndarray, shape (n_queries, P)
+        The term's log-likelihood of each query at each place.
+    """
+    v = np.asarray(ll, dtype=np.float64)
+    if v.size == 0:
+        return 0.0
+    finite = np.where(np.isfinite(v), v, np.nan)
+    spread = np.nanmax(finite, axis=1) - np.nanmin(finite, axis=1)
+    spread = spread[np.isfinite(spread)]
+    return float(np.median(spread)) if spread.size else 0.0
 
 
 def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: int = 0) -> TrialEvaluation:
@@ -158,6 +187,9 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
     posterior = np.empty((0, 0))
     model: Any = None
     models: dict[int, Any] = {}
+    scale: dict[str, dict[str, float]] = {}
+    weights: dict[str, dict[str, float]] = {}
+    lambdas: dict[str, float] = {}
     for k in protocol.ks:
         model = PlaceModel(k, terms=("VE", "Ex", "Fp"), random_state=random_state).fit(train)
         models[k] = model
@@ -170,6 +202,15 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         posterior = model.predict_proba(test)
         fitted = PlaceModel(k, terms=("VE", "Ex", "Fp"), weights="fit", random_state=random_state).fit(train)
         record(("table4", TABLE4_FITTED, str(k)), fitted.predict_log_proba(test), truth)
+        weights[str(k)] = {t: float(w) for t, w in fitted.weights_.items()}
+        # the string on the mixtures' scale: P(Fp | loc) proportional to exp(-lambda cost), lambda fit
+        # leave-one-out on the training views (the mixtures are those of the paper's program)
+        fp_exp = PlaceModel(k, terms=("Fp",), fp_likelihood="exp", random_state=random_state).fit(train)
+        ll_exp = fp_exp.term_log_likelihoods(test)["Fp"]
+        record(("table4", TABLE4_EXP, str(k)), ll["VE"] + ll["Ex"] + ll_exp, truth)
+        lambdas[str(k)] = fp_exp.fp_lambda_
+        scale[str(k)] = {t: term_scale(ll[t]) for t in ("VE", "Ex", "Fp")}
+        scale[str(k)]["Fp-exp"] = term_scale(ll_exp)
 
     # Random heading: cyclic matching, per-place heading estimate for the mixture terms
     heading_err = np.empty(0)
@@ -218,4 +259,7 @@ def evaluate_trial(data: TrialData, protocol: RobotProtocol, *, random_state: in
         heading_error_deg=heading_err,
         model=model,
         models=models,
+        term_scale=scale,
+        term_weights=weights,
+        fp_lambda=lambdas,
     )

@@ -101,18 +101,49 @@ class RobotResult:
         errs = errs[np.isfinite(errs)]
         return float(np.median(errs)) if errs.size else None
 
+    def term_stats(self) -> dict[str, dict[str, Any]]:
+        """k (str) -> the fusion's scale, mean over trials: ``spread_nats`` (term -> how far it moves the
+        places, :func:`~fingerloc.experiments.robot_eval.term_scale`), ``fitted_weights`` (term -> weight of
+        ``PlaceModel(weights="fit")``) and ``fp_lambda`` (of ``P(Fp) ∝ exp(-lambda cost)``)."""
+        out: dict[str, dict[str, Any]] = {}
+        trials = [tr for tr in self.trials if tr.term_scale]
+        if not trials:
+            return out
+        for k in trials[0].term_scale:
+            first = trials[0]
+            out[k] = {
+                "spread_nats": {t: float(np.mean([tr.term_scale[k][t] for tr in trials])) for t in first.term_scale[k]},
+                "fitted_weights": {
+                    t: float(np.mean([tr.term_weights[k][t] for tr in trials])) for t in first.term_weights.get(k, {})
+                },
+                "fp_lambda": float(np.mean([tr.fp_lambda[k] for tr in trials])) if k in first.fp_lambda else None,
+            }
+        return out
+
+    def findings(self) -> list[Any]:
+        """The paper's findings beside ours (:func:`~fingerloc.experiments.robot_findings.paper_findings`)."""
+        from .robot_findings import paper_findings
+
+        return paper_findings(self)
+
     def to_json(self) -> dict[str, Any]:
         """The JSON of ``fingerloc reproduce robot --json`` (top1 in [0, 1]).
 
         ``table2`` counts every training and test measurement; ``table2_by_visit`` the
         training (``"train"``) and test (``"test"``) measurements apart, whose offices
-        differ in the ``"paper"`` world (``protocol.sensor_profile.session``).
+        differ in the ``"paper"`` world (``protocol.sensor_profile.session``). Each cell of
+        ``table3``, ``table4`` and ``random_heading`` holds ``top1``, ``mean_rank`` and
+        ``ci95`` (``{"top1": [low, high], "mean_rank": [low, high]}``, the same intervals as
+        the ``ci95`` block); ``table4_terms`` the fusion's scale (:meth:`term_stats`);
+        ``findings`` the paper's findings beside ours (:meth:`findings`).
         """
         cells = self.cell_stats()
+        cis = self.cell_ci()
         main: dict[str, Any] = {}
         spread: dict[str, Any] = {}
         for key, (t1, t1s, mr, mrs) in cells.items():
-            _put(main, key, {"top1": t1, "mean_rank": mr})
+            a, r = cis[key]
+            _put(main, key, {"top1": t1, "mean_rank": mr, "ci95": {"top1": _pair(a), "mean_rank": _pair(r)}})
             _put(spread, key, {"top1": t1s, "mean_rank": mrs})
         fs = self.feature_stats()
         out: dict[str, Any] = {"table2": {t: m for t, (m, _) in fs.items()}}
@@ -127,9 +158,13 @@ class RobotResult:
         spread["table2"] = {t: s for t, (_, s) in fs.items()}
         out["spread"] = spread
         ci: dict[str, Any] = {"table2": {t: _pair(v) for t, v in self.feature_ci().items()}}
-        for key, (a, r) in self.cell_ci().items():
+        for key, (a, r) in cis.items():
             _put(ci, key, {"top1": _pair(a), "mean_rank": _pair(r)})
         out["ci95"] = ci
+        terms = self.term_stats()
+        if terms:
+            out["table4_terms"] = terms
+        out["findings"] = [f.to_json() for f in self.findings()]
         out["paper"] = {
             "table2": dict(PAPER_TABLE2),
             "table3": {m: {"top1": a, "mean_rank": r} for m, (a, r) in PAPER_TABLE3.items()},

@@ -24,6 +24,7 @@ __all__ = [
     "PAPER_TABLE3",
     "PAPER_TABLE4",
     "TABLE2_TYPES",
+    "TABLE4_EXP",
     "TABLE4_FITTED",
     "TABLE4_NAMES",
     "TABLE4_TERMS",
@@ -56,6 +57,10 @@ TABLE4_TERMS: dict[str, tuple[str, ...]] = {
 #: Our extra Table IV row: the full program with per-term weights fit on the training views
 #: (``PlaceModel(weights="fit")``); not in the paper.
 TABLE4_FITTED = "VE+Ex+Fp-fit"
+#: Our other extra Table IV row: the full program with the fingerprint's likelihood on the mixtures'
+#: scale, ``P(Fp | loc) ∝ exp(-lambda cost)`` (``PlaceModel(fp_likelihood="exp")``, ``lambda`` fit
+#: leave-one-out on the training views) instead of the paper's ``1 / (cost + 1)``; not in the paper.
+TABLE4_EXP = "VE+Ex+Fp-exp"
 #: Display names of the Table IV rows (ours and the paper's), in print order.
 TABLE4_NAMES: dict[str, str] = {
     "VE": "VE only",
@@ -63,6 +68,7 @@ TABLE4_NAMES: dict[str, str] = {
     "VE+Ex": "VE & Ex",
     "VE+Ex+Fp": "VE, Ex & fingerprint",
     TABLE4_FITTED: "VE, Ex & fingerprint, term weights fit (not in the paper)",
+    TABLE4_EXP: "VE, Ex & fingerprint, P(Fp) ∝ exp(-λ cost) (not in the paper)",
 }
 #: The paper's Table IV: row -> k -> (right classification in [0, 1], mean rank).
 PAPER_TABLE4: dict[str, dict[int, tuple[float, float]]] = {
@@ -76,21 +82,28 @@ TABLE2_TYPES: tuple[str, ...] = ("VE", "Ex", "CP", "B", "c")
 
 
 #: The offices' likeness, the robot's sensors and its extractor settings per simulated world
-#: (``RobotProtocol.world``). ``"paper"``: calibrated to the paper's Table II (docs/RESULTS.md,
-#: "Robot experiment, calibrated to Table II"): offices of one institute corridor (similarity
-#: 0.8: same room grid and furniture), a softer, noisier camera image (the paper's 640x480
-#: mirror camera: defocus 1.5 px, pixel noise 2.5 %, JPEG 75) and a vertical-edge extractor
-#: that keeps only long, strong edges (a run over 35 % of the elevation range or edge pixels
-#: over half of it, a step of 0.15 in log luminance); the test measurements are taken at a later
-#: visit of the offices (``"session"``: :class:`fingerloc.sim.sessions.SessionChange` settings,
-#: :data:`~fingerloc.sim.sessions.OFFICE_DAY`: chairs moved, a door closed, people in the room,
-#: other daylight). ``"paper-static"``: the same offices and sensors with nothing changed between
-#: the training and the test measurements (the ``"paper"`` world before the visits were
-#: modelled). ``"alike"``: the original generator and settings, with the library's default
+#: (``RobotProtocol.world``). ``"paper"``: offices of one institute corridor (similarity 0.8:
+#: same room grid and furniture), a softer, noisier camera image (the paper's 640x480 mirror
+#: camera: defocus 1.5 px, pixel noise 2.5 %, JPEG 75) and a vertical-edge extractor that keeps
+#: only long, strong edges (a run over 35 % of the elevation range or edge pixels over half of it,
+#: a step of 0.15 in log luminance): calibrated to the paper's Table II; the test measurements are
+#: taken at a later visit of the offices (``"session"``: :data:`~fingerloc.sim.sessions.PAPER_VISIT`:
+#: chairs moved, a door closed, people in the room, other daylight, and the robot's heading off the
+#: training visit's by an angle per office of 24 deg standard deviation), and the robot's extractors
+#: miss and invent features as a real robot's do (``"perception"``:
+#: :data:`~fingerloc.sim.perception.PAPER_ROBOT`: one feature in twenty lost, as many false ones
+#: added); the heading and the perception errors are calibrated on the paper's Table III.
+#: ``"paper-static"``: the same offices and robot with nothing changed between the training and the
+#: test visit (no moved chairs, no people, the same heading). ``"paper-ideal"``: the ``"paper"``
+#: world's offices and visits (:data:`~fingerloc.sim.sessions.OFFICE_DAY`) seen by a robot with the
+#: simulator's perfect perception and the same heading at both visits (the world calibrated to
+#: Table II only). ``"alike"``: the original generator and settings, with the library's default
 #: extractor (for comparison with earlier runs). ``"offices"`` names the office generator
-#: (:data:`fingerloc.sim.WORLDS`).
+#: (:data:`fingerloc.sim.WORLDS`); ``"calibrated_on"`` the paper's tables the world was fit to
+#: (``"table2"``, ``"table3"``): nothing was fit to Table IV.
 def _profiles() -> dict[str, dict[str, Any]]:
-    from ..sim.sessions import OFFICE_DAY
+    from ..sim.perception import PAPER_ROBOT
+    from ..sim.sessions import OFFICE_DAY, PAPER_VISIT
 
     paper: dict[str, Any] = {
         "offices": "paper",
@@ -101,8 +114,14 @@ def _profiles() -> dict[str, dict[str, Any]]:
         "extractor": {"min_extent": 0.35, "min_support": 0.5, "min_contrast": 0.15},
     }
     return {
-        "paper": {**paper, "session": OFFICE_DAY.to_dict()},
-        "paper-static": {**paper, "session": None},
+        "paper": {
+            **paper,
+            "session": PAPER_VISIT.to_dict(),
+            "perception": PAPER_ROBOT.to_dict(),
+            "calibrated_on": ["table2", "table3"],
+        },
+        "paper-static": {**paper, "session": None, "perception": PAPER_ROBOT.to_dict(), "calibrated_on": ["table2"]},
+        "paper-ideal": {**paper, "session": OFFICE_DAY.to_dict(), "perception": None, "calibrated_on": ["table2"]},
         "alike": {
             "offices": "alike",
             "similarity": 0.5,
@@ -111,6 +130,8 @@ def _profiles() -> dict[str, dict[str, Any]]:
             "jpeg_quality": 85,
             "extractor": {},
             "session": None,
+            "perception": None,
+            "calibrated_on": [],
         },
     }
 
@@ -147,14 +168,16 @@ class RobotProtocol:
     jpeg_quality : int or None, optional
         JPEG round trip of the camera image; default the world's sensor
         profile (:data:`WORLD_PROFILES`: 75 for ``"paper"``, 85 for ``"alike"``).
-    world : {"paper", "paper-static", "alike"}, default "paper"
+    world : {"paper", "paper-static", "paper-ideal", "alike"}, default "paper"
         The office generator (:data:`fingerloc.sim.WORLDS`), the matching
-        sensor profile and what changes between the training and the test
-        visit (:data:`WORLD_PROFILES`). ``"paper"`` is calibrated to the
-        paper's Table II, its test measurements taken at a later visit
-        (chairs moved, doors, people, daylight); ``"paper-static"`` the same
-        with nothing changed between visits; ``"alike"`` is the original
-        generator.
+        sensor profile, the robot's perception errors and what changes
+        between the training and the test visit (:data:`WORLD_PROFILES`).
+        ``"paper"`` is calibrated to the paper's Tables II and III, its test
+        measurements taken at a later visit (chairs moved, doors, people,
+        daylight, the robot's heading); ``"paper-static"`` the same with
+        nothing changed between visits; ``"paper-ideal"`` the ``"paper"``
+        world seen with the simulator's perfect perception and the same
+        heading at both visits; ``"alike"`` is the original generator.
     ks : tuple of int, default (3, 4, 5)
         Mixture components to evaluate.
     random_heading : bool, default True
@@ -189,6 +212,14 @@ class RobotProtocol:
 
         d = WORLD_PROFILES[self.world].get("session")
         return None if d is None else SessionChange(**d)
+
+    @property
+    def perception(self) -> Any:
+        """The robot's perception errors (a :class:`~fingerloc.sim.perception.PerceptionNoise`), or None."""
+        from ..sim.perception import PerceptionNoise
+
+        d = WORLD_PROFILES[self.world].get("perception")
+        return None if d is None else PerceptionNoise(**d)
 
     @property
     def office_similarity(self) -> float:
@@ -226,11 +257,15 @@ class Measurement:
     pose : (x, y, theta)
         True pose, metres and radians (world frame).
     observation : Observation
-        Features extracted from the raw data, labelled with the office's name.
+        Features extracted from the raw data, changed by the robot's perception errors
+        (:attr:`RobotProtocol.perception`), labelled with the office's name.
     scan, panorama, omni : optional
         The raw data (:class:`~fingerloc.sensors.Scan`, the unwarped
         :class:`~fingerloc.sensors.Panorama`, the :class:`~fingerloc.sim.OmniImage`),
         kept only when asked (``keep_raw``).
+    extracted : Observation, optional
+        What the extractors found on the raw data, before the robot's perception errors
+        (``observation`` is after them); kept with the raw data.
     """
 
     office: int
@@ -240,6 +275,7 @@ class Measurement:
     scan: Any = None
     panorama: Any = None
     omni: Any = None
+    extracted: Any = None
 
 
 def _free(world: Any, xy: tuple[float, float], clearance: float) -> bool:
@@ -324,8 +360,13 @@ def simulate_office(
     seed: int | Sequence[int],
     keep_raw: bool = False,
     test_world: Any = None,
+    heading_offset: float = 0.0,
 ) -> list[Measurement]:
     """Every measurement of one office: training, test and (optionally) random-heading test.
+
+    The features of each measurement are those the extractors find on the simulated raw data,
+    then changed by the robot's perception errors (``protocol.perception``, drawn from a stream
+    of their own: the poses and raw data do not depend on them).
 
     Parameters
     ----------
@@ -341,27 +382,39 @@ def simulate_office(
     test_world : fingerloc.sim.World, optional
         The office at the test visit (:func:`fingerloc.sim.sessions.make_office_sessions`),
         where the test and random-heading measurements are taken; default ``world``.
+    heading_offset : float, default 0
+        The robot's heading at the test visit relative to the training visit, radians: added
+        to the heading of every test pose (not to the random-heading ones).
     """
+    from ..sim.perception import perceive
+
     rng = np.random.default_rng(seed)
     later = world if test_world is None else test_world
     train, test = measurement_poses(world, protocol, rng)
+    test = [(x, y, th + float(heading_offset)) for x, y, th in test]
     jobs = [("train", p) for p in train] + [("test", p) for p in test]
     if protocol.random_heading:
         # headings from their own stream, so that the training and test measurements (Tables II-IV)
         # are the same with and without the random-heading rows
         turn = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         jobs += [("test-random-heading", (x, y, float(turn.uniform(-math.pi, math.pi)))) for x, y, _ in test]
+    perception = protocol.perception
+    # the perception errors from a stream of their own (child 0 turns the random headings)
+    errors = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[1])
     out = []
     for role, pose in jobs:
-        obs, scan, pano, im = _measure(world if role == "train" else later, pose, protocol, rng)
+        found, scan, pano, im = _measure(world if role == "train" else later, pose, protocol, rng)
+        obs = found if perception is None else perceive(found, perception, errors)
         if keep_raw:
-            out.append(Measurement(office, role, pose, obs, scan, pano, im))
+            out.append(Measurement(office, role, pose, obs, scan, pano, im, found))
         else:
             out.append(Measurement(office, role, pose, obs))
     return out
 
 
-def _simulate_office_job(args: tuple[Any, int, RobotProtocol, tuple[int, ...], bool, Any]) -> list[Measurement]:
+def _simulate_office_job(
+    args: tuple[Any, int, RobotProtocol, tuple[int, ...], bool, Any, float],
+) -> list[Measurement]:
     return simulate_office(*args)
 
 
@@ -411,6 +464,8 @@ def simulate_trial(
     # The changes between visits draw from a child of their own (the next one spawned), so that the
     # offices, poses and sensor noise are those of the same seed without the changes.
     (visit_seq,) = ss.spawn(1)
+    # the robot's heading at the test visit: one offset per office, from the child after that
+    (heading_seq,) = ss.spawn(1)
     kwargs: dict[str, Any] = {"random_state": np.random.default_rng(office_seq), "world": protocol.offices}
     kwargs["similarity"] = protocol.office_similarity
     change = protocol.session_change
@@ -422,9 +477,11 @@ def simulate_trial(
             protocol.n_offices, change=change, change_random_state=np.random.default_rng(visit_seq), **kwargs
         )
         worlds, later = [a for a, _ in pairs], [b for _, b in pairs]
+    sd = math.radians(change.heading_offset_deg) if change is not None else 0.0
+    offsets = sd * np.random.default_rng(heading_seq).standard_normal(protocol.n_offices)
     keep = set(range(protocol.n_offices)) if keep_raw is True else set() if keep_raw is False else set(keep_raw)
     jobs = [
-        (w, i, protocol, tuple(int(v) for v in meas_seqs[i].generate_state(4)), i in keep, later[i])
+        (w, i, protocol, tuple(int(v) for v in meas_seqs[i].generate_state(4)), i in keep, later[i], float(offsets[i]))
         for i, w in enumerate(worlds)
     ]
     if executor is None:

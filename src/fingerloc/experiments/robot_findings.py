@@ -1,0 +1,153 @@
+"""Which of the paper's findings the simulated robot experiment reproduces (see :mod:`fingerloc.experiments.robot`).
+
+Each finding of the paper is a difference between two of its cells (right
+classification, in [0, 1]): global alignment against minimum energy (Table
+III), VE with the most against the fewest mixture components, VE & Ex against
+the better single term, the full program against VE & Ex (Table IV, the
+largest k). Ours is the same difference, paired: over trials (Student t on the
+per-trial differences) with two trials or more, over the test queries (Student
+t on the per-query differences of "right") with one. A finding **holds** when
+the 95 % interval of our difference lies above 0, is **reversed** when it lies
+below 0, and is **not shown** otherwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .robot_eval import t_interval
+from .robot_sim import PAPER_TABLE3, PAPER_TABLE4
+
+if TYPE_CHECKING:
+    from .robot_result import RobotResult
+
+__all__ = ["Finding", "paper_findings"]
+
+
+@dataclass(frozen=True, slots=True)
+class Finding:
+    """One of the paper's findings, beside ours.
+
+    Attributes
+    ----------
+    key : str
+        Short name (``"ga_beats_me"``, ``"components_help_ve"``, ``"fusion_beats_single"``, ``"fp_helps"``).
+    claim : str
+        The finding in words.
+    a, b : tuple of str
+        The two cells compared (``a`` - ``b``), as paths of :meth:`RobotResult.cell_stats`.
+    paper : float
+        The paper's difference, right classification in [-1, 1].
+    ours : float
+        Our mean difference.
+    ci95 : (float, float) or None
+        Its 95 % interval (None when undefined).
+    """
+
+    key: str
+    claim: str
+    a: tuple[str, ...]
+    b: tuple[str, ...]
+    paper: float
+    ours: float
+    ci95: tuple[float, float] | None
+
+    @property
+    def verdict(self) -> str:
+        """``"holds"``, ``"reversed"`` or ``"not shown"`` (the interval contains 0, or is undefined)."""
+        if self.ci95 is None:
+            return "not shown"
+        lo, hi = self.ci95
+        if lo > 0:
+            return "holds"
+        if hi < 0:
+            return "reversed"
+        return "not shown"
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON record: key, claim, compared cells, paper, ours, ci95, verdict."""
+        return {
+            "key": self.key,
+            "claim": self.claim,
+            "a": "/".join(self.a),
+            "b": "/".join(self.b),
+            "paper": self.paper,
+            "ours": self.ours,
+            "ci95": None if self.ci95 is None else [float(self.ci95[0]), float(self.ci95[1])],
+            "verdict": self.verdict,
+        }
+
+
+def _paper(key: tuple[str, ...]) -> float:
+    if key[0] == "table3":
+        return PAPER_TABLE3[key[1]][0]
+    return PAPER_TABLE4[key[1]][int(key[2])][0]
+
+
+def _difference(res: RobotResult, a: tuple[str, ...], b: tuple[str, ...]) -> tuple[float, tuple[float, float] | None]:
+    """Mean of ``a - b`` (right classification) and its paired 95 % interval."""
+    if len(res.trials) >= 2:
+        d = np.array([tr.cells[a][0] - tr.cells[b][0] for tr in res.trials])
+    else:
+        tr = res.trials[0]
+        d = (tr.ranks[a] == 1).astype(np.float64) - (tr.ranks[b] == 1).astype(np.float64)
+    if d.size == 0:
+        return 0.0, None
+    ci = t_interval(d)
+    if ci is not None:
+        ci = (max(ci[0], -1.0), min(ci[1], 1.0))
+    return float(d.mean()), ci
+
+
+def paper_findings(res: RobotResult) -> list[Finding]:
+    """The paper's findings that our tables can test, with our paired differences (module docstring).
+
+    Needs the Table III cells and the Table IV rows VE, Ex, VE+Ex and VE+Ex+Fp; the
+    Table IV findings use the smallest and the largest k of the protocol that the paper
+    has (3 and 5 by default) and are left out when the protocol has none of them.
+    """
+    out: list[Finding] = []
+
+    def add(key: str, claim: str, a: tuple[str, ...], b: tuple[str, ...], paper: float | None = None) -> None:
+        if a not in res.trials[0].cells or b not in res.trials[0].cells:
+            return
+        ours, ci = _difference(res, a, b)
+        out.append(Finding(key, claim, a, b, _paper(a) - _paper(b) if paper is None else paper, ours, ci))
+
+    add(
+        "ga_beats_me",
+        "global alignment beats minimum energy (string matching alone, Table III)",
+        ("table3", "global_alignment"),
+        ("table3", "minimum_energy"),
+    )
+    ks = [k for k in res.protocol.ks if k in PAPER_TABLE4["VE"]]
+    if not ks:
+        return out
+    lo, hi = str(min(ks)), str(max(ks))
+    if lo != hi:
+        add(
+            "components_help_ve",
+            f"more mixture components help VE (k = {hi} against k = {lo})",
+            ("table4", "VE", hi),
+            ("table4", "VE", lo),
+        )
+    means = res.cell_stats()
+    single = max(("VE", "Ex"), key=lambda t: means[("table4", t, hi)][0] if ("table4", t, hi) in means else -1.0)
+    add(
+        "fusion_beats_single",
+        f"VE & Ex beat the better single term ({single}, k = {hi})",
+        ("table4", "VE+Ex", hi),
+        ("table4", single, hi),
+        # the paper's own better single term
+        paper=_paper(("table4", "VE+Ex", hi)) - max(_paper(("table4", t, hi)) for t in ("VE", "Ex")),
+    )
+    add(
+        "fp_helps",
+        f"the full program (VE, Ex & fingerprint) beats VE & Ex (k = {hi})",
+        ("table4", "VE+Ex+Fp", hi),
+        ("table4", "VE+Ex", hi),
+    )
+    return out
