@@ -89,14 +89,23 @@ def demo_cmd(
         page = write_demo_report(out, data, ev, res, timings=timings)
         timings["figures + report"] = time.perf_counter() - t0
 
-    from .robot import print_robot_tables
+    from ..experiments.robot_findings import REFERENCE_RUN, reference_story
+    from .robot import print_findings, print_robot_tables, print_term_scale
 
     console.print(
         f"fingerloc demo: {protocol.n_offices} simulated offices alike "
         f"(world {world}, similarity {protocol.office_similarity:g}), "
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )
+    for line in reference_story():
+        console.print(line)
+    if world != REFERENCE_RUN["world"]:
+        console.print(f"  (those figures are for world {REFERENCE_RUN['world']}; this run's world is {world})")
+    n_q = len(ev.truth)
+    console.print(f"This trial alone ({n_q} test queries: most differences lie within its noise):")
+    print_findings(res, console, title_note=f"seed {seed}")
     print_robot_tables(res, console, title_note=f"seed {seed}")
+    print_term_scale(res, console)
     total = sum(timings.values())
     console.print(
         f"report: {page} (map, scan, panorama, fingerprint, mixture, posterior, confusion matrix); {total:.1f} s in all"

@@ -24,7 +24,7 @@ from .robot_sim import PAPER_TABLE3, PAPER_TABLE4
 if TYPE_CHECKING:
     from .robot_result import RobotResult
 
-__all__ = ["Finding", "paper_findings"]
+__all__ = ["REFERENCE_RUN", "Finding", "paper_findings", "reference_story"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,3 +151,63 @@ def paper_findings(res: RobotResult) -> list[Finding]:
         ("table4", "VE+Ex", hi),
     )
     return out
+
+
+#: The reference run of the ``paper`` world: ``fingerloc reproduce robot --trials 20 --seed 0`` (its
+#: JSON's means and 95 % intervals, right classification in [0, 1]; docs/METHOD.md §5 gives the
+#: tables). What :func:`reference_story` tells; a run of that command prints the same figures.
+REFERENCE_RUN: dict[str, Any] = {
+    "command": "fingerloc reproduce robot --trials 20 --seed 0",
+    "world": "paper",
+    "cells": {},
+    "findings": {},
+}
+
+
+def reference_story(reference: dict[str, Any] | None = None) -> list[str]:
+    """What the reproduction shows over many trials, in a few lines (the demo's first screen).
+
+    Parameters
+    ----------
+    reference : dict, optional
+        Figures as in :data:`REFERENCE_RUN` (the default).
+    """
+    ref = REFERENCE_RUN if reference is None else reference
+    cells, found = ref["cells"], ref["findings"]
+    if not cells:
+        return []
+
+    def pc(key: str) -> str:
+        m, lo, hi = cells[key]
+        return f"{100 * m:.1f}% [{100 * lo:.0f}, {100 * hi:.0f}]"
+
+    def fd(key: str) -> str:
+        m, lo, hi = found[key]
+        f = Finding(key, "", (), (), 0.0, m, (lo, hi))
+        return f"{f.verdict} ({100 * m:+.1f} points [{100 * lo:+.0f}, {100 * hi:+.0f}]"
+
+    p3, p4 = PAPER_TABLE3, PAPER_TABLE4
+    k = max(int(c.rsplit("/", 1)[1]) for c in cells if c.startswith("table4/VE+Ex+Fp/"))
+    full, ve_ex = f"table4/VE+Ex+Fp/{k}", f"table4/VE+Ex/{k}"
+    return [
+        f"What the reproduction shows over 20 trials ({ref['command']}, world {ref['world']}):",
+        "  Table III, string matching alone (calibrated: the robot's perception errors and its heading at the "
+        "later visit were fit to it):",
+        f"    minimum energy {pc('table3/minimum_energy')} (paper {100 * p3['minimum_energy'][0]:.1f}%), "
+        f"global alignment {pc('table3/global_alignment')} (paper {100 * p3['global_alignment'][0]:.1f}%)",
+        f"    global alignment beats minimum energy: {fd('ga_beats_me')}; paper "
+        f"{100 * (p3['global_alignment'][0] - p3['minimum_energy'][0]):+.1f})",
+        "  Table IV, the Bayesian program (predicted: nothing was fit to it):",
+        f"    more mixture components help VE: {fd('components_help_ve')}; paper "
+        f"{100 * (p4['VE'][5][0] - p4['VE'][3][0]):+.1f})",
+        f"    VE & Ex beat the better single term: {fd('fusion_beats_single')}; paper "
+        f"{100 * (p4['VE+Ex'][5][0] - max(p4['VE'][5][0], p4['Ex'][5][0])):+.1f})",
+        f"    the full program beats VE & Ex: {fd('fp_helps')}; paper "
+        f"{100 * (p4['VE+Ex+Fp'][5][0] - p4['VE+Ex'][5][0]):+.1f})",
+        f"    full program k = {k}: {pc(full)} (paper {100 * p4['VE+Ex+Fp'][k][0]:.1f}%); VE & Ex {pc(ve_ex)} "
+        f"(paper {100 * p4['VE+Ex'][k][0]:.1f}%)",
+        f"    the paper's P(Fp) = 1/(cost+1) moves the places by {ref['fp_nats']:.1f} nats where the VE mixture moves "
+        f"them by {ref['ve_nats']:.0f}: the string barely counts. On the mixtures' scale it does: "
+        f"P(Fp) ~ exp(-lambda cost) {pc(f'table4/VE+Ex+Fp-exp/{k}')}, "
+        f"term weights fit {pc(f'table4/VE+Ex+Fp-fit/{k}')}",
+    ]

@@ -17,9 +17,10 @@ for a world with perception errors, the mean counts after them
 (``perceived_VE``, ...).
 
 ``python -m fingerloc.experiments.sim_stats table3 [--trials N] [--seed S]
-[--noise-seeds 0,1] VARIANT ...``: :func:`table3_sweep`, the calibration of the
-robot's perception errors and of the later visit's heading on the paper's
-Table III; each VARIANT is a JSON object (see :func:`table3_sweep`).
+[--noise-seeds 0,1] [--table4 3,4,5] VARIANT ...``: :func:`table3_sweep`, the
+calibration of the robot's perception errors and of the later visit's heading
+on the paper's Table III (``--table4``: Table IV too, as a diagnostic); each
+VARIANT is a JSON object (see :func:`table3_sweep`).
 """
 
 from __future__ import annotations
@@ -217,6 +218,7 @@ def table3_sweep(
     noise_seeds: Sequence[int] = (0,),
     world: str = "paper-ideal",
     protocol: Any = None,
+    table4_ks: Sequence[int] = (),
     on_trial: Callable[[int], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Table III under candidate perception errors and later-visit headings: how :data:`~fingerloc.sim.PAPER_ROBOT` and :data:`~fingerloc.sim.PAPER_VISIT` were chosen.
@@ -248,6 +250,10 @@ def table3_sweep(
     protocol : RobotProtocol, optional
         Instead of the paper's protocol in ``world`` (smaller runs, tests); its own perception
         errors and heading changes come on top of the variants'.
+    table4_ks : sequence of int
+        Also Table IV's rows (VE, Ex, VE+Ex, VE+Ex+Fp, and the extra rows VE+Ex+Fp-fit and
+        VE+Ex+Fp-exp) with these k, as ``reproduce robot`` computes them: a diagnostic of a
+        world, never used to choose one (default: none).
     on_trial : callable(done), optional
         Called after each simulated trial.
 
@@ -256,7 +262,8 @@ def table3_sweep(
     list of dict
         Per variant: ``variant``, ``perception`` (the settings used), ``heading_offset_deg``,
         ``minimum_energy`` and ``global_alignment`` (``top1``, ``mean_rank``: means over trials
-        and noise seeds; ``top1_per_seed``), ``counts`` (Table II after the errors).
+        and noise seeds; ``top1_per_seed``), ``counts`` (Table II after the errors), and with
+        ``table4_ks`` the same for ``"table4/ROW/k"``.
     """
     from ..align import alignment_costs, minimum_energy_costs
     from ..fingerprint import make_fingerprint
@@ -301,6 +308,10 @@ def table3_sweep(
                 ):
                     rk = true_place_ranks(-min_per_place(costs, owner, len(classes)), truth)
                     figs[name].append((float(np.mean(rk == 1)), float(np.mean(rk))))
+                for n_comp in table4_ks:
+                    for row, rk in _table4_ranks(obs["train"], obs["test"], truth, n_comp, seed * 1000 + t).items():
+                        cell = (float(np.mean(rk == 1)), float(np.mean(rk)))
+                        figs.setdefault(f"table4/{row}/{n_comp}", []).append(cell)
         rec: dict[str, Any] = {"variant": dict(v), "perception": noise.to_dict(), "heading_offset_deg": offset_deg}
         for name, f in figs.items():
             a = np.array(f).reshape(len(noise_seeds), len(data), 2)
@@ -314,11 +325,29 @@ def table3_sweep(
     return out
 
 
+def _table4_ranks(train: list[Any], test: list[Any], truth: Any, k: int, random_state: int) -> dict[str, Any]:
+    """Ranks of the true place for Table IV's rows (as :func:`~fingerloc.experiments.robot.evaluate_trial`)."""
+    from ..metrics import true_place_ranks
+    from ..model import PlaceModel
+    from .robot import TABLE4_EXP, TABLE4_FITTED, TABLE4_TERMS
+
+    model = PlaceModel(k, terms=("VE", "Ex", "Fp"), random_state=random_state).fit(train)
+    ll = model.term_log_likelihoods(test)
+    out = {row: true_place_ranks(sum(ll[t] for t in terms), truth) for row, terms in TABLE4_TERMS.items()}
+    fitted = PlaceModel(k, terms=("VE", "Ex", "Fp"), weights="fit", random_state=random_state).fit(train)
+    out[TABLE4_FITTED] = true_place_ranks(fitted.predict_log_proba(test), truth)
+    fp = PlaceModel(k, terms=("Fp",), fp_likelihood="exp", random_state=random_state).fit(train)
+    out[TABLE4_EXP] = true_place_ranks(ll["VE"] + ll["Ex"] + fp.term_log_likelihoods(test)["Fp"], truth)
+    return out
+
+
 def _table3_main(args: list[str]) -> list[dict[str, Any]]:
-    trials, seed, seeds, variants = 20, 0, [0], []
+    trials, seed, seeds, variants, ks = 20, 0, [0], [], []
     it = iter(args)
     for a in it:
-        if a == "--trials":
+        if a == "--table4":
+            ks = [int(x) for x in next(it).split(",")]
+        elif a == "--trials":
             trials = int(next(it))
         elif a == "--seed":
             seed = int(next(it))
@@ -326,13 +355,15 @@ def _table3_main(args: list[str]) -> list[dict[str, Any]]:
             seeds = [int(x) for x in next(it).split(",")]
         else:
             variants.append(json.loads(a))
-    res = table3_sweep(variants or [{}], trials=trials, seed=seed, noise_seeds=seeds)
+    res = table3_sweep(variants or [{}], trials=trials, seed=seed, noise_seeds=seeds, table4_ks=ks)
     for r in res:
         me, ga = r["minimum_energy"], r["global_alignment"]
         sys.stderr.write(
             f"{json.dumps(r['variant'])}: minimum energy {100 * me['top1']:.1f}% / {me['mean_rank']:.2f}, "
             f"global alignment {100 * ga['top1']:.1f}% / {ga['mean_rank']:.2f}\n"
         )
+        for key in (k for k in r if k.startswith("table4/")):
+            sys.stderr.write(f"    {key}: {100 * r[key]['top1']:.1f}% / {r[key]['mean_rank']:.2f}\n")
     json.dump(res, sys.stdout, indent=1)
     sys.stdout.write("\n")
     return res
