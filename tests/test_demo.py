@@ -21,7 +21,7 @@ def test_demo_writes_report(tmp_path, capsys):
     assert code == 0
     assert "Table III" in stdout and "Table IV" in stdout and "report:" in stdout
     # the first screen tells the story: what reproduces over 20 trials, then this trial's findings
-    head = stdout[: stdout.index("Table II")]
+    head = stdout[: stdout.index("Table II:")]
     assert "What the reproduction shows over 20 trials" in head and "Table III" in head
     for claim in ("global alignment beats minimum energy", "the full program beats VE & Ex", "This trial alone"):
         assert claim in head, claim

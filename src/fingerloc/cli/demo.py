@@ -98,7 +98,7 @@ def demo_cmd(
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )
     for line in reference_story():
-        console.print(line)
+        console.print(line, soft_wrap=True)
     if world != REFERENCE_RUN["world"]:
         console.print(f"  (those figures are for world {REFERENCE_RUN['world']}; this run's world is {world})")
     n_q = len(ev.truth)

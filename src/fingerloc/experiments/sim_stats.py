@@ -219,6 +219,7 @@ def table3_sweep(
     world: str = "paper-ideal",
     protocol: Any = None,
     table4_ks: Sequence[int] = (),
+    workers: int | None = None,
     on_trial: Callable[[int], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Table III under candidate perception errors and later-visit headings: how :data:`~fingerloc.sim.PAPER_ROBOT` and :data:`~fingerloc.sim.PAPER_VISIT` were chosen.
@@ -254,6 +255,9 @@ def table3_sweep(
         Also Table IV's rows (VE, Ex, VE+Ex, VE+Ex+Fp, and the extra rows VE+Ex+Fp-fit and
         VE+Ex+Fp-exp) with these k, as ``reproduce robot`` computes them: a diagnostic of a
         world, never used to choose one (default: none).
+    workers : int, optional
+        Processes, one trial each (default: the usable cores, at most 4; 1: in this process).
+        The figures do not depend on it.
     on_trial : callable(done), optional
         Called after each simulated trial.
 
@@ -265,63 +269,89 @@ def table3_sweep(
         and noise seeds; ``top1_per_seed``), ``counts`` (Table II after the errors), and with
         ``table4_ks`` the same for ``"table4/ROW/k"``.
     """
+    from .robot import RobotProtocol, default_workers, simulation_pool
+
+    if protocol is None:
+        protocol = RobotProtocol(world=world, random_heading=False)
+    n_workers = default_workers() if workers is None else max(1, int(workers))
+    with simulation_pool(min(n_workers, trials)) as ex:
+        mapper = map if ex is None else ex.map
+        data = []
+        for t, d in enumerate(mapper(_sweep_simulate, [(protocol, seed, t) for t in range(trials)])):
+            data.append(d)
+            if on_trial is not None:
+                on_trial(t + 1)
+        every = [o for d in data for role in ("train", "test") for o in d[role]]
+        counts = {k: float(np.mean([getattr(o, k).size for o in every])) for k in ("ve", "cp", "c", "ex", "b")}
+        resolved = [_variant_noise(v, counts) for v in variants]
+        jobs = [(d, t, seed, resolved, tuple(noise_seeds), tuple(table4_ks)) for t, d in enumerate(data)]
+        per_trial = list(mapper(_sweep_evaluate, jobs))
+    out = []
+    for i, v in enumerate(variants):
+        noise, offset_deg = resolved[i]
+        rec: dict[str, Any] = {"variant": dict(v), "perception": noise.to_dict(), "heading_offset_deg": offset_deg}
+        figs = {name: [pt[i][0][name] for pt in per_trial] for name in per_trial[0][i][0]}  # name -> trial -> seed
+        for name, f in figs.items():
+            arr = np.array(f)  # (trials, seeds, 2)
+            rec[name] = {
+                "top1": float(arr[:, :, 0].mean()),
+                "mean_rank": float(arr[:, :, 1].mean()),
+                "top1_per_seed": [float(x) for x in arr[:, :, 0].mean(axis=0)],
+            }
+        rec["counts"] = {k: float(np.mean([c for pt in per_trial for c in pt[i][1][k]])) for k in per_trial[0][i][1]}
+        out.append(rec)
+    return out
+
+
+def _sweep_simulate(args: tuple[Any, int, int]) -> dict[str, Any]:
+    """One trial of :func:`table3_sweep`: its place names and its training and test observations."""
+    from .robot import simulate_trial
+
+    protocol, seed, t = args
+    d = simulate_trial(protocol, (seed, t))
+    return {"classes": [w.name for w in d.worlds], "train": d.observations("train"), "test": d.observations("test")}
+
+
+def _sweep_evaluate(args: tuple[Any, ...]) -> list[tuple[dict[str, list[tuple[float, float]]], dict[str, list[int]]]]:
+    """Every variant on one trial of :func:`table3_sweep`: per variant, (cell -> per noise seed (top1, mean
+    rank), feature type -> counts per measurement)."""
     from ..align import alignment_costs, minimum_energy_costs
     from ..fingerprint import make_fingerprint
     from ..metrics import min_per_place, true_place_ranks
     from ..sim.perception import perceive
-    from .robot import TABLE2_TYPES, RobotProtocol, simulate_trial
+    from .robot import TABLE2_TYPES
 
-    if protocol is None:
-        protocol = RobotProtocol(world=world, random_heading=False)
-    data = []
-    for t in range(trials):
-        data.append(simulate_trial(protocol, (seed, t)))
-        if on_trial is not None:
-            on_trial(t + 1)
-    every = [m.observation for d in data for m in d.measurements]
-    counts = {k: float(np.mean([getattr(o, k).size for o in every])) for k in ("ve", "cp", "c", "ex", "b")}
+    d, t, seed, resolved, noise_seeds, table4_ks = args
+    classes = d["classes"]
+    col = {c: j for j, c in enumerate(classes)}
     out = []
-    for v in variants:
-        noise, offset_deg = _variant_noise(v, counts)
+    for noise, offset_deg in resolved:
         figs: dict[str, list[tuple[float, float]]] = {"minimum_energy": [], "global_alignment": []}
-        seen: dict[str, list[int]] = {t: [] for t in TABLE2_TYPES}
+        seen: dict[str, list[int]] = {k: [] for k in TABLE2_TYPES}
         for s in noise_seeds:
-            for t, d in enumerate(data):
-                classes = [w.name for w in d.worlds]
-                col = {c: j for j, c in enumerate(classes)}
-                off = math.radians(offset_deg) * np.random.default_rng([s, t, 2]).standard_normal(len(classes))
-                obs: dict[str, list[Any]] = {"train": [], "test": []}
-                for r, (role, rid) in enumerate((("train", 0), ("test", 1))):
-                    for i, o in enumerate(d.observations(role)):
-                        o = perceive(o, noise, np.random.default_rng([s, t, rid, i]))
-                        obs[role].append(o.rotated(-off[col[str(o.label)]]) if r else o)
-                for o in obs["train"] + obs["test"]:
-                    for k in TABLE2_TYPES:
-                        seen[k].append(o.bearings(k).size)
-                owner = np.array([col[str(o.label)] for o in obs["train"]])
-                truth = np.array([col[str(o.label)] for o in obs["test"]])
-                tf = [make_fingerprint(o) for o in obs["train"]]
-                qf = [make_fingerprint(o) for o in obs["test"]]
-                for name, costs in (
-                    ("minimum_energy", minimum_energy_costs(qf, tf)),
-                    ("global_alignment", alignment_costs(qf, tf)),
-                ):
-                    rk = true_place_ranks(-min_per_place(costs, owner, len(classes)), truth)
-                    figs[name].append((float(np.mean(rk == 1)), float(np.mean(rk))))
-                for n_comp in table4_ks:
-                    for row, rk in _table4_ranks(obs["train"], obs["test"], truth, n_comp, seed * 1000 + t).items():
-                        cell = (float(np.mean(rk == 1)), float(np.mean(rk)))
-                        figs.setdefault(f"table4/{row}/{n_comp}", []).append(cell)
-        rec: dict[str, Any] = {"variant": dict(v), "perception": noise.to_dict(), "heading_offset_deg": offset_deg}
-        for name, f in figs.items():
-            a = np.array(f).reshape(len(noise_seeds), len(data), 2)
-            rec[name] = {
-                "top1": float(a[:, :, 0].mean()),
-                "mean_rank": float(a[:, :, 1].mean()),
-                "top1_per_seed": [float(x) for x in a[:, :, 0].mean(axis=1)],
-            }
-        rec["counts"] = {k: float(np.mean(c)) for k, c in seen.items()}
-        out.append(rec)
+            off = math.radians(offset_deg) * np.random.default_rng([s, t, 2]).standard_normal(len(classes))
+            obs: dict[str, list[Any]] = {"train": [], "test": []}
+            for role, rid in (("train", 0), ("test", 1)):
+                for i, o in enumerate(d[role]):
+                    o = perceive(o, noise, np.random.default_rng([s, t, rid, i]))
+                    obs[role].append(o.rotated(-off[col[str(o.label)]]) if rid else o)
+            for o in obs["train"] + obs["test"]:
+                for k in TABLE2_TYPES:
+                    seen[k].append(o.bearings(k).size)
+            owner = np.array([col[str(o.label)] for o in obs["train"]])
+            truth = np.array([col[str(o.label)] for o in obs["test"]])
+            tf = [make_fingerprint(o) for o in obs["train"]]
+            qf = [make_fingerprint(o) for o in obs["test"]]
+            for name, costs in (
+                ("minimum_energy", minimum_energy_costs(qf, tf, workers=1)),
+                ("global_alignment", alignment_costs(qf, tf, workers=1)),
+            ):
+                rk = true_place_ranks(-min_per_place(costs, owner, len(classes)), truth)
+                figs[name].append((float(np.mean(rk == 1)), float(np.mean(rk))))
+            for n_comp in table4_ks:
+                for row, rk in _table4_ranks(obs["train"], obs["test"], truth, n_comp, seed * 1000 + t).items():
+                    figs.setdefault(f"table4/{row}/{n_comp}", []).append((float(np.mean(rk == 1)), float(np.mean(rk))))
+        out.append((figs, seen))
     return out
 
 
