@@ -32,9 +32,10 @@ def demo_cmd(
         "paper",
         "--world",
         help=(
-            "Simulated offices and sensors: 'paper' (calibrated to the paper's Table II; the test measurements at a "
-            "later visit: chairs moved, doors closed, people, daylight), 'paper-static' (the same, nothing changed "
-            "between visits) or 'alike' (the original)."
+            "Simulated offices and robot: 'paper' (calibrated to the paper's Tables II and III; the test "
+            "measurements at a later visit: chairs moved, doors closed, people, daylight, the robot's heading), "
+            "'paper-static' (the same, nothing changed between visits), 'paper-ideal' (the paper world seen with "
+            "perfect perception and the same heading at both visits) or 'alike' (the original)."
         ),
     ),
 ) -> None:

@@ -10,10 +10,14 @@ daylight is different. :func:`make_office_sessions` draws the offices of
 same offices at the test visit, changed as :class:`SessionChange` says. The
 room, walls, furniture, posters, beacons and windows do not change.
 
-The magnitudes (:data:`OFFICE_DAY`, the robot experiment's default) were
-chosen from the physical reasoning below, written down before any result of
-Tables III and IV was looked at (docs/RESULTS.md, "What changes between the
-training and the test visit"):
+The magnitudes (:data:`OFFICE_DAY`) were chosen from the physical reasoning
+below, written down before any result of Tables III and IV was looked at
+(docs/RESULTS.md, "What changes between the training and the test visit").
+The robot experiment's default, :data:`PAPER_VISIT`, adds one quantity that
+was calibrated on Table III instead (docs/METHOD.md §5): the robot's heading
+at the test visit, off the training visit's by an angle per office
+(``heading_offset_deg``, 24 deg standard deviation), as when an operator sets
+the orientation by eye at each visit.
 
 - **Chairs** (``chair_moved`` 0.8, ``chair_shift_m`` 0.3, ``chair_pull_m``
   0.2): office chairs roll on casters; whoever sits on one pushes it back,
