@@ -577,6 +577,13 @@ def _page(
 
     p = res.protocol
     perception = p.perception
+    change = p.session_change
+    turn_note = (
+        f" (set by eye: at the later test visit it is off the training visit's by an angle per office, "
+        f"{change.heading_offset_deg:g} deg standard deviation)"
+        if change is not None and change.heading_offset_deg > 0
+        else ""
+    )
     n_meas = sum(1 for m in data.measurements if m.role in ("train", "test"))
     story = reference_story()
     top1 = float(np.mean(np.argmax(ev.posterior, axis=1) == ev.truth)) if ev.posterior.size else math.nan
@@ -590,8 +597,8 @@ def _page(
         "",
         f"1. **Simulate**: {p.n_offices} offices that resemble each other; in each, {p.n_train} training "
         f"measurements on a circle of {100 * p.train_radius_m[0]:.0f}-{100 * p.train_radius_m[1]:.0f} cm radius "
-        f"and {p.n_test} test measurements inside it, about the same heading ({n_meas} measurements). Each "
-        "gives a raw "
+        f"and {p.n_test} test measurements inside it, about the same heading{turn_note} ({n_meas} measurements). "
+        "Each gives a raw "
         f"360 deg laser scan ({p.n_beams} beams, intensities) and a raw {p.omni_size[0]}x{p.omni_size[1]} "
         "omnidirectional image.",
         "2. **Extract**: laser corners, extremities and beacons from the scan; the donut unwarped to a panorama, "
