@@ -532,15 +532,25 @@ class PlaceModel(ParamsMixin):
     def headings_with_reference(
         self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
     ) -> tuple[FArray, NDArray[np.int64]]:
-        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none).
+        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none)."""
+        h, ref, _ = self.heading_sources(observations, places)
+        return h, ref
 
-        With the aligned-profile term ``AP``, an observation that has a
-        profile takes its heading from the best-matching view's profile
-        (:meth:`fingerloc.terms.ProfileTerm.heading_at`); the others, from
-        the fingerprint string's cyclic alignment.
+    def heading_sources(
+        self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
+    ) -> tuple[FArray, NDArray[np.int64], list[str | None]]:
+        """:meth:`headings_with_reference`, and what each heading comes from.
+
+        In order: with the local-feature term ``K``, the relative rotation
+        verified against the place's best-matching view
+        (:meth:`fingerloc.terms.KeypointTerm.heading_at`; ``"keypoints"``);
+        with the aligned-profile term ``AP``, the best-matching view's
+        profile (``"profile"``); else the fingerprint string's cyclic
+        alignment (``"fingerprint"``). None where no heading exists.
         """
         self._check_fitted()
         ap = self.terms_.get("AP")
+        kt = self.terms_.get("K")
         fp = self.terms_.get("Fp")
         if not isinstance(fp, FingerprintTerm):  # a model without the string term: its fingerprints, for headings only
             fp = self.__dict__.get("_heading_term")
@@ -556,18 +566,25 @@ class PlaceModel(ParamsMixin):
         labs = list(self.predict(obs)) if places is None else list(places)
         out = np.full(len(obs), np.nan)
         ref = np.full(len(obs), -1, dtype=np.int64)
+        src: list[str | None] = [None] * len(obs)
         for i, (o, lab) in enumerate(zip(obs, labs, strict=True)):
-            if isinstance(ap, ProfileTerm) and o.profile is not None:
-                hp, v = ap.heading_at(o, self.column_of(lab))
-                if hp is not None:  # the fingerprint's convention: bearing in the view = bearing in o - heading
-                    out[i] = float(np.mod(-hp, 360.0))
-                    ref[i] = v
+            col = self.column_of(lab)
+            # every source gives "bearing in the view = bearing in o + h": the fingerprint's convention is -h
+            if isinstance(kt, KeypointTerm) and o.keypoints is not None:
+                hk, v, _ = kt.heading_at(o, col)
+                if hk is not None:
+                    out[i], ref[i], src[i] = float(np.mod(-hk, 360.0)), v, "keypoints"
                     continue
-            h, v = fp.heading_at(o, self.column_of(lab))
+            if isinstance(ap, ProfileTerm) and o.profile is not None:
+                hp, v = ap.heading_at(o, col)
+                if hp is not None:
+                    out[i], ref[i], src[i] = float(np.mod(-hp, 360.0)), v, "profile"
+                    continue
+            h, v = fp.heading_at(o, col)
             if h is not None:
-                out[i] = h
+                out[i], src[i] = h, "fingerprint"
             ref[i] = v
-        return out, ref
+        return out, ref, src
 
     # -- state -------------------------------------------------------------------
     @property

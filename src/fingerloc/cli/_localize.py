@@ -35,8 +35,8 @@ LOCALIZE_CHUNK = 256
 
 
 def shows_heading(model: Any) -> bool:
-    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP``."""
-    return bool(model.cyclic or "AP" in model.terms_)
+    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP`` or the keypoint term ``K``."""
+    return bool(model.cyclic or "AP" in model.terms_ or "K" in model.terms_)
 
 
 def encode_record(record: Any) -> tuple[str, dict[str, str]]:
@@ -118,10 +118,11 @@ def answer_chunk(
     rank_of_true = np.where(truth >= 0, rank_all, 0)
     headings = np.full(n, np.nan)
     refs = np.full(n, -1, dtype=np.int64)
+    sources: list[str | None] = [None] * n
     with_heading = shows_heading(model)
     if with_heading and n:
         # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
-        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
+        h, refs, sources = model.heading_sources(obs, [model.classes_[j] for j in best_cols])
         headings = np.mod(-h, 360.0)
     unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
     out = ChunkAnswers(n, rank_of_true=[int(r) for r in rank_of_true])
@@ -149,6 +150,7 @@ def answer_chunk(
                 "terms": {t: _float_map(classes, ll[i], bool(ok[i]), f"/terms/{t}", nulls) for t, (ll, ok) in term_rows.items()},
                 "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
                 "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
+                "heading_from": sources[i] if with_heading else None,
             }
             if unknown is not None:
                 rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)

@@ -324,7 +324,8 @@ def load_photo_band(path: str | Path, *, band: tuple[float, float] = DEFAULT_BAN
     crop = rgb.crop((0, top, w, bottom))
     new_h = max(2, round((bottom - top) * width / w))
     small = crop.resize((width, new_h), Image.Resampling.BOX)
-    return Panorama(np.asarray(small, dtype=np.uint8), meta={"source": str(p)})
+    meta = {"source": str(p), "elevation_deg": (90.0 - 180.0 * top / h, 90.0 - 180.0 * bottom / h)}
+    return Panorama(np.asarray(small, dtype=np.uint8), meta=meta)
 
 
 def _extract(pano: Any, source: str) -> Observation:

@@ -4,7 +4,8 @@ Layout (schema version 4, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
                                                    -- params, lambdas, unknown_costs, fitted_weights,
-                                                   -- default_fov, preset, calibration, runs (JSON)
+                                                   -- default_fov, preset, calibration, runs,
+                                                   -- term_params (the keypoint term's fitted choices) (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
@@ -581,6 +582,8 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                if "K" in terms:  # the keypoint term's parameters and fitted model choice (JSON-ready)
+                    meta["term_params"] = _meta_json({"K": {k: v for k, v in terms["K"].items() if k not in ("lambda", "unknown_cost")}})
                 default_fov = _default_fov(state["observations"])
                 if default_fov is not None:
                     meta["default_fov"] = _meta_json([list(pair) for pair in default_fov])
@@ -712,6 +715,9 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         lambdas = _float_map(meta["lambdas"], "lambdas")
         unknown = _float_map(meta["unknown_costs"], "unknown_costs")
         weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
+        term_params = json.loads(meta.get("term_params", "{}"))
+        if not isinstance(term_params, dict) or not all(isinstance(v, dict) for v in term_params.values()):
+            raise TypeError("term_params must be a JSON object of objects")
         typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
         default_fov = None
         if "default_fov" in meta:
@@ -807,7 +813,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         labels = typed_labels
     terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
     for name in ("Fp", "R", "A", "AP", "K"):
-        terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
+        terms_state[name] = {**term_params.get(name, {}), "lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if descriptors is not None:  # else (older databases) the range term describes the stored scans again
         terms_state["R"]["descriptors"] = descriptors
