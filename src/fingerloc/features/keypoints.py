@@ -279,7 +279,7 @@ def extract_keypoints(pano: Any, **params: Any) -> Keypoints:
     pad = min(p.pad, w // 4)
     padded = np.concatenate([g[:, w - pad :], g, g[:, :pad]], axis=1) if pad else g
     # every candidate first: those in the padding are dropped before the strongest are described
-    sift = cv2.SIFT_create(contrastThreshold=float(p.contrast), edgeThreshold=float(p.edge))
+    sift = cv2.SIFT_create(contrastThreshold=float(p.contrast), edgeThreshold=float(p.edge))  # type: ignore[attr-defined]
     found = sift.detect(padded, None)
     x = np.array([k.pt[0] for k in found]) - pad
     resp = np.array([k.response for k in found])

@@ -143,10 +143,10 @@ def check_pair(
     fit = ransac_pose(
         vec_a[m[:, 0]],
         vec_b[m[:, 1]],
-        model=model,
+        model=model,  # type: ignore[arg-type]
         threshold=math.radians(threshold_deg),
         max_iter=it,
-        seed=_SEED,  # type: ignore[arg-type]
+        seed=_SEED,
     )
     if fit is None or fit.n_inliers < k + 2:
         return PairCheck(len(m), 0, math.nan, math.nan)
@@ -225,9 +225,13 @@ class Vocabulary:
         n = float(np.linalg.norm(v))
         return (v / n if n > 0 else v).astype(np.float32)
 
+    def histogram(self, d: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The L2-normalised tf-idf histogram of one view's unit descriptors ``d``, shape ``(words,)``."""
+        return self._vector(self._counts(d))
+
     def scores(self, d: NDArray[np.float32]) -> NDArray[np.float32]:
         """Cosine of the query's histogram (its unit descriptors ``d``) with each stored view's, shape ``(m,)``."""
-        out: NDArray[np.float32] = self.views_ @ self._vector(self._counts(d))
+        out: NDArray[np.float32] = self.views_ @ self.histogram(d)
         return out
 
 
@@ -311,6 +315,8 @@ class KeypointTerm(IndexedTerm[Keypoints]):
     heading_free = True
     likelihood = "exp"
     _label = "keypoint"
+    model_: str
+    tilt_deg_: float | None
 
     def __init__(
         self,
@@ -376,8 +382,23 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         self.calibrate(groups)
         return self
 
+    def store(self, groups: Sequence[Sequence[Observation]], model: str) -> Self:
+        """Store the training views' keypoints with a given relative-pose model, without calibrating.
+
+        For experiments that verify pairs themselves (:meth:`checks`);
+        ``lambda_`` stays 1 and ``unknown_cost_`` None.
+        """
+        if model not in MODELS:
+            raise InvalidParameterError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+        self._validate()
+        self._index(groups)
+        self.model_ = model
+        self.tilt_deg_ = None
+        self._reset_calibration()
+        return self
+
     def _choose(self, groups: Sequence[Sequence[Observation]]) -> None:
-        self.tilt_deg_: float | None = None
+        self.tilt_deg_ = None
         if self.model != "auto":
             self.model_ = str(self.model)
             return
