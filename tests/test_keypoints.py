@@ -282,6 +282,12 @@ def test_features_learn_localize_with_keypoints(tmp_path, capsys, rooms):
     assert rec["best"] == "room1" and "K" in rec["terms"] and rec["heading_from"] == "keypoints"
     want = {"r1_0.png": -70.0, "r1_1.png": -110.0}[rec["heading_ref"].rsplit("/", 1)[-1]] % 360.0
     assert _heading_error(rec["heading_deg"], want) < 1.0
+    rep = tmp_path / "report"
+    code, _, err = run_cli(capsys, "localize", qj, "--db", db, "--report", rep)
+    assert code == 0, err
+    page = (rep / "photos" / "index.html").read_text()
+    assert (rep / "photos" / "answer1.png").stat().st_size > 10_000
+    assert "from the keypoints" in page and "<td>K</td>" in page and "photos/index.html" in (rep / "index.html").read_text()
     # a database whose keypoints come from the former detector: one line, run features again
     with sqlite3.connect(db) as con:
         for oid, data in con.execute("SELECT id, data FROM observations").fetchall():

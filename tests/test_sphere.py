@@ -43,7 +43,7 @@ def _scene(rng, n, rot, t, *, noise=0.0, outliers=0.0, front=False):
     if noise:
         f1 = f1 + rng.normal(size=f1.shape) * noise
         f2 = f2 + rng.normal(size=f2.shape) * noise
-    k = int(round(outliers * n))
+    k = round(outliers * n)
     if k:
         f2[:k] = rng.normal(size=(k, 3))
     f1 /= np.linalg.norm(f1, axis=1, keepdims=True)
@@ -95,7 +95,7 @@ def test_upright_three_point_is_exact_on_level_cameras():
     f1, f2, _, _ = _scene(rng, 3, rot, t)
     e = upright_three_point(f1, f2)
     assert _same_up_to_scale(e, essential_from_pose(rot, t)) < 1e-8
-    r, tt = decompose_essential(e, *_scene(rng, 10, rot, t)[:2])
+    r, _ = decompose_essential(e, *_scene(rng, 10, rot, t)[:2])
     assert abs(math.degrees(heading_of_rotation(r)) + 120.0) < 1e-6 and tilt_of_rotation(r) < 1e-6
 
 

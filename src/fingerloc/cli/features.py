@@ -98,6 +98,13 @@ def features_cmd(
         show_default=False,
     ),
     place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
+    labels: Path | None = typer.Option(
+        None,
+        "--labels",
+        help="CSV of the photos' places (columns file,place[,x,y]; files relative to the CSV's folder): "
+        "a whole tour in one call.",
+        show_default=False,
+    ),
     topic: list[str] | None = typer.Option(None, "--topic", metavar="TOPIC", help=TOPIC_HELP, show_default=False),
     base_frame: str | None = typer.Option(None, "--base-frame", metavar="FRAME", help=BASE_FRAME_HELP, show_default=False),
     pose_source: str = typer.Option("auto", "--pose-source", metavar="SOURCE", help=POSE_SOURCE_HELP),
@@ -141,6 +148,17 @@ def features_cmd(
         from ..io.jsonl import check_text
 
         check_text(place, "--place")
+    places: list[str | None] = [place] * len(files)
+    if labels is not None:
+        from ..io.jsonl import check_text
+        from ..io.labels import match_labels, read_labels
+
+        if place is not None:
+            raise InvalidParameterError("give --place or --labels, not both")
+        rows = match_labels(files, read_labels(labels), labels.parent)
+        for r in rows:
+            check_text(r.place, f"--labels place of {r.file}")
+        places = [r.place for r in rows]
     from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind
 
     if kind != "auto" and kind not in KINDS:
@@ -177,17 +195,24 @@ def features_cmd(
             if v is not None
         ),
     )
+    from dataclasses import replace
+
+    from rich.progress import Progress
+
     from .logs import format_scan_line
 
     observations: list[Observation] = []
-    for path in files:
-        k = kind
-        if k == "auto":
-            k = detect_kind(path) or ("omni" if center is not None else "panorama")
-        fmt = format_scan_line if k in LASER_KINDS else format_observation
-        for name, obs in KINDS[k](path, opts):
-            console.print(fmt(name, obs), markup=False, soft_wrap=True)
-            observations.append(obs)
+    with Progress(console=real_console(err_console), transient=True, disable=len(files) < 2) as progress:
+        task = progress.add_task("extracting", total=len(files))
+        for path, where in zip(files, places, strict=True):
+            k = kind
+            if k == "auto":
+                k = detect_kind(path) or ("omni" if center is not None else "panorama")
+            fmt = format_scan_line if k in LASER_KINDS else format_observation
+            for name, obs in KINDS[k](path, replace(opts, place=where)):
+                console.print(fmt(name, obs), markup=False, soft_wrap=True)
+                observations.append(obs)
+            progress.advance(task)
     if json_out is not None:
         n = write_observations(json_out, observations)
         err_console.print(f"wrote {n} observations to {json_out}")
@@ -373,7 +398,7 @@ def _bench_panorama_model(
                 preset=preset,
                 unknown_prior=unknown_prior,
                 max_queries=max_queries,
-                on_step=lambda d, n, name=name: step(f"{preset} by {name}", d, n),
+                on_step=_stepper(step, f"{preset} by {name}"),
             )
     if speed_photos:
         have = [i for i, f in enumerate(feats) if f is not None]
@@ -383,6 +408,10 @@ def _bench_panorama_model(
             [feats[i].observation for i in have],  # type: ignore[union-attr]
             [str(by_area[i]) for i in have],
         )
+
+
+def _stepper(step: Any, name: str) -> Any:
+    return lambda done, total: step(name, done, total)
 
 
 def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: Any) -> None:

@@ -17,7 +17,6 @@ paths the user gives.
 
 from __future__ import annotations
 
-import csv
 import math
 import re
 from collections.abc import Sequence
@@ -264,62 +263,15 @@ def places_by_position(photos: Sequence[CampusPhoto], *, spacing: float = 0.03) 
 
 
 def load_labels_csv(path: str | Path) -> list[CampusPhoto]:
-    """The photos of a labels CSV: columns ``file,place`` and optionally ``x,y`` (a header row names them).
+    """The photos of a labels CSV (:func:`fingerloc.io.labels.read_labels`) as :class:`CampusPhoto` entries.
 
-    Each row gives a photo file (``/``-separated, relative to the photo
-    folder the caller reads from, or absolute), its place label, and, when
-    the ``x`` and ``y`` columns exist and are filled, its map position (any
-    unit; :func:`places_by_position` groups positions ``spacing`` apart).
-    Returned as :class:`CampusPhoto` entries: ``area`` = the place,
-    ``floor`` = ``""`` (one floor), ``photo_id`` = ``file``.
-
-    Raises
-    ------
-    DataFormatError
-        Naming the file and line: unreadable, no ``file`` / ``place`` column,
-        an empty file or place, a repeated file, a non-numeric or half-given position.
+    ``area`` = the place, ``floor`` = ``""`` (one floor: positions are
+    grouped over the whole CSV), ``photo_id`` = ``file``, files relative to
+    the photo folder the caller reads from (or absolute).
     """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except FileNotFoundError as err:
-        raise DataFormatError("no such file", path=p) from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataFormatError(f"cannot read the labels ({err})", path=p) from err
-    rows = list(csv.reader(text.splitlines()))
-    if not rows:
-        raise DataFormatError("the labels file is empty (expected a header row file,place[,x,y])", path=p)
-    header = [h.strip().lower() for h in rows[0]]
-    if "file" not in header or "place" not in header:
-        raise DataFormatError(f"the header row must name the columns file and place (and optionally x, y), got {rows[0]!r}", path=p, line=1)
-    col = {name: header.index(name) for name in ("file", "place", "x", "y") if name in header}
-    out: list[CampusPhoto] = []
-    seen: set[str] = set()
-    for lineno, row in enumerate(rows[1:], start=2):
-        if not any(c.strip() for c in row):
-            continue
-        cells = [c.strip() for c in row] + [""] * len(header)
-        file, place = cells[col["file"]], cells[col["place"]]
-        if not file or not place:
-            raise DataFormatError("every row needs a file and a place", path=p, line=lineno)
-        file = file.replace("\\", "/")
-        if file in seen:
-            raise DataFormatError(f"the file {file!r} is listed twice", path=p, line=lineno)
-        seen.add(file)
-        pos = None
-        if "x" in col and "y" in col:
-            x, y = cells[col["x"]], cells[col["y"]]
-            if x or y:
-                try:
-                    pos = (float(x), float(y))
-                except ValueError as err:
-                    raise DataFormatError(f"x and y must be numbers, got {x!r} and {y!r}", path=p, line=lineno) from err
-                if not all(math.isfinite(v) for v in pos):
-                    raise DataFormatError(f"x and y must be finite, got {x!r} and {y!r}", path=p, line=lineno)
-        out.append(CampusPhoto(file, file, place, "", pos))
-    if not out:
-        raise DataFormatError("the labels file lists no photo", path=p)
-    return out
+    from ..io.labels import read_labels
+
+    return [CampusPhoto(r.file, r.file, r.place, "", r.position) for r in read_labels(path)]
 
 
 # ---------------------------------------------------------------------------
