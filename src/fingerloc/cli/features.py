@@ -410,6 +410,10 @@ def _bench_panorama_model(
         )
 
 
+def _fmt(v: float | None, spec: str = ".3f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
 def _stepper(step: Any, name: str) -> Any:
     return lambda done, total: step(name, done, total)
 
@@ -442,7 +446,7 @@ def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: An
                 f"(every view verified {rr['top1_all']:.3f})"
             )
     for key, h in res.get("heading_links", {}).items():
-        if key != "pairs" and h["pairs"]:
+        if key != "pairs" and h["pairs"] and h["median_error_deg"] is not None:
             med = h["median_error_estimated_deg"]
             console.print(
                 f"heading vs the tour's arrows, {key}: {h['estimated']} of {h['pairs']} pairs estimated, median error "
@@ -453,10 +457,10 @@ def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: An
         cal = p["calibration"] or {}
         unk = p["unknown"]
         console.print(
-            f"preset {p['preset']} by {name}: top-1 {p['top1']:.3f} of {p['n_queries']}; ECE {cal.get('ece', 0):.3f}, "
-            f"mean confidence {cal.get('mean_confidence', 0):.3f}, wrong answers above 0.9: "
-            f"{cal.get('wrong_above_0.9') if cal.get('wrong_above_0.9') is not None else '-'} of {cal.get('wrong', 0)}; "
-            f"P(unknown) known places {unk['known']['mean'] or 0:.3f}, unknown places {unk['unknown']['mean'] or 0:.3f}; "
+            f"preset {p['preset']} by {name}: top-1 {_fmt(p['top1'])} of {p['n_queries']}; ECE {_fmt(cal.get('ece'))}, "
+            f"mean confidence {_fmt(cal.get('mean_confidence'))}, wrong answers above 0.9: "
+            f"{_fmt(cal.get('wrong_above_0.9'))} of {cal.get('wrong', 0)}; P(unknown) known places "
+            f"{_fmt(unk['known']['mean'])}, unknown places {_fmt(unk['unknown']['mean'])}; "
             f"headings of right answers {p['heading_from']}"
         )
     sp = res.get("speed")

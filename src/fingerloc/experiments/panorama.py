@@ -217,7 +217,9 @@ def extract_features(
             pano = load_photo_band(root / ph.file, band=band, width=width)
             t0 = time.process_time()
             obs = _extract(pano, ph.file)
-            known[ph.file] = PhotoFeatures(obs, hsv_histogram(pano.image), band_signature(pano), time.process_time() - t0)
+            got = PhotoFeatures(obs, hsv_histogram(pano.image), band_signature(pano), time.process_time() - t0)
+            # as the cache stores it (rounded), so that a run from the cache gives the same figures
+            known[ph.file] = _features_from_record(json.loads(json.dumps(_features_to_record(got))))
             n_new += 1
         out.append(known.get(ph.file))
         if on_step is not None:
@@ -694,6 +696,7 @@ def run_panorama_bench(
         "inliers_other_area_p99": _quantile_pairs(pairs.inliers, [by_area[i] for i in have], 0.99),
     }
     kd = {"K": pairs.distances(), "K unverified": pairs.distances(verified=False)}
+    res["heading"] = heading_errors(photos, feats)
     if areas_dir is not None:
         pos = {i: k for k, i in enumerate(have)}
 
