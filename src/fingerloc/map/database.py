@@ -5,7 +5,8 @@ Layout (schema version 4, written now; docs/FORMATS.md §2)::
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
                                                    -- params, lambdas, unknown_costs, fitted_weights,
                                                    -- default_fov, preset, calibration, runs,
-                                                   -- term_params (the keypoint term's fitted choices) (JSON)
+                                                   -- term_params (the keypoint term's fitted choices),
+                                                   -- temper (PlaceModel's fitted factor) (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
@@ -582,6 +583,8 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                if state.get("temper", 1.0) != 1.0:  # PlaceModel(temper=True)'s fitted factor
+                    meta["temper"] = _meta_json(float(state["temper"]))
                 if "K" in terms:  # the keypoint term's parameters and fitted model choice (JSON-ready)
                     meta["term_params"] = _meta_json({"K": {k: v for k, v in terms["K"].items() if k not in ("lambda", "unknown_cost")}})
                 default_fov = _default_fov(state["observations"])
@@ -715,6 +718,9 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         lambdas = _float_map(meta["lambdas"], "lambdas")
         unknown = _float_map(meta["unknown_costs"], "unknown_costs")
         weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
+        temper = float(json.loads(meta.get("temper", "1.0")))
+        if not (math.isfinite(temper) and temper > 0):
+            raise ValueError(f"temper must be a positive number, got {temper!r}")
         term_params = json.loads(meta.get("term_params", "{}"))
         if not isinstance(term_params, dict) or not all(isinstance(v, dict) for v in term_params.values()):
             raise TypeError("term_params must be a JSON object of objects")
@@ -822,7 +828,8 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
     terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     for name in ("VE", "CP", "Ex", "B"):
         terms_state.setdefault(name, {"mixtures": [None] * len(labels)})
-    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights}
+    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights,
+             "temper": temper}  # fmt: skip
     try:
         return PlaceModel.from_state(state)
     except DatabaseError as err:
