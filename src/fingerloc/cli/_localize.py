@@ -150,8 +150,9 @@ def answer_chunk(
                 "terms": {t: _float_map(classes, ll[i], bool(ok[i]), f"/terms/{t}", nulls) for t, (ll, ok) in term_rows.items()},
                 "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
                 "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
-                "heading_from": sources[i] if with_heading else None,
             }
+            if with_heading:  # where heading_deg comes from (keypoints, profile, fingerprint)
+                rec["heading_from"] = sources[i]
             if unknown is not None:
                 rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)
             # what encode_record gives for this record (tests/test_localize_stream.py), without walking every number
