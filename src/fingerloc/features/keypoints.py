@@ -328,7 +328,6 @@ def match_descriptors(ua: NDArray[np.float32], ub: NDArray[np.float32], *, ratio
     j = np.argmax(s, axis=1)
     i_back = np.argmax(s, axis=0)
     best = s[rows, j]
-    best_back = s[i_back, cols]
     none = np.float32(-4.0)  # below any cosine
     s[rows, j] = none
     sa = s.max(axis=1) if s.shape[1] > 1 else np.full(s.shape[0], none)
@@ -339,7 +338,6 @@ def match_descriptors(ua: NDArray[np.float32], ub: NDArray[np.float32], *, ratio
     r2 = np.float32(ratio * ratio)
     d1 = np.maximum(2.0 - 2.0 * best, 0.0)
     ok = mutual & (d1 < r2 * np.maximum(2.0 - 2.0 * sa, 0.0)) & (d1 < r2 * np.maximum(2.0 - 2.0 * sb, 0.0))
-    del best_back
     i = np.flatnonzero(ok)
     return np.stack([i, j[i]], axis=1).astype(np.int64)
 
