@@ -87,7 +87,8 @@ class PairCheck:
     matches : int
         Descriptor matches (mutual, ratio test from both sides).
     inliers : int
-        Matches the relative pose explains (0 without a pose).
+        Matches the relative pose explains (0 with fewer matches than a minimal sample; a minimal sample always
+        fits: with few matches this count is close to ``matches``).
     heading : float
         Radians: a far feature at bearing ``x`` in the first view is at
         ``x + heading`` in the second; NaN without a pose.
@@ -137,7 +138,7 @@ def check_pair(
     """
     m = match_descriptors(unit_a, unit_b, ratio=ratio)
     k = SAMPLE_SIZE[model]
-    if len(m) < k + 2:
+    if len(m) < k:
         return PairCheck(len(m), 0, math.nan, math.nan)
     it = max_iter if max_iter is not None else (300 if model == "upright" else 1000)
     fit = ransac_pose(
@@ -148,7 +149,7 @@ def check_pair(
         max_iter=it,
         seed=_SEED,
     )
-    if fit is None or fit.n_inliers < k + 2:
+    if fit is None:
         return PairCheck(len(m), 0, math.nan, math.nan)
     return PairCheck(len(m), fit.n_inliers, fit.heading, fit.tilt)
 
