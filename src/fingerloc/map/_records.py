@@ -31,6 +31,12 @@ after the profile's values: ``3 n`` little-endian uint16 positions then
 extractor puts positions on that grid). An observation without keypoints is
 written as version 1 or 2, so databases of older versions read as before.
 
+Codec version 4 has the layout of version 3, with keypoints of
+:data:`fingerloc.features.keypoints.KEYPOINT_VERSION` 2 (OpenCV SIFT; the
+elevation stored as an angle). A version 3 record (keypoints of the former
+hand-written detector) is refused with a message to extract the features
+again.
+
 Decoding gives back the very observation (every array bit for bit: the
 stored bearings are already wrapped and sorted, and wrapping them again
 changes nothing), so what the place database recomputes from it (the
@@ -54,7 +60,8 @@ __all__ = ["decode_observation", "encode_observation"]
 
 _VERSION = 1
 _VERSION_PROFILE = 2
-_VERSION_KEYPOINTS = 3
+_VERSION_OLD_KEYPOINTS = 3
+_VERSION_KEYPOINTS = 4
 _PROFILE_NONE, _PROFILE_F64, _PROFILE_MILLI = 0, 1, 2
 _PROFILE_HEAD = "<BHH"
 _KEYPOINT_HEAD = "<IH"
@@ -176,6 +183,10 @@ def decode_observation(
     if not isinstance(data, bytes) or len(data) < 2 + _N_COUNTS:
         raise DatabaseError(f"corrupt observation record in the place database (got {type(data).__name__})")
     version, flags = data[0], data[1]
+    if version == _VERSION_OLD_KEYPOINTS:
+        from ..features.keypoints import OLD_KEYPOINTS_MESSAGE
+
+        raise DatabaseError(f"the place database holds {OLD_KEYPOINTS_MESSAGE}")
     if version not in (_VERSION, _VERSION_PROFILE, _VERSION_KEYPOINTS) or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
         raise DatabaseError(f"corrupt observation record in the place database (version {version}, flags {flags})")
     fmt = f"<{_N_COUNTS}{'I' if flags & _WIDE else 'B'}"

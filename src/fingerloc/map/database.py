@@ -4,7 +4,9 @@ Layout (schema version 5, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
                                                    -- params, lambdas, unknown_costs, fitted_weights,
-                                                   -- default_fov, preset, calibration, runs (JSON)
+                                                   -- default_fov, preset, calibration, runs,
+                                                   -- term_params (the keypoint term's fitted choices),
+                                                   -- temper (PlaceModel's fitted factor) (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
@@ -639,6 +641,10 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                if state.get("temper", 1.0) != 1.0:  # PlaceModel(temper=True)'s fitted factor
+                    meta["temper"] = _meta_json(float(state["temper"]))
+                if "K" in terms:  # the keypoint term's parameters and fitted model choice (JSON-ready)
+                    meta["term_params"] = _meta_json({"K": {k: v for k, v in terms["K"].items() if k not in ("lambda", "unknown_cost")}})
                 default_fov = _default_fov(state["observations"])
                 if default_fov is not None:
                     meta["default_fov"] = _meta_json([list(pair) for pair in default_fov])
@@ -806,6 +812,12 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         lambdas = check_number_map(json.loads(meta["lambdas"]), "lambdas", where, minimum=0.0)
         unknown = check_number_map(json.loads(meta["unknown_costs"]), "unknown_costs", where, neg_inf=True)
         weights = check_number_map(json.loads(meta.get("fitted_weights", "{}")), "fitted_weights", where, minimum=0.0)
+        temper = float(json.loads(meta.get("temper", "1.0")))
+        if not (math.isfinite(temper) and temper > 0):
+            raise ValueError(f"temper must be a positive number, got {temper!r}")
+        term_params = json.loads(meta.get("term_params", "{}"))
+        if not isinstance(term_params, dict) or not all(isinstance(v, dict) for v in term_params.values()):
+            raise TypeError("term_params must be a JSON object of objects")
         typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
         default_fov = None
         if "default_fov" in meta:
@@ -913,7 +925,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         labels = typed_labels
     terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
     for name in ("Fp", "R", "A", "AP", "K"):
-        terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
+        terms_state[name] = {**term_params.get(name, {}), "lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if descriptors is not None:  # else (older databases) the range term describes the stored scans again
         terms_state["R"]["descriptors"] = descriptors
@@ -922,7 +934,8 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
     terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     for name in ("VE", "CP", "Ex", "B"):
         terms_state.setdefault(name, {"mixtures": [None] * len(labels)})
-    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights}
+    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights,
+             "temper": temper}  # fmt: skip
     try:
         return PlaceModel.from_state(state)
     except DatabaseError as err:

@@ -157,14 +157,16 @@ def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
     band = opts.band
     if band is None and abs(w / h - 2.0) < 0.05:
         band = (0.25, 0.75)  # full equirectangular: elevations -45..+45 deg
+    meta: dict[str, object] = {"source": str(path), "equirectangular": abs(w / h - 2.0) < 0.05}
     if band is not None:
         lo, hi = round(band[0] * h), round(band[1] * h)
         img = img[lo:hi]
         if img.shape[0] < 2:
             raise DataFormatError(f"the band {band!r} of a {w}x{h} image holds {img.shape[0]} row(s)", path=path)
+        if meta["equirectangular"]:  # rows are elevations from +90 (top) to -90 deg (the keypoints' positions)
+            meta["elevation_deg"] = (90.0 - 180.0 * lo / h, 90.0 - 180.0 * hi / h)
     _check_derived(path, img.shape[1], img.shape[0], opts)
     img = _shrink(img, opts.max_width)
-    meta: dict[str, object] = {"source": str(path), "equirectangular": abs(w / h - 2.0) < 0.05}
     return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
 
 
