@@ -41,7 +41,6 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-
 __all__ = ["GROUP_LANES", "GroupProfiles", "count_bounds", "pack_groups", "semiglobal_bounds"]
 
 #: References side by side in a block of :func:`pack_groups` (two AVX2 registers of int8).

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._types import FArray, IArray
+from .._types import IArray
 from ..errors import DataFormatError, InvalidParameterError
 from ..keypoints import Keypoints
 

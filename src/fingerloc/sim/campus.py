@@ -323,7 +323,7 @@ def _observe(
 ) -> list[Observation | None]:
     """The views at ``poses`` (``labels[i]`` None: drawn but not built, so that the draws stay the same)."""
     v = pid.size
-    beam = -math.pi + (np.arange(n_beams) + 0.5) * (TWO_PI / n_beams)  # robot frame
+    beam: FArray = np.asarray(-math.pi + (np.arange(n_beams) + 0.5) * (TWO_PI / n_beams), dtype=np.float64)  # robot frame
     ang = poses[:, 2:3] + beam[None, :]
     r, sid, pts = _cast(places, pid, poses[:, :2], ang)
     # people and chairs: 0-2 occluders a view, 0.3-0.5 m wide, 0.8-3 m away

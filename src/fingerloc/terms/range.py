@@ -114,8 +114,8 @@ class RangeTerm(DistanceTerm):
         return self
 
     def _index(self) -> None:
-        self._starts = None
-        self._described = None
+        self._starts: NDArray[np.int64] | None = None
+        self._described: bool | None = None
         width = self.bins().size + 1
         self._refs = np.vstack(self.descriptors_) if self.descriptors_ else np.zeros((0, width))
         self._owner = np.repeat(np.arange(len(self.descriptors_)), [d.shape[0] for d in self.descriptors_])
