@@ -222,3 +222,18 @@ def test_large_map_vector_prediction_equals_matrix():
             slow.log_belief_ = np.log(np.exp(b) @ t.matrix(dist[k]))
         slow.update(ll[k])
         assert np.allclose(fast[k], slow.log_belief_, atol=1e-8)
+
+
+def test_sparse_series_prediction_equals_expm_on_a_branching_graph():
+    # a corridor with side branches, 150 places: the move matrix is sparse, the prediction sums its powers
+    p = 150
+    seq = [str(i) for i in range(100)] + [str(i) for i in range(40, 0, -1)] + [str(i) for i in range(100, p)]
+    g = PlaceGraph.from_sequence([str(i) for i in range(p)], seq)
+    t = TransitionModel.from_graph(g, metres_per_move=1.2)
+    rng = np.random.default_rng(11)
+    b = rng.dirichlet(np.full(p, 0.3))
+    for d in (0.0, 0.05, 0.7, 6.0, 30.0, 90.0):  # 90 m: 75 expected changes, past the series' range
+        f = MarkovFilter(t, prior=b)
+        got = f.predict(d)
+        want = np.log(b @ t.matrix(d))
+        assert np.allclose(got, want - np.logaddexp.reduce(want), atol=1e-9), d

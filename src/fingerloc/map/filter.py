@@ -74,6 +74,11 @@ __all__ = [
 EIG_MAX_COND = 1e6
 #: Above this many places, odometry predictions propagate the belief vector instead of forming the matrix.
 EIG_VECTOR_MIN_PLACES = 100
+#: Above EIG_VECTOR_MIN_PLACES, a move matrix with at most this share of non-zero entries propagates the
+#: belief through its sparse powers (the exponential's series) instead of the dense eigenbasis.
+SPARSE_MAX_DENSITY = 0.05
+#: Largest ``d / L`` (expected place changes in one step) for the sparse series; longer steps use the eigenbasis.
+SPARSE_MAX_RATE = 50.0
 
 
 def _check_distance(distance: Any) -> float:
@@ -471,6 +476,7 @@ class MarkovFilter:
         self._fixed: FArray | None = None
         self._eig: tuple[Any, ...] | None = None
         self._sq: FArray | None = None
+        self._sparse: Any = None
         self.reset()
 
     def reset(self) -> MarkovFilter:
@@ -496,6 +502,43 @@ class MarkovFilter:
             ok = np.linalg.cond(v) < EIG_MAX_COND
             self._eig = (w, v, np.linalg.inv(v)) if ok else ()
         return bool(self._eig)
+
+    def _sparse_move(self) -> Any:
+        """``move`` transposed as a sparse matrix (built once), or False when it is too dense to gain."""
+        if self._sparse is None:
+            m = self.transition.move
+            nnz = int(np.count_nonzero(m))
+            if nnz > SPARSE_MAX_DENSITY * m.size:
+                self._sparse = False
+            else:
+                from scipy.sparse import csr_matrix
+
+                self._sparse = csr_matrix(m.T)
+        return self._sparse
+
+    def _series(self, p: FArray, rate: float) -> FArray | None:
+        """``p expm(rate (M - I))`` by the exponential's series over the sparse ``M`` (uniformisation).
+
+        ``p expm(r (M - I)) = exp(-r) sum_k r^k / k! p M^k``: every term is
+        non-negative and ``p M^k`` keeps the mass of ``p`` (the rows of ``M``
+        sum to 1), so the sum stops past ``k = 2 r`` once a term's Poisson
+        weight is below ``2^-60`` (the tail left is then below twice that, of
+        the mass); ``O(nnz(M))`` per term. None when ``M`` is dense or ``rate``
+        too large (the caller uses the eigenbasis).
+        """
+        mt = self._sparse_move()
+        if mt is False or rate > SPARSE_MAX_RATE:
+            return None
+        weight = math.exp(-rate)
+        term = p.copy()
+        q = weight * term
+        k = 0
+        while k < 2.0 * rate or weight > 2.0**-60:
+            k += 1
+            term = mt @ term
+            weight *= rate / k
+            q += weight * term
+        return np.asarray(q, dtype=np.float64)
 
     def transition_matrix(self, distance: float | None = None) -> FArray:
         """:meth:`TransitionModel.matrix`, cached; with odometry through one eigendecomposition.
@@ -538,15 +581,24 @@ class MarkovFilter:
         m = float(np.max(b))
         p = np.exp(b - m)  # belief scaled by exp(-max b)
         tm = self.transition
-        if (
+        vector = (
             distance is not None
             and tm.centres is None
             and tm.metres_per_move is not None
             and tm.n_places > EIG_VECTOR_MIN_PLACES
             and _check_distance(distance) >= 0
-            and self._eigen()
-        ):
+        )
+        series = None
+        if vector:
+            assert distance is not None and tm.metres_per_move is not None
+            series = self._series(p, float(distance) / tm.metres_per_move)
+        if series is not None:
+            # the place graph is sparse: b K by the series of sparse products, O(nnz) per term
+            q = series * (p.sum() / series.sum())
+            q = (1.0 - tm.uniform_mix) * q + tm.uniform_mix * p.sum() / tm.n_places
+        elif vector and self._eigen():
             # b K = ((b V) exp(r w)) V^-1: O(P^2) instead of forming K
+            assert distance is not None and tm.metres_per_move is not None
             w, v, vinv = self._eig  # type: ignore[misc]
             q = np.clip(np.real(((p @ v) * np.exp(float(distance) / tm.metres_per_move * w)) @ vinv), 0.0, None)
             q *= p.sum() / q.sum()
