@@ -415,7 +415,9 @@ def posterior_columns(model: Any, observations: Sequence[Observation], n_places:
     return out
 
 
-def implied_headings(model: Any, observations: Sequence[Observation], labels: Sequence[str]) -> FArray:
+def implied_headings(
+    model: Any, observations: Sequence[Observation], labels: Sequence[str], columns: Any = None
+) -> FArray:
     """The robot's heading each observation implies at each place, radians in the views' frame, shape (n, P).
 
     For place ``labels[j]``, :meth:`~fingerloc.model.PlaceModel.headings_with_reference`
@@ -428,7 +430,8 @@ def implied_headings(model: Any, observations: Sequence[Observation], labels: Se
     robot's heading is ``theta - h`` (on the shared logs' mapping passes: median error 3-6 deg
     at the true place on aces and intel with this sign, 25-37 deg with the
     other; docs/RESULTS.md). NaN where a place is unknown to the model, has no estimate, or
-    its view has no pose.
+    its view has no pose. ``columns`` (indices into ``labels``): only those places are
+    computed, the others are NaN (the same values where computed).
     """
     obs = list(observations)
     out = np.full((len(obs), len(labels)), np.nan)
@@ -436,10 +439,12 @@ def implied_headings(model: Any, observations: Sequence[Observation], labels: Se
         return out
     places = getattr(model, "places_", {})
     by_name = {str(k): k for k in places}
+    cols = range(len(labels)) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
     prepare = getattr(model, "prepare_headings", None)
-    if prepare is not None and len(obs) > 1 and len(labels) > 1:
+    if prepare is not None and len(obs) > 1 and len(cols) > 1:
         prepare(obs)  # one batch of alignments for every place below (the same headings)
-    for j, lab in enumerate(labels):
+    for j in cols:
+        lab = labels[j]
         key = by_name.get(str(lab))
         if key is None:
             continue

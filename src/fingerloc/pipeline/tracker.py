@@ -16,6 +16,17 @@ by the calibration's ``beta``), the heading the view implies at each place
 and its laser end points are computed when the map uses them; then the filter
 moves by the odometry since the previous step and updates.
 
+The implied headings cost one alignment per place. On a map of more than
+:data:`HEADING_ALL_MAX` places the pose filter's heading evidence is computed
+only at :data:`HEADING_NEAR` places near the particles (within a place radius
+plus :data:`HEADING_REACH_M` of one: the heading weighs a particle at its
+place; those holding the most particles times the view's likelihood) and the
+:data:`HEADING_TOP` places the view's likelihood ranks first (where the
+kidnapping component draws fresh particles and their headings)
+(:meth:`Tracker.heading_places`); elsewhere the view brings no heading
+evidence, as at a place without one. Offline tracking applies the same rule,
+so both give the same answers.
+
 * ``filter="pose"``: the pose particle filter
   (:class:`~fingerloc.map.driver.PoseTracking`), which needs the place
   positions of a map made from poses (``fingerloc map``);
@@ -42,10 +53,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._types import FArray
+from .._types import FArray, IArray
 from ..config import Config
 from ..errors import InvalidParameterError
-from ..map.driver import PoseTracking
+from ..map.driver import Challenger, PoseTracking
 from ..map.filter import MarkovFilter, TransitionModel, entropy_bits
 from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
@@ -58,12 +69,25 @@ if TYPE_CHECKING:
     from ..map.pose_filter import PoseFilter
     from ..map.scan_map import ScanMap
 
-__all__ = ["FILTERS", "Answer", "Tracker", "end_points_of", "scaled"]
+__all__ = [
+    "FILTERS", "HEADING_ALL_MAX", "HEADING_NEAR", "HEADING_REACH_M", "HEADING_TOP", "Answer", "Tracker", "end_points_of",
+    "scaled",
+]  # fmt: skip
 
 #: The filters a tracker runs.
 FILTERS: tuple[str, ...] = ("places", "pose")
 #: Entries of the posterior an :class:`Answer` lists.
 TOP_ENTRIES = 5
+#: Up to this many places, the implied heading of every place is computed at every observation.
+HEADING_ALL_MAX = 100
+#: Above HEADING_ALL_MAX places: the places near the particles whose heading is computed, at most.
+HEADING_NEAR = 12
+#: Above HEADING_ALL_MAX places: the places of the view's likelihood ranked first whose heading is computed.
+HEADING_TOP = 4
+#: Metres a particle may move in one step past a place's radius and still find that place's heading computed.
+HEADING_REACH_M = 1.0
+#: Metres: the particles are grouped on a grid of this cell size to find the places near them.
+_HEADING_CELL_M = 0.5
 
 
 def scaled(log_posterior: Any, beta: float) -> FArray:
@@ -209,6 +233,11 @@ class Tracker:
         poses given to :meth:`step`, times this factor (a replay of a log whose
         poses are corrected ones; :class:`~fingerloc.map.motion.OdometrySimulator`,
         seeded with ``seed + 1``); 0: the poses' own increments.
+    heading_budget : (int, int) or None, default (HEADING_NEAR, HEADING_TOP)
+        On a map of more than :data:`HEADING_ALL_MAX` places, the implied
+        headings are computed at most at this many places near the particles
+        and at this many places of the view's likelihood ranked first
+        (:meth:`heading_places`); None: at every place.
     """
 
     def __init__(
@@ -227,6 +256,7 @@ class Tracker:
         heading: bool = True,
         transition: TransitionModel | None = None,
         odometry_error: float = 0.0,
+        heading_budget: tuple[int, int] | None = (HEADING_NEAR, HEADING_TOP),
     ) -> None:
         if filter not in FILTERS:
             raise InvalidParameterError(f"filter must be one of {', '.join(FILTERS)}, got {filter!r}")
@@ -247,6 +277,13 @@ class Tracker:
         #: The place filter answers the single shot at observed steps (it lost to it on the mapping part).
         self.steps_aside = filter == "places" and calibration.place_filter_steps_aside()
         self.heading = bool(heading) and filter == "pose" and calibration.heading is not None
+        if heading_budget is not None:
+            if len(heading_budget) != 2 or any(isinstance(v, bool) or int(v) < 0 for v in heading_budget):
+                raise InvalidParameterError(f"heading_budget must be two integers >= 0 or None, got {heading_budget!r}")
+            heading_budget = (int(heading_budget[0]), int(heading_budget[1]))
+        self.heading_budget = heading_budget
+        self._tree: Any = None
+        self._heading_set: tuple[int, Any, IArray | None] | None = None
         self.scan_map = scan_map if filter == "pose" else None
         self._pose: PoseTracking | None = None
         self._places: MarkovFilter | None = None
@@ -285,8 +322,65 @@ class Tracker:
             self._places.reset()
         self._t = 0
         self._odometry: FArray | None = None
+        self._heading_set = None
         self.odometry.reset()
         return self
+
+    def heading_places(self, log_likelihood: Any) -> IArray | None:
+        """The places (column indices, ascending) whose implied heading this step uses; None: every place.
+
+        Every place on a map of at most :data:`HEADING_ALL_MAX` places, with
+        ``heading_budget=None``, or with the challenger strategy (its second
+        filter's particles). Else, with ``heading_budget = (near, top)``: of
+        the places whose centre lies within the place radius plus
+        :data:`HEADING_REACH_M` of a particle (the particles as they are before
+        this step's motion, on a grid of 0.5 m cells), the ``near`` ones with
+        the most particles so close times the place's likelihood in
+        ``log_likelihood``; and the ``top`` places of ``log_likelihood``
+        ranked first (ties in column order). The set depends only on the
+        particles and the row, so streaming and offline tracking compute the
+        same one.
+
+        Parameters
+        ----------
+        log_likelihood : array_like, shape (P,)
+            The step's scaled log-likelihood row (NaN: no observation).
+        """
+        pose = self._pose
+        if (
+            not self.heading
+            or self.heading_budget is None
+            or self.n_places <= HEADING_ALL_MAX
+            or pose is None
+            or isinstance(pose.strategy, Challenger)
+        ):
+            return None
+        hit = self._heading_set
+        if hit is not None and hit[0] == self._t and hit[1] is log_likelihood:
+            return hit[2]
+        row = np.asarray(log_likelihood, dtype=np.float64).reshape(-1)
+        n_near, n_top = self.heading_budget
+        top = np.argsort(-np.where(np.isnan(row), -np.inf, row), kind="stable")[:n_top]
+        pf = pose.pose_filter
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(pf.centres)
+        cells = np.floor(pf.particles_[:, :2] / _HEADING_CELL_M).astype(np.int64)
+        lo = cells.min(axis=0)
+        width = int(cells[:, 1].max() - lo[1]) + 1
+        code, per_cell = np.unique((cells[:, 0] - lo[0]) * width + (cells[:, 1] - lo[1]), return_counts=True)
+        mid = (np.column_stack([code // width, code % width]) + lo + 0.5) * _HEADING_CELL_M
+        reach = float(pf.radius) + HEADING_REACH_M + _HEADING_CELL_M * math.sqrt(0.5)
+        near = self._tree.query_ball_point(mid, reach)
+        found = np.fromiter((j for js in near for j in js), dtype=np.int64)
+        held = np.bincount(found, weights=np.repeat(per_cell, [len(js) for js in near]), minlength=self.n_places)
+        with np.errstate(divide="ignore"):
+            score = np.where(held > 0, np.log(held) + np.where(np.isnan(row), -np.inf, row), -np.inf)
+        ranked = np.argsort(-score, kind="stable")[:n_near]
+        out = np.union1d(ranked[held[ranked] > 0], top.astype(np.int64))
+        self._heading_set = (self._t, log_likelihood, out)
+        return out
 
     # -- one step from raw data ---------------------------------------------------------------------
 
@@ -301,7 +395,9 @@ class Tracker:
         if not isinstance(obs, Observation):
             raise InvalidParameterError(f"a tracker step takes a Scan or an Observation, got {type(item).__name__}")
         row = scaled(posterior_columns(self.model, [obs], self.n_places, self.labels), self.calibration.beta)[0]
-        hd = implied_headings(self.model, [obs], self.labels)[0] if self.heading else None
+        hd = None
+        if self.heading:
+            hd = implied_headings(self.model, [obs], self.labels, self.heading_places(row))[0]
         pts = end_points_of(item) if self.uses_scan else None
         unknown = None
         if getattr(self.model, "unknown_prior", 0) > 0:
@@ -401,6 +497,14 @@ class Tracker:
         ``log_likelihood`` of shape (P,), or ``None`` / all NaN: prediction only.
         """
         t0 = time.perf_counter() if started is None else started
+        if headings is not None and log_likelihood is not None:
+            cols = self.heading_places(log_likelihood)
+            if cols is not None:  # the heading evidence only where it is used (heading_places)
+                full = np.asarray(headings, dtype=np.float64).reshape(-1)
+                if full.size != self.n_places:
+                    raise InvalidParameterError(f"implied headings need {self.n_places} entries, got {full.size}")
+                headings = np.full(self.n_places, np.nan)
+                headings[cols] = full[cols]
         t = self._t
         self._t += 1
         inc, dist = self._motion(odometry, increment, distance)
