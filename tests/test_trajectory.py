@@ -138,6 +138,28 @@ def test_a_failed_write_leaves_the_existing_file_byte_identical(tmp_path):
     assert [q.name for q in tmp_path.iterdir()] == ["est.tum"]
 
 
+def test_inside_an_output_group_the_trajectories_appear_with_the_other_outputs_or_not_at_all(tmp_path):
+    from fingerloc.atomic import OutputGroup
+
+    tum, kitti = tmp_path / "est.tum", tmp_path / "est.kitti"
+    tum.write_bytes(b"old tum\n")
+    poses = [(0.0, 0.0, 0.0), (1.0, 0.5, 0.2)]
+    with pytest.raises(RuntimeError):
+        with OutputGroup():
+            write_tum(tum, [1.0, 2.0], poses)
+            write_kitti(kitti, poses)
+            raise RuntimeError("a later output failed")
+    assert tum.read_bytes() == b"old tum\n" and not kitti.exists()
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["est.tum"]
+    with OutputGroup():
+        write_tum(tum, [1.0, 2.0], poses)
+        write_kitti(kitti, poses)
+        assert tum.read_bytes() == b"old tum\n" and not kitti.exists()  # renamed when the group ends
+    np.testing.assert_allclose(read_tum(tum)[1], poses, atol=1e-12)
+    np.testing.assert_allclose(read_kitti(kitti), poses, atol=1e-12)
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["est.kitti", "est.tum"]
+
+
 def test_tum_refuses_timestamps_that_do_not_increase(tmp_path):
     with pytest.raises(InvalidParameterError, match=r"pose 3 at 1\.0 s follows one at 2\.0 s"):
         write_tum(tmp_path / "t.tum", [1.0, 2.0, 1.0], np.zeros((3, 3)))

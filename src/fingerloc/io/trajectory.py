@@ -33,6 +33,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from .. import atomic
 from .._types import FArray
 from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
 
@@ -117,8 +118,10 @@ class TrajectoryWriter:
 
     Lines go to a temporary file next to ``path`` (flushed after each pose
     when ``flush=True``, so a crash loses nothing already written there);
-    :meth:`close` renames it over ``path``, :meth:`discard` (or leaving a
-    ``with`` block by an exception) removes it and leaves ``path`` untouched.
+    :meth:`close` syncs it and renames it over ``path`` (inside an
+    :class:`~fingerloc.atomic.OutputGroup`, when the group ends well, with the
+    command's other outputs), :meth:`discard` (or leaving a ``with`` block by
+    an exception) removes it and leaves ``path`` untouched.
 
     Parameters
     ----------
@@ -156,7 +159,8 @@ class TrajectoryWriter:
         directory = target.parent if str(target.parent) else Path(".")
         self._mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+            prefix, suffix = atomic.temporary_name(target)
+            fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=directory)
         except OSError as err:
             raise InvalidParameterError(f"cannot write {p}: {err.strerror or err}") from None
         self._tmp = Path(tmp)
@@ -195,15 +199,19 @@ class TrajectoryWriter:
         self.count += 1
 
     def close(self) -> int:
-        """Put the file in place; returns the number of poses written (idempotent)."""
+        """Put the file in place (or, inside an output group, when the group ends well); returns the number of
+        poses written (idempotent)."""
         if self._fh is None:
             return self.count
         fh, self._fh = self._fh, None
         try:
+            fh.flush()
+            os.fsync(fh.fileno())
             fh.close()
             os.chmod(self._tmp, self._mode)
-            os.replace(self._tmp, self._target)
+            atomic.replace(self._tmp, self._target)
         except BaseException:
+            fh.close()
             self._tmp.unlink(missing_ok=True)
             raise
         return self.count
