@@ -70,8 +70,8 @@ if TYPE_CHECKING:
     from ..map.scan_map import ScanMap
 
 __all__ = [
-    "FILTERS", "HEADING_ALL_MAX", "HEADING_NEAR", "HEADING_REACH_M", "HEADING_TOP", "Answer", "Tracker", "end_points_of",
-    "scaled",
+    "FILTERS", "HEADING_ALL_MAX", "HEADING_NEAR", "HEADING_REACH_M", "HEADING_TOP", "POSE_MODE_ITERATIONS",
+    "POSE_MODE_RADII", "Answer", "Tracker", "end_points_of", "scaled",
 ]  # fmt: skip
 
 #: The filters a tracker runs.
@@ -88,6 +88,10 @@ HEADING_TOP = 4
 HEADING_REACH_M = 1.0
 #: Metres: the particles are grouped on a grid of this cell size to find the places near them.
 _HEADING_CELL_M = 0.5
+#: The pose estimate: the particles within this many place radii of the answered place's mode.
+POSE_MODE_RADII = 2.0
+#: The pose estimate: mean-shift iterations from the answered place's centre.
+POSE_MODE_ITERATIONS = 3
 
 
 def scaled(log_posterior: Any, beta: float) -> FArray:
@@ -136,11 +140,14 @@ class Answer:
         unknown-place prior, at an observed step), else None.
     pose : (float, float, float) or None
         The pose filter's estimate ``(x, y, theta)`` in the map's frame (metres,
-        radians; the weighted mean of the particles, the circular mean heading); None
-        for the place filter.
+        radians): the weighted mean of the particles of the answered place's mode
+        (those within :data:`POSE_MODE_RADII` place radii of a flat-kernel mean
+        shift started at the place's centre), the circular mean heading; None for
+        the place filter.
     covariance : 3 x 3 tuple or None
-        The particles' weighted covariance of ``(x, y, theta)`` (heading differences
-        wrapped), metres and radians squared.
+        The weighted second moment of every particle's ``(x, y, theta)`` about
+        ``pose`` (heading differences wrapped), metres and radians squared: the
+        estimate's expected squared error under the whole belief.
     latency_s : float
         Seconds the step took (features, model, filter).
     true : str or None
@@ -187,12 +194,35 @@ class Answer:
         }
 
 
-def _pose_estimate(particles: FArray, log_weights: FArray) -> tuple[tuple[float, float, float], tuple[tuple[float, ...], ...]]:
-    """The weighted mean pose (circular mean heading) and covariance of particles."""
+def _pose_estimate(
+    particles: FArray, log_weights: FArray, centre: Any = None, reach: float | None = None
+) -> tuple[tuple[float, float, float], tuple[tuple[float, ...], ...]]:
+    """The pose estimate of weighted particles and its covariance (:class:`Answer`'s ``pose`` and ``covariance``).
+
+    With ``centre`` (the answered place's, metres) and ``reach`` (metres): the
+    weighted mean of the particles within ``reach`` of a point that starts at
+    ``centre`` and moves to that mean, :data:`POSE_MODE_ITERATIONS` times (a
+    flat-kernel mean shift: the mode of the answered place, not a mean between
+    two hypotheses); no particle there: every particle. The heading is the
+    circular mean of the same particles. The covariance is every particle's
+    weighted second moment about the estimate (headings wrapped): the expected
+    squared error of the estimate under the whole belief, other modes included.
+    """
     w = np.exp(log_weights - np.max(log_weights))
     w = w / w.sum()
-    x, y = float(w @ particles[:, 0]), float(w @ particles[:, 1])
-    th = math.atan2(float(w @ np.sin(particles[:, 2])), float(w @ np.cos(particles[:, 2])))
+    sel: Any = slice(None)
+    if centre is not None and reach is not None:
+        c = np.asarray(centre, dtype=np.float64)[:2]
+        for _ in range(POSE_MODE_ITERATIONS):
+            inside = np.hypot(particles[:, 0] - c[0], particles[:, 1] - c[1]) <= reach
+            if not np.any(inside) or not w[inside].sum() > 0:
+                break
+            sel = inside
+            c = (w[inside] @ particles[inside, :2]) / w[inside].sum()
+    ws, ps = w[sel], particles[sel]
+    ws = ws / ws.sum()
+    x, y = float(ws @ ps[:, 0]), float(ws @ ps[:, 1])
+    th = math.atan2(float(ws @ np.sin(ps[:, 2])), float(ws @ np.cos(ps[:, 2])))
     d = np.column_stack([particles[:, 0] - x, particles[:, 1] - y, np.mod(particles[:, 2] - th + math.pi, 2 * math.pi) - math.pi])
     cov = (d * w[:, None]).T @ d
     return (x, y, th), tuple(tuple(float(v) for v in row) for row in cov)
@@ -517,7 +547,7 @@ class Tracker:
             s = self._pose.step(row, inc, headings=headings, points=points)
             lp, best, prob = s.log_posterior, s.best, s.probability
             pf = self._pose.pose_filter
-            pose, cov = _pose_estimate(pf.particles_, pf.log_weights_)
+            pose, cov = _pose_estimate(pf.particles_, pf.log_weights_, pf.centres[best], POSE_MODE_RADII * pf.radius)
         else:
             assert self._places is not None
             lp = self._places.step(row if observed else None, dist)

@@ -1,4 +1,4 @@
-"""The streaming tracker computes the implied headings only where the pose filter uses them (large maps)."""
+"""The streaming tracker: implied headings only where the pose filter uses them (large maps), the pose of the answered mode."""
 
 from __future__ import annotations
 
@@ -73,3 +73,26 @@ def test_heading_places_are_the_places_near_the_particles_and_the_best_rows(room
     assert one.size == 1 and one[0] in got
     tr.heading_budget = None
     assert tr.heading_places(row.copy()) is None
+
+
+def test_the_pose_is_the_mode_of_the_answered_place_and_the_covariance_its_error_under_the_whole_belief():
+    from fingerloc.pipeline.tracker import _pose_estimate
+
+    rng = np.random.default_rng(4)
+    here = np.column_stack([rng.normal(1.0, 0.2, 300), rng.normal(2.0, 0.2, 300), rng.normal(0.3, 0.05, 300)])
+    there = np.column_stack([rng.normal(9.0, 0.2, 200), rng.normal(2.0, 0.2, 200), rng.normal(-2.0, 0.05, 200)])
+    parts = np.vstack([here, there])
+    lw = np.log(rng.uniform(0.5, 1.5, parts.shape[0]))
+    w = np.exp(lw) / np.exp(lw).sum()
+    (x, y, th), cov = _pose_estimate(parts, lw, centre=(1.5, 2.0), reach=2.0)
+    wh = w[:300] / w[:300].sum()
+    np.testing.assert_allclose([x, y], wh @ here[:, :2], atol=1e-12)
+    assert abs(th - np.arctan2(wh @ np.sin(here[:, 2]), wh @ np.cos(here[:, 2]))) < 1e-12
+    d = parts - np.array([x, y, th])
+    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(np.array(cov), (d * w[:, None]).T @ d, atol=1e-12)
+    assert cov[0][0] > 10.0  # the other mode, 8 m away, is in the covariance
+    (xa, ya, _), _ = _pose_estimate(parts, lw)  # without a place: every particle's mean, between the two
+    np.testing.assert_allclose([xa, ya], w @ parts[:, :2], atol=1e-12)
+    (xn, _, _), _ = _pose_estimate(parts, lw, centre=(50.0, 50.0), reach=2.0)  # nothing near: every particle
+    assert xn == xa
