@@ -58,7 +58,7 @@ def test_bench_live_is_a_command(capsys):
     assert code == 0 and "--places" in out and "APE" in out
 
 
-def test_the_latency_section_times_both_variants_on_a_tiled_map(tmp_path):
+def test_the_latency_section_times_the_three_variants_on_a_tiled_map(tmp_path):
     from fingerloc.experiments.live import latency
 
     from ._doors import rooms_log_with_doors
@@ -69,7 +69,9 @@ def test_the_latency_section_times_both_variants_on_a_tiled_map(tmp_path):
     cheap = fl.Config().with_(calibration={"tune": False, "scan_gamma": 1.0})
     res = latency(log, places=7, steps=3, warmup=1, config=cheap)
     assert res["places_per_copy"] == 3 and res["copies"] == 3 and res["places"] == 9
-    assert set(res["variants"]) == {"default", "no_heading"} and res["steps"] == 3
+    assert set(res["variants"]) == {"default", "every_heading", "no_heading"} and res["steps"] == 3
+    assert res["variants"]["every_heading"]["same_place_as_every_heading"] == 3
+    assert all(0 <= v["same_place_as_every_heading"] <= 3 for v in res["variants"].values())
     for v in res["variants"].values():
         assert v["cpu"]["median_ms"] == pytest.approx(
             v["cpu_observe"]["median_ms"] + v["cpu_filter"]["median_ms"], rel=0.5
@@ -107,3 +109,12 @@ def test_the_held_out_log_is_the_query_part(tmp_path):
     full, _ = load_log_scans(log)
     held, _ = load_log_scans(tmp_path / "held.log")
     assert [s.timestamp for s in held] == [s.timestamp for s in full[10:]]
+
+
+def test_a_position_in_any_copy_goes_back_to_the_first():
+    from fingerloc.experiments.live import _in_copy
+
+    corner, pitch, gap = (-2.0, 1.0), (30.0, 20.0), 10.0
+    here = np.array([[3.0, 4.0], [-6.0, 1.0], [17.9, 10.9]])  # within copy 0 (up to half a gap outside its box)
+    for k, r in ((0, 0), (1, 0), (2, 3), (4, 1)):
+        np.testing.assert_allclose(_in_copy(here + [k * pitch[0], r * pitch[1]], corner, pitch, gap), here, atol=1e-9)

@@ -38,7 +38,8 @@ def live_cmd(
             console.print(
                 f"  {name.replace('_', ' ')}, {v['steps']} steps: median {w['median_ms']:.1f} ms, p95 {w['p95_ms']:.1f} ms "
                 f"(CPU median {c['median_ms']:.1f} ms, p95 {c['p95_ms']:.1f} ms: observation {co['median_ms']:.1f} ms, "
-                f"filter {cf['median_ms']:.1f} ms)",
+                f"filter {cf['median_ms']:.1f} ms); answer within a place radius of the pose at {v.get('near_steps', '-')} "
+                f"steps, that of every heading at {v['same_place_as_every_heading']}",
                 soft_wrap=True, markup=False,
             )  # fmt: skip
     for name, a in (res.get("ape") or {}).items():

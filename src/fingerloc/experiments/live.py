@@ -17,8 +17,15 @@ Two sections:
   ``warmup`` steps that compile and fill caches. Figures: median, 95th
   percentile and maximum, milliseconds, and the load average; the CPU time is
   split into the observation (features, the model's scores over every place,
-  the heading each place implies, end points) and the filter. Two variants:
-  the map's defaults, and without the heading evidence (``heading=False``).
+  the heading each place implies, end points) and the filter. Three variants:
+  the map's defaults (the implied headings at the places the pose filter
+  uses: ``Tracker.heading_places``), the implied headings at every place
+  (``heading_budget=None``), and without the heading evidence
+  (``heading=False``). The copies look alike, so the answers are compared up
+  to the copy: the answered place's position within its copy; per variant,
+  the steps whose answer lies within a place radius of the robot's pose
+  (``near_steps``) and the steps whose answer is the every-place variant's
+  (``same_place_as_every_heading``).
 * **ape** (and the stream check): per log, the map of its mapping part (``fingerloc map``'s
   defaults) and ``track --filter pose`` of its query part (the library's
   ``PlaceMap.track``, what ``track --tum`` writes), then evo's APE
@@ -47,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from .._types import FArray
 from ..errors import InvalidParameterError
 from ..pipeline.readers import Run
 from ..sensors import Scan
@@ -74,8 +82,7 @@ def tiled_run(run: Run, copies: int, n: int, *, gap_m: float = COPY_GAP_M) -> Ru
     base = run.scans[:n]
     if any(s.pose is None for s in base):
         raise InvalidParameterError("tiled_run needs a pose on every scan")
-    xy = np.array([s.pose[:2] for s in base if s.pose is not None], dtype=np.float64)
-    dx, dy = (np.ptp(xy, axis=0) + gap_m).tolist()
+    _, (dx, dy) = _copy_pitch(base, gap_m)
     cols = math.ceil(math.sqrt(copies))
     t = [float(s.timestamp or 0.0) for s in base]
     span = (max(t) - min(t)) + 1.0
@@ -89,6 +96,21 @@ def tiled_run(run: Run, copies: int, n: int, *, gap_m: float = COPY_GAP_M) -> Ru
             scans.append(replace(s, pose=(x + ox, y + oy, th), timestamp=t[i] + k * span))
             names.append(f"copy{k}:{run.names[i]}")
     return Run(list(run.paths), run.kind, names, scans=scans, key=f"tiled{copies}x{n}:{run.key}")
+
+
+def _copy_pitch(base: Sequence[Scan], gap_m: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The lower corner of the scans' poses' bounding box and the distance between copies (metres, x and y)."""
+    xy = np.array([s.pose[:2] for s in base if s.pose is not None], dtype=np.float64)
+    lo = xy.min(axis=0)
+    dx, dy = (np.ptp(xy, axis=0) + gap_m).tolist()
+    return (float(lo[0]), float(lo[1])), (dx, dy)
+
+
+def _in_copy(xy: Any, corner: tuple[float, float], pitch: tuple[float, float], gap_m: float) -> FArray:
+    """Positions ``(n, 2)`` moved back into the first copy of :func:`tiled_run`'s grid."""
+    q = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    c, p = np.asarray(corner), np.asarray(pitch)
+    return np.asarray(q - np.floor((q - c + 0.5 * gap_m) / p) * p, dtype=np.float64)
 
 
 def percentile(values: Sequence[float], q: float) -> float:
@@ -176,10 +198,24 @@ def latency(
         queries = queries[: warmup + steps]
     assert run.scans is not None
     scans = [run.scans[i] for i in queries]
-    variants = {}
-    for name, heading in (("default", True), ("no_heading", False)):
+    variants: dict[str, dict[str, Any]] = {}
+    answered: dict[str, FArray] = {}
+    corner, pitch = _copy_pitch(run.scans[:n_map], COPY_GAP_M)
+    assert big.positions is not None
+    truth = np.array([s.pose[:2] for s in scans[warmup:] if s.pose is not None], dtype=np.float64)
+    for name, heading, every in (("default", True, False), ("every_heading", True, True), ("no_heading", False, False)):
         note(f"tracking {len(scans)} scans on {len(big.labels)} places ({name.replace('_', ' ')})")
-        variants[name] = _time_steps(big.tracker(filter="pose", seed=seed, heading=heading), scans, warmup)
+        tracker = big.tracker(filter="pose", seed=seed, heading=heading)
+        if every:
+            tracker.heading_budget = None
+        figures, places = _time_steps(tracker, scans, warmup)
+        col = {lab: j for j, lab in enumerate(big.labels)}
+        answered[name] = _in_copy(big.positions[[col[p] for p in places]], corner, pitch, COPY_GAP_M)
+        if truth.shape == answered[name].shape:
+            figures["near_steps"] = int(np.sum(np.hypot(*(answered[name] - truth).T) <= cal.radius))
+        variants[name] = figures
+    for name, at in answered.items():
+        variants[name]["same_place_as_every_heading"] = int(np.sum(np.hypot(*(at - answered["every_heading"]).T) < 1e-6))
     return {
         "log": log.name,
         "places": len(big.labels),
@@ -194,9 +230,11 @@ def latency(
     }
 
 
-def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> dict[str, Any]:
+def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> tuple[dict[str, Any], list[str]]:
     """Wall and CPU time of each step after ``warmup``; CPU split into the observation (features, the model's
-    scores, implied headings, end points: ``Tracker.observe``) and the filter (``Tracker.step_scores``)."""
+    scores, implied headings, end points: ``Tracker.observe``) and the filter (``Tracker.step_scores``); and
+    the places answered after ``warmup``."""
+    places: list[str] = []
     wall: list[float] = []
     cpu: list[float] = []
     cpu_observe: list[float] = []
@@ -205,9 +243,10 @@ def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> dict[str, A
         w0, c0 = time.perf_counter(), time.process_time()
         row, hd, pts, unknown = tracker.observe(s)
         c1 = time.process_time()
-        tracker.step_scores(row, s.pose, s.timestamp, headings=hd, points=pts, unknown=unknown, started=w0)
+        ans = tracker.step_scores(row, s.pose, s.timestamp, headings=hd, points=pts, unknown=unknown, started=w0)
         w2, c2 = time.perf_counter(), time.process_time()
         if k >= warmup:
+            places.append(ans.place)
             wall.append(w2 - w0)
             cpu.append(c2 - c0)
             cpu_observe.append(c1 - c0)
@@ -215,7 +254,7 @@ def _time_steps(tracker: Any, scans: Sequence[Scan], warmup: int) -> dict[str, A
     if not wall:
         raise InvalidParameterError(f"no step to time after {warmup} warm-up steps")
     return {"steps": len(wall), "wall": _figures_ms(wall), "cpu": _figures_ms(cpu),
-            "cpu_observe": _figures_ms(cpu_observe), "cpu_filter": _figures_ms(cpu_filter)}  # fmt: skip
+            "cpu_observe": _figures_ms(cpu_observe), "cpu_filter": _figures_ms(cpu_filter)}, places  # fmt: skip
 
 
 def ape(log: Path, *, seed: int = 0, config: Any = None, on_progress: Progress | None = None) -> dict[str, Any]:
