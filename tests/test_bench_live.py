@@ -117,4 +117,4 @@ def test_a_position_in_any_copy_goes_back_to_the_first():
     corner, pitch, gap = (-2.0, 1.0), (30.0, 20.0), 10.0
     here = np.array([[3.0, 4.0], [-6.0, 1.0], [17.9, 10.9]])  # within copy 0 (up to half a gap outside its box)
     for k, r in ((0, 0), (1, 0), (2, 3), (4, 1)):
-        np.testing.assert_allclose(_in_copy(here + [k * pitch[0], r * pitch[1]], corner, pitch, gap), here, atol=1e-9)
+        np.testing.assert_allclose(_in_copy(here + np.array([k * pitch[0], r * pitch[1]]), corner, pitch, gap), here, atol=1e-9)

@@ -214,8 +214,9 @@ def latency(
         if truth.shape == answered[name].shape:
             figures["near_steps"] = int(np.sum(np.hypot(*(answered[name] - truth).T) <= cal.radius))
         variants[name] = figures
+    every = answered["every_heading"]
     for name, at in answered.items():
-        variants[name]["same_place_as_every_heading"] = int(np.sum(np.hypot(*(at - answered["every_heading"]).T) < 1e-6))
+        variants[name]["same_place_as_every_heading"] = int(np.sum(np.hypot(*(at - every).T) < 1e-6))
     return {
         "log": log.name,
         "places": len(big.labels),
