@@ -203,20 +203,20 @@ def latency(
     corner, pitch = _copy_pitch(run.scans[:n_map], COPY_GAP_M)
     assert big.positions is not None
     truth = np.array([s.pose[:2] for s in scans[warmup:] if s.pose is not None], dtype=np.float64)
-    for name, heading, every in (("default", True, False), ("every_heading", True, True), ("no_heading", False, False)):
+    col = {lab: j for j, lab in enumerate(big.labels)}
+    for name, heading, all_places in (("default", True, False), ("every_heading", True, True), ("no_heading", False, False)):
         note(f"tracking {len(scans)} scans on {len(big.labels)} places ({name.replace('_', ' ')})")
         tracker = big.tracker(filter="pose", seed=seed, heading=heading)
-        if every:
+        if all_places:
             tracker.heading_budget = None
-        figures, places = _time_steps(tracker, scans, warmup)
-        col = {lab: j for j, lab in enumerate(big.labels)}
-        answered[name] = _in_copy(big.positions[[col[p] for p in places]], corner, pitch, COPY_GAP_M)
+        figures, answers = _time_steps(tracker, scans, warmup)
+        answered[name] = _in_copy(big.positions[[col[a] for a in answers]], corner, pitch, COPY_GAP_M)
         if truth.shape == answered[name].shape:
             figures["near_steps"] = int(np.sum(np.hypot(*(answered[name] - truth).T) <= cal.radius))
         variants[name] = figures
-    every = answered["every_heading"]
+    ref = answered["every_heading"]
     for name, at in answered.items():
-        variants[name]["same_place_as_every_heading"] = int(np.sum(np.hypot(*(at - every).T) < 1e-6))
+        variants[name]["same_place_as_every_heading"] = int(np.sum(np.hypot(*(at - ref).T) < 1e-6))
     return {
         "log": log.name,
         "places": len(big.labels),
