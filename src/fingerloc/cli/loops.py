@@ -28,9 +28,9 @@ def print_loops(js: dict[str, Any]) -> None:
     console.print("-" * len(head), soft_wrap=True)
     for name, lg in rows:
         for k, (m, f) in enumerate(lg["methods"].items()):
-            lead = f"{name:<{lw}} {lg['queries']:>7} {lg['positives']:>5}" if k == 0 else " " * (lw + 14)
+            prefix = f"{name:<{lw}} {lg['queries']:>7} {lg['positives']:>5}" if k == 0 else " " * (lw + 14)
             console.print(
-                f"{lead}  {m:<{mw}}  {f['max_f1']:>6.3f} {f['recall_at_100']:>6.3f} {f['recall_at_99']:>6.3f} "
+                f"{prefix}  {m:<{mw}}  {f['max_f1']:>6.3f} {f['recall_at_100']:>6.3f} {f['recall_at_99']:>6.3f} "
                 f"{f['average_precision']:>6.3f} {f['seconds']:>6.1f}",
                 soft_wrap=True,
             )
