@@ -2,7 +2,7 @@
 """A sweep over CARMEN logs x seeds x presets, one task per cell, serially or on a Dask cluster (docs/CLUSTER.md).
 
 Each cell ``(log, seed, preset)`` runs the real-log benchmark's protocol on
-one log with two methods: the fingerprint program with the preset's options
+one log with two methods: the fingerprint program with the preset's options, verified against the scan map
 (single shot; no randomness) and the same front end under the pose filter
 (``fingerprint-odometry``'s filter, seeded with ``seed``: simulated odometry
 errors and particles). The cells are independent and carry everything random
@@ -39,7 +39,7 @@ def sweep_cell(task: tuple[str, int, str]) -> dict[str, Any]:
     log, seed, preset = task
     single = f"fingerprint-preset-{preset}"
     if single not in METHODS:  # registered in whichever process runs the cell
-        register_method(single, default=False)(lambda: FingerprintMethod(**model_options(preset)))
+        register_method(single, default=False)(lambda: FingerprintMethod(**model_options(preset), verify=True))
     scans, _ = load_log_scans(log)
     split = make_split(np.array([s.pose[:2] for s in scans], dtype=np.float64))
     pose = PoseFilteredMethod(single, seed=seed)

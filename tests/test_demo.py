@@ -20,6 +20,12 @@ def test_demo_writes_report(tmp_path, capsys):
     stdout = capsys.readouterr().out
     assert code == 0
     assert "Table III" in stdout and "Table IV" in stdout and "report:" in stdout
+    # the first screen tells the story: what reproduces over 20 trials, then this trial's findings
+    head = stdout[: stdout.index("Table II:")]
+    assert "What the reproduction shows over 20 trials" in head and "Table III" in head
+    for claim in ("global alignment beats minimum energy", "the full program beats VE & Ex", "This trial alone"):
+        assert claim in head, claim
+    assert "holds" in head or "reversed" in head or "not shown" in head
     page = (out / "index.md").read_text()
     for name in FIGURES:
         assert (out / name).exists(), name
@@ -38,6 +44,8 @@ def test_demo_writes_report(tmp_path, capsys):
     assert ("Why it failed" in page) == (q["truth"] != q["answer"])
     assert "95" in page and "[" in page  # confidence intervals beside the figures
     assert js["ci95"]["table4"]["VE+Ex+Fp"]["3"]["top1"] is not None
+    assert js["table4"]["VE+Ex+Fp"]["3"]["ci95"] == js["ci95"]["table4"]["VE+Ex+Fp"]["3"]
+    assert "What reproduces, and what does not" in page and "The paper's findings" in page
     # last: the same page as HTML in a real browser (where none can run, the test is skipped after the checks above)
     assert_page_ok(out / "index.html", min_images=len(FIGURES))
 

@@ -156,12 +156,36 @@ def test_cli_track_jsonl_graph_from(tmp_path, capsys):
     q = tmp_path / "q.jsonl"
     write_observations(q, [obs(lab, float(i)) for i, lab in enumerate(["a", "b", "c"])])
     out = tmp_path / "t.json"
-    code, text, err = _run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--json", str(out))
+    code, text, err = _run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr), "--json", str(out),
+                               "--filter", "places")  # fmt: skip
     assert code == 0, err
     assert load_graph(db).edges()[("a", "b")] == 1
     js = json.loads(out.read_text())
     assert js["summary"]["steps"] == 3 and js["summary"]["metres_per_move"] == pytest.approx(7 / 4)
-    assert "odometry 1.75 m per place change" in text
+    assert "metric transitions over the place positions" in text and js["summary"]["transitions"] == "metric"
     write_observations(tr, [*train, Observation.from_degrees({"VE": [1.0]}, label="zz")])
     code, _, err = _run_cli(capsys, "track", str(q), "--db", str(db), "--graph-from", str(tr))
     assert code == 2 and "'zz'" in err
+
+
+def test_cli_track_picks_the_filter_the_data_allow(rooms_log, tmp_path, capsys):
+    """Without --filter: the pose filter for a log with poses against a map with place positions, and why; the
+    place filter when the map has no positions (JSON Lines learned from labels)."""
+    db = tmp_path / "rooms.sqlite"
+    out = tmp_path / "t.json"
+    code, _, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--map", "--json", str(out), "-q")
+    assert code == 0, err
+    assert "filter: pose" in err and "odometry" in err
+    assert json.loads(out.read_text())["summary"]["filter"] == "pose"
+    from fingerloc.io.jsonl import write_observations
+    from fingerloc.map.database import load_model
+
+    obs = [o for p in load_model(db).places_.values() for o in p.observations]
+    jl = tmp_path / "o.jsonl"
+    write_observations(jl, obs)
+    db2 = tmp_path / "labels.sqlite"
+    assert _run_cli(capsys, "learn", str(jl), "--db", str(db2))[0] == 0
+    code, _, err = _run_cli(capsys, "track", str(jl), "--db", str(db2), "--json", str(out), "-q")
+    assert code == 0, err
+    assert "filter: places" in err and "positions" in err
+    assert json.loads(out.read_text())["summary"]["filter"] == "places"

@@ -127,12 +127,12 @@ def test_test_modules_do_not_import_each_other():
 
 #: The layers, lowest first: a module imports only modules of its own layer or lower ones.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("_estimator", "_lazy", "_lse", "_mog_kernels", "_numba_guard", "_seed_kernels", "_types", "_version", "angles",
+    ("_estimator", "_lazy", "_lse", "_mog_kernels", "_numba_guard", "_seed_kernels", "_types", "_version", "angles", "atomic",
      "config", "errors", "metrics", "parallel", "sensors", "validation"),
     ("observation", "fingerprint", "keypoints"),
-    ("io", "features", "sim", "mog", "align"),
+    ("_fingerprints", "io", "features", "sim", "mog", "align"),
     ("terms",),
-    ("model",),
+    ("model", "retrieval"),
     ("map",),
     ("pipeline",),
     ("plot", "reporting"),

@@ -203,6 +203,13 @@ def test_panorama_bench_end_to_end(tour, tmp_path):
     assert area["methods"]["A"]["top1"] == 1.0
     assert area["methods"]["hsv-baseline"]["top1"] == 1.0
     assert res["places"]["position"]["n_queries"] == 4  # the pairs a-0/a-1 and b-0/b-1
+    # the rolled copies of a room are the same view: every pair of one room verifies, the heading is the roll
+    assert area["methods"]["K"]["top1"] == 1.0 and area["retrieval"]["top1_all"] == 1.0
+    assert res["keypoints"]["model"] in ("upright", "general")
+    cal = area["methods"]["A+K"]["calibration"]
+    assert cal["accuracy"] == 1.0 and cal["wrong"] == 0 and 0.0 <= cal["ece"] <= 1.0 - cal["mean_confidence"] + 1e-9
+    kp = res["heading_links"]  # the tour defines no arrows: no linked pair
+    assert kp["keypoints, all links"]["pairs"] == 0
     # same room, rolled images: the oracle finds the roll exactly
     first = res["heading"]["pairs"][0]
     assert first["oracle_deg"] == pytest.approx((-40 * 360 / 720) % 360.0, abs=1.0)
@@ -229,10 +236,60 @@ def test_bench_commands(tour, tmp_path, capsys):
     assert code == 2 and "--cache: no folder" in err
     bad = tmp_path / "bad-cache.jsonl"
     bad.write_text(
-        '{"band": [0.25, 0.75], "width": 360, "edges": {"nms_deg": 3.0, "max_edges": 12}, "version": 5}\nnot json\n'
+        '{"band": [0.25, 0.75], "width": 360, "edges": {"nms_deg": 3.0, "max_edges": 12}, "version": 6, "keypoints": {}}\n'
+        "not json\n"
     )
     code, _, err = run_cli(capsys, "bench", "panorama", photos, "--areas", blocks, "--width", 360, "--cache", bad)
     assert code == 2 and "bad-cache.jsonl:2" in err and "not a feature cache" in err
+
+
+def test_the_same_bench_from_a_labels_csv(tour, tmp_path, capsys):
+    photos, blocks = tour
+    by_areas = run_panorama_bench(photos, blocks, width=360)
+    csv = tmp_path / "labels.csv"
+    rows = ["file,place,x,y"] + [f"{r}/{r}{k}.png,room-{r},{k * 10.0},{100.0 * (r == 'b')}" for r in "ab" for k in range(3)]
+    csv.write_text("\n".join(rows) + "\n")
+    by_csv = run_panorama_bench(photos, labels=csv, width=360, spacing=15.0)
+    assert by_csv["places"]["area"]["methods"] == by_areas["places"]["area"]["methods"]
+    pos = by_csv["places"]["position"]  # centres 15 apart: photos 0 and 1 of each room share one, photo 2 its own
+    assert pos["n_places"] == 4 and pos["n_queries"] == 4
+    out = tmp_path / "res.json"
+    code, stdout, err = run_cli(
+        capsys, "bench", "panorama", photos, "--labels", csv, "--width", 360, "--preset", "panorama", "--json", out
+    )
+    assert code == 0, err
+    pre = json.loads(out.read_text())["preset"]["area"]
+    assert pre["n_queries"] == 6 and pre["top1"] == 1.0 and pre["calibration"]["wrong"] == 0
+    assert "preset panorama by area: top-1 1.000" in stdout
+    code, _, err = run_cli(capsys, "bench", "panorama", photos, "--labels", csv, "--areas", blocks)
+    assert code == 2 and "one of them" in err
+
+
+def test_calibration_against_a_hand_count():
+    from fingerloc.experiments.panorama import calibration
+
+    # four queries, two places: confidences 0.9 (right), 0.9 (wrong), 0.6 (right), 0.6 (right)
+    p = np.array([[0.9, 0.1], [0.1, 0.9], [0.6, 0.4], [0.4, 0.6]])
+    truth = np.array([0, 0, 0, 1])
+    cal = calibration(np.log(p), truth)
+    # bin [0.9, 1.0): accuracy 0.5, confidence 0.9; bin [0.6, 0.7): accuracy 1.0, confidence 0.6
+    assert cal["ece"] == pytest.approx(0.5 * 0.4 + 0.5 * 0.4)
+    assert cal["accuracy"] == 0.75 and cal["wrong"] == 1 and cal["wrong_above_0.9"] == 0.0
+    assert cal["mean_confidence"] == pytest.approx(0.75)
+
+
+def test_tempering_fit_on_the_other_queries_softens_an_overconfident_sum():
+    from fingerloc.experiments.panorama import _loo_tempered, calibration
+
+    rng = np.random.default_rng(0)
+    n, places = 200, 5
+    truth = rng.integers(0, places, n)
+    ll = rng.normal(size=(n, places)) * 3.0
+    ll[np.arange(n), truth] += 2.0  # right about half the time, with huge margins
+    loud = 10.0 * ll
+    tempered = _loo_tempered(loud, truth)
+    assert calibration(tempered, truth)["ece"] < 0.5 * calibration(loud, truth)["ece"]
+    assert np.array_equal(np.argmax(tempered, axis=1), np.argmax(loud, axis=1))  # the ranking is kept
 
 
 def test_campus_photo_is_plain_data():

@@ -214,7 +214,8 @@ def test_learn_into_a_map_keeps_its_preset(rooms, tmp_path, capsys):
     code, _, err = run_cli(capsys, "learn", extra, "--db", db)
     assert code == 0, err
     lm = load_map(db)
-    assert "new-place" in lm.labels and lm.positions is None  # the new place has no position
+    assert "new-place" in lm.labels and lm.positions is not None  # the new place has its view's position
+    assert lm.positions[lm.labels.index("new-place")].tolist() == list(pm.training[0].pose[:2])
     assert lm.preset is not None and lm.preset.name == "laser2d" and len(lm.content_hashes) == 13
 
 

@@ -11,7 +11,9 @@ from fingerloc import sim
 from fingerloc.cli import main
 from fingerloc.errors import InvalidParameterError
 from fingerloc.experiments.robot import (
+    PAPER_TABLE3,
     PAPER_TABLE4,
+    TABLE4_EXP,
     TABLE4_FITTED,
     TABLE4_TERMS,
     RobotProtocol,
@@ -117,12 +119,14 @@ def test_trial_cells_and_json(trial):
     assert set(js["table2"]) >= {"VE", "Ex", "CP", "B"}
     assert set(js["table3"]) == {"minimum_energy", "global_alignment"}
     for m in js["table3"].values():
-        assert set(m) == {"top1", "mean_rank"}
-    assert set(js["table4"]) == {*TABLE4_TERMS, TABLE4_FITTED}
-    for row in js["table4"].values():
+        assert set(m) == {"top1", "mean_rank", "ci95"}
+    assert set(js["table4"]) == {*TABLE4_TERMS, TABLE4_FITTED, TABLE4_EXP}
+    for name, row in js["table4"].items():
         assert set(row) == {str(k) for k in p.ks}
-        for cell in row.values():
-            assert set(cell) == {"top1", "mean_rank"} and 0 <= cell["top1"] <= 1
+        for k, cell in row.items():
+            assert set(cell) == {"top1", "mean_rank", "ci95"} and 0 <= cell["top1"] <= 1
+            # the interval inside the cell is the one of the ci95 block
+            assert cell["ci95"] == js["ci95"]["table4"][name][k]
     assert "global_alignment" in js["random_heading"]
     assert js["spread"]["table4"]["VE"]["3"]["top1"] == 0.0  # two identical trials
     assert js["paper"]["table4"]["VE+Ex+Fp"]["5"]["top1"] == PAPER_TABLE4["VE+Ex+Fp"][5][0]
@@ -215,15 +219,23 @@ def test_json_has_confidence_intervals(trial):
 def test_worlds_and_profiles():
     from fingerloc.experiments.robot import WORLD_PROFILES
 
-    assert set(WORLD_PROFILES) == {"paper", "paper-static", "alike"}
+    assert set(WORLD_PROFILES) == {"paper", "paper-static", "paper-ideal", "alike"}
     assert {prof["offices"] for prof in WORLD_PROFILES.values()} == set(sim.WORLDS) == {"paper", "alike"}
     assert RobotProtocol().world == "paper" and RobotProtocol().office_similarity == 0.8
     # the default world measures its test poses at a later visit; the old settings stay reachable
-    assert RobotProtocol().session_change == sim.OFFICE_DAY
+    assert RobotProtocol().session_change == sim.PAPER_VISIT
+    assert RobotProtocol(world="paper-ideal").session_change == sim.OFFICE_DAY
     assert RobotProtocol(world="paper-static").session_change is None
     assert RobotProtocol(world="alike").session_change is None
-    static = {k: v for k, v in WORLD_PROFILES["paper-static"].items() if k != "session"}
-    assert static == {k: v for k, v in WORLD_PROFILES["paper"].items() if k != "session"}
+    assert RobotProtocol().perception == RobotProtocol(world="paper-static").perception == sim.PAPER_ROBOT
+    assert RobotProtocol(world="paper-ideal").perception is None and RobotProtocol(world="alike").perception is None
+    # the later visit of the paper world is the office day plus the robot's heading offset
+    assert sim.PAPER_VISIT == replace(sim.OFFICE_DAY, heading_offset_deg=sim.PAPER_VISIT.heading_offset_deg)
+    same = ("session", "perception", "calibrated_on")
+    for other in ("paper-static", "paper-ideal"):
+        mine = {k: v for k, v in WORLD_PROFILES[other].items() if k not in same}
+        assert mine == {k: v for k, v in WORLD_PROFILES["paper"].items() if k not in same}
+    assert WORLD_PROFILES["paper"]["calibrated_on"] == ["table2", "table3"]
     assert RobotProtocol(world="alike").office_similarity == 0.5
     assert RobotProtocol(world="alike", similarity=0.95).office_similarity == 0.95
     with pytest.raises(InvalidParameterError, match="world"):
@@ -231,19 +243,40 @@ def test_worlds_and_profiles():
 
 
 def test_later_visit_changes_only_the_test_measurements():
-    p = small_protocol(n_offices=2, n_train=2, n_test=1, omni_size=(160, 120), panorama_width=180, random_heading=False)
+    p = small_protocol(n_offices=2, n_train=2, n_test=2, omni_size=(160, 120), panorama_width=180, random_heading=False)
     later = simulate_trial(p, (5, 0), keep_raw=True)
     static = simulate_trial(replace(p, world="paper-static"), (5, 0), keep_raw=True)
     assert [w.name for w in later.test_worlds] == [w.name for w in later.worlds]
     assert all(a is b for a, b in zip(static.worlds, static.test_worlds, strict=True))
     assert not any(a is b for a, b in zip(later.worlds, later.test_worlds, strict=True))
+    turns: dict[int, list[float]] = {}
     for a, b in zip(later.measurements, static.measurements, strict=True):
-        assert a.pose == b.pose and a.role == b.role
+        assert a.pose[:2] == b.pose[:2] and a.role == b.role and a.office == b.office
         same_image = np.array_equal(a.omni.image, b.omni.image)
         # the same offices, poses and sensor noise at the training visit; another office at the test visit
         assert same_image if a.role == "train" else not same_image
         if a.role == "train":
-            assert a.observation == b.observation
+            assert a.observation == b.observation and a.pose == b.pose
+        else:
+            turns.setdefault(a.office, []).append(a.pose[2] - b.pose[2])
+    # the robot's heading at the later visit: one offset per office, the same for its test poses
+    assert all(len(v) == 2 and v[0] == pytest.approx(v[1]) for v in turns.values())
+    assert len({round(v[0], 9) for v in turns.values()}) == len(turns)
+
+
+def test_perception_errors_change_the_extracted_features():
+    p = small_protocol(n_offices=2, n_train=3, n_test=1, omni_size=(160, 120), panorama_width=180, random_heading=False)
+    ideal = simulate_trial(replace(p, world="paper-ideal"), (3, 0), keep_raw=True)
+    paper = simulate_trial(p, (3, 0), keep_raw=True)
+    assert RobotProtocol(world="paper-ideal").perception is None and p.perception == sim.PAPER_ROBOT
+    for a, b in zip(ideal.measurements, paper.measurements, strict=True):
+        # the perfect robot reports what the extractors found; the calibrated one changes it from there
+        assert a.extracted == a.observation
+        assert b.extracted is not None and b.observation.label == b.extracted.label
+        if a.role == "train":  # same offices, poses and raw data at the training visit
+            assert a.extracted == b.extracted
+    changed = sum(m.observation != m.extracted for m in paper.measurements)
+    assert changed >= 1
 
 
 def test_table2_per_visit(trial):
@@ -337,3 +370,60 @@ def test_paper_world_counts_near_table_2():
     # the alike world's extractor finds several times the paper's vertical edges
     alike = calibration_counts(world="alike", similarity=0.5, templates=1, blur=0.7, noise=0.015, jpeg_quality=85)
     assert alike["VE"] > 2.5 * PAPER_TABLE2["VE"]
+
+
+def test_findings_compare_the_paper_differences(trial):
+    p, _, ev = trial
+    res = RobotResult(protocol=p, seed=0, trials=[ev])
+    found = {f.key: f for f in res.findings()}
+    assert set(found) == {"ga_beats_me", "fusion_beats_single", "fp_helps"}  # one k: no "more components"
+    ga = found["ga_beats_me"]
+    assert ga.paper == pytest.approx(PAPER_TABLE3["global_alignment"][0] - PAPER_TABLE3["minimum_energy"][0])
+    # one trial: paired over its queries, the mean difference of the two cells
+    cells = ev.cells
+    assert ga.ours == pytest.approx(cells[("table3", "global_alignment")][0] - cells[("table3", "minimum_energy")][0])
+    d = (ev.ranks[("table3", "global_alignment")] == 1).astype(float) - (ev.ranks[("table3", "minimum_energy")] == 1)
+    if np.std(d) > 0:
+        lo, hi = ga.ci95
+        assert lo < ga.ours < hi
+    verdict = {True: "holds", False: "reversed"}
+    for f in found.values():
+        if f.ci95 is not None and (f.ci95[0] > 0 or f.ci95[1] < 0):
+            assert f.verdict == verdict[f.ci95[0] > 0]
+        else:
+            assert f.verdict == "not shown"
+    js = res.to_json()["findings"]
+    assert [f["key"] for f in js] == list(found) and js[0]["verdict"] == ga.verdict
+    # two trials: paired over trials; two identical trials give a zero-width interval at the mean
+    two = {f.key: f for f in RobotResult(protocol=p, seed=0, trials=[ev, ev]).findings()}
+    assert two["ga_beats_me"].ours == pytest.approx(ga.ours) and two["ga_beats_me"].ci95 == pytest.approx(
+        (ga.ours, ga.ours)
+    )
+
+
+def test_term_scale_shows_the_flat_paper_fingerprint(trial):
+    p, _, ev = trial
+    st = RobotResult(protocol=p, seed=0, trials=[ev]).term_stats()
+    k = str(p.ks[0])
+    sp = st[k]["spread_nats"]
+    # 1 / (cost + 1) over costs of a few letters spans a nat or two; the mixtures span far more
+    assert 0 < sp["Fp"] < math.log(40) and sp["VE"] > 5 * sp["Fp"]
+    assert set(st[k]["fitted_weights"]) == {"VE", "Ex", "Fp"} and st[k]["fp_lambda"] > 0
+
+
+@pytest.mark.slow
+def test_calibrated_errors_put_global_alignment_above_minimum_energy():
+    """Table III's ordering in a seeded small run: the calibrated errors hurt minimum energy most."""
+    from fingerloc.experiments.sim_stats import table3_sweep
+
+    p = small_protocol(n_offices=8, n_train=6, n_test=2, world="paper-ideal", random_heading=False)
+    calibrated = {
+        "camera_detection": sim.PAPER_ROBOT.camera_detection,
+        "laser_detection": sim.PAPER_ROBOT.laser_detection,
+        "spurious": sim.PAPER_ROBOT.spurious,
+        "heading_offset_deg": sim.PAPER_VISIT.heading_offset_deg,
+    }
+    none, cal = table3_sweep([{}, calibrated], trials=2, seed=0, noise_seeds=range(8), protocol=p)
+    me, ga = cal["minimum_energy"]["top1"], cal["global_alignment"]["top1"]
+    assert none["minimum_energy"]["top1"] >= 0.9 and none["global_alignment"]["top1"] >= 0.85
+    assert ga - me >= 0.1 and me <= 0.8

@@ -49,7 +49,7 @@ def test_scan_map_round_trip_is_exact(tmp_path, scan_map):
     db = _with_scan_map(tmp_path, scan_map)
     with sqlite3.connect(db) as con:
         assert con.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone() == (str(SCHEMA_VERSION),)
-        assert SCHEMA_VERSION == 4
+        assert SCHEMA_VERSION == 5
         (blob,) = con.execute("SELECT cells FROM scan_map").fetchone()
     assert len(blob) < 8 * scan_map.cells.shape[0]  # smaller than int32 pairs
     sm = load_map(db).scan_map

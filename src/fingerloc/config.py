@@ -207,6 +207,9 @@ class PoseFilterConfig:
     lost_statistic : {"best", "mean"}, default "best"
     lost_uniform : bool, default False
         A lost re-draw looks everywhere instead of where the place filter believes.
+    lost_uniform_share : float, default 0.5
+        A lost re-draw's prior is this share uniform over the places, the rest where the
+        place filter believes (that filter saw the views that misled the particles).
     hold_margin : float, optional, default 0.05
         Between observations, keep the previous answer unless another place leads by this.
     tie_break : float, optional, default 0.02
@@ -226,6 +229,7 @@ class PoseFilterConfig:
     lost_after: int = 1
     lost_statistic: str = "best"
     lost_uniform: bool = False
+    lost_uniform_share: float = 0.5
     hold_margin: float | None = 0.05
     tie_break: float | None = 0.02
 
@@ -242,6 +246,7 @@ class PoseFilterConfig:
         _positive("pose_filter", "reset_nats", self.reset_nats, zero=True)
         _count("pose_filter", "scan_fresh", self.scan_fresh, 1)
         _count("pose_filter", "lost_after", self.lost_after, 1)
+        _probability("pose_filter", "lost_uniform_share", self.lost_uniform_share)
         if self.lost_statistic not in ("best", "mean"):
             raise InvalidParameterError(f"pose_filter.lost_statistic must be best or mean, got {self.lost_statistic!r}")
         for name in ("hold_margin", "tie_break"):

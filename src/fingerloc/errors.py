@@ -13,6 +13,7 @@ from pathlib import Path
 __all__ = [
     "DataFormatError",
     "DatabaseError",
+    "DatabaseLockedError",
     "EmptyInputError",
     "FingerlocError",
     "InvalidParameterError",
@@ -94,3 +95,7 @@ class UnknownLetterError(DataFormatError):
 
 class DatabaseError(FingerlocError):
     """A place database is missing, corrupt, foreign or of another version."""
+
+
+class DatabaseLockedError(DatabaseError):
+    """Another process held a place database's writer lock longer than the caller would wait."""

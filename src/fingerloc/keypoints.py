@@ -5,6 +5,7 @@ Extraction and matching are in :mod:`fingerloc.features.keypoints`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,9 +26,9 @@ class Keypoints:
     bearing : ndarray of float, shape (n,)
         Radians, wrapped to ``[-pi, pi)``.
     elevation : ndarray of float, shape (n,)
-        Position in the band's height, 0 (top) .. 1 (bottom).
+        Radians, positive above the horizon, in ``[-pi/2, pi/2]``.
     scale : ndarray of float, shape (n,)
-        The detection sigma, degrees.
+        The keypoint's diameter (SIFT's ``size``), degrees.
     desc : ndarray of uint8, shape (n, d)
         Descriptors.
     """
@@ -48,6 +49,8 @@ class Keypoints:
             if n is not None and a.size != n:
                 raise InvalidParameterError("keypoints: bearing, elevation and scale must have one value per keypoint")
             n = a.size
+        if np.any(np.abs(self.elevation) > math.pi / 2 + 1e-9):
+            raise InvalidParameterError("keypoints: elevations must be radians in [-pi/2, pi/2]")
         d = np.asarray(self.desc)
         if d.ndim != 2 or d.shape[0] != n or (d.size and d.shape[1] < 1):
             raise InvalidParameterError(f"keypoints: desc must have shape ({n}, d), got {d.shape}")
@@ -81,8 +84,14 @@ class Keypoints:
     __hash__ = None  # type: ignore[assignment]
 
     def unit_descriptors(self) -> NDArray[np.float32]:
-        """Root-normalised descriptors (square roots of the L1-normalised vector: unit L2 norm), float32."""
+        """RootSIFT descriptors (square roots of the L1-normalised vector: unit L2 norm), float32, shape ``(n, d)``."""
         d = self.desc.astype(np.float32)
         s = d.sum(axis=1, keepdims=True)
         out: NDArray[np.float32] = np.sqrt(d / np.maximum(s, 1.0)).astype(np.float32)
         return out
+
+    def vectors(self) -> FArray:
+        """Unit bearing vectors ``(cos e cos b, cos e sin b, sin e)``, shape ``(n, 3)`` (as
+        :func:`fingerloc.features.sphere.bearing_vectors`)."""
+        ce = np.cos(self.elevation)
+        return np.stack([ce * np.cos(self.bearing), ce * np.sin(self.bearing), np.sin(self.elevation)], axis=1)

@@ -17,6 +17,7 @@ every place has log-likelihood ``-inf`` gets the uniform posterior.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
@@ -109,6 +110,13 @@ class PlaceModel(ParamsMixin):
         Heading unknown: score the mixture terms after turning each
         observation by the heading the fingerprint alignment estimates for
         each place (needs ``"Fp"`` in ``terms``; best with ``cyclic=True``).
+    temper : bool, default False
+        Fit one factor ``temper_`` multiplying the weighted sum of the terms'
+        log-likelihoods, so that the posterior's confidence matches its
+        accuracy: the held-out log-probability of the right place on two
+        folds of the training views (as ``weights="fit"``) is maximised. The
+        terms are calibrated one by one; their sum counts shared evidence
+        more than once, which makes the posterior overconfident.
     min_sigma_deg, tol, max_iter, n_init : mixture fitting (:func:`fingerloc.mog.fit_mixtures`).
     empty_step_deg, merge_tol_deg, laser_letters : fingerprint generation
         (:func:`fingerloc.make_fingerprint`); ``laser_letters=True`` writes
@@ -147,6 +155,7 @@ class PlaceModel(ParamsMixin):
         unknown_prior: float = 0.0,
         outlier_weight: float = 0.0,
         rotate_mixtures: bool = False,
+        temper: bool = False,
         min_sigma_deg: float = 1.0,
         tol: float = 1e-6,
         max_iter: int = 500,
@@ -170,6 +179,7 @@ class PlaceModel(ParamsMixin):
         self.unknown_prior = unknown_prior
         self.outlier_weight = outlier_weight
         self.rotate_mixtures = rotate_mixtures
+        self.temper = temper
         self.min_sigma_deg = min_sigma_deg
         self.tol = tol
         self.max_iter = max_iter
@@ -201,6 +211,7 @@ class PlaceModel(ParamsMixin):
         check_choice("fp_reference", self.fp_reference, ("all", "medoid", "consensus"))
         check_bool("cyclic", self.cyclic)
         check_bool("rotate_mixtures", self.rotate_mixtures)
+        check_bool("temper", self.temper)
         check_bool("laser_letters", self.laser_letters)
         if self.rotate_mixtures and "Fp" not in terms:
             raise InvalidParameterError("rotate_mixtures needs the Fp term in terms (it gives the headings)")
@@ -292,9 +303,25 @@ class PlaceModel(ParamsMixin):
         self.classes_ = _classes(self.places_)
         self.terms_ = self._fit_terms(checked["terms"], list(groups.values()))
         self.weights_: dict[str, float] = {}
+        self.temper_ = self._fit_temper(checked["terms"]) if self.temper else 1.0
         if checked["weights"] == "fit":
             self.weights_ = self._fit_term_weights(checked["terms"])
+        self._drop_scans()
         return self
+
+    def _drop_scans(self) -> None:
+        """Keep the places' views without their raw laser scans once the range term has described them.
+
+        The range term keeps each view's beam counts; nothing else of the model reads a stored
+        view's ranges, and the place database does not store them either (a model read back has
+        none). A scan is most of a view's memory (1,081 float64 ranges and bearings: 17 KB): a map
+        of 300,000 views would hold gigabytes of them.
+        """
+        if not isinstance(self.terms_.get("R"), RangeTerm):
+            return
+        for place in self.places_.values():
+            if any(o.ranges is not None for o in place.observations):
+                place.observations = [_without_scan(o) for o in place.observations]
 
     def _fit_terms(self, names: tuple[str, ...], groups: list[list[Observation]]) -> dict[str, Term]:
         terms = self._make_terms(names)
@@ -328,17 +355,16 @@ class PlaceModel(ParamsMixin):
         for t in self.terms_.values():
             if not isinstance(t, MixtureTerm):
                 t.update(groups, changed)
+        self._drop_scans()
         return self
 
-    def _fit_term_weights(self, names: tuple[str, ...]) -> dict[str, float]:
-        """Per-term weights maximising the held-out log-probability of the right place (``weights="fit"``).
+    def _held_out(self, names: tuple[str, ...]) -> tuple[FArray, NDArray[np.int64], NDArray[np.bool_]] | None:
+        """Per-term held-out log-likelihoods ``(T, n, P)``, the true places ``(n,)`` and the places present ``(n, P)``.
 
         Two folds: alternate views of each place. Places with one view are
         absent from one fold's terms; rows whose place is absent are not
-        used. Fewer than two places with a held-out row: every weight 1.
+        used. None with fewer than two places with a held-out row.
         """
-        from scipy.optimize import minimize
-
         n_places = len(self.places_)
         rows: dict[str, list[FArray]] = {t: [] for t in names}
         truth: list[NDArray[np.int64]] = []
@@ -365,7 +391,7 @@ class PlaceModel(ParamsMixin):
                 rows[t].append(full)
             truth.append(np.array(test_truth, dtype=np.int64))
         if not truth:
-            return {t: 1.0 for t in names}
+            return None
         y = np.concatenate(truth)
         mats = []
         for t in names:
@@ -375,6 +401,19 @@ class PlaceModel(ParamsMixin):
             mats.append(np.where(np.isfinite(m), m, floor))  # a place a term rules out: far below every seen value
         present = np.isfinite(np.vstack(rows[names[0]]))  # places of the fold's terms
         stack = np.stack(mats)  # (T, n, P)
+        return stack, y, present
+
+    def _fit_term_weights(self, names: tuple[str, ...]) -> dict[str, float]:
+        """Per-term weights maximising the held-out log-probability of the right place (``weights="fit"``).
+
+        :meth:`_held_out`'s folds; without them, every weight 1.
+        """
+        from scipy.optimize import minimize
+
+        held = self._held_out(names)
+        if held is None:
+            return {t: 1.0 for t in names}
+        stack, y, present = held
 
         def nll(log_w: FArray) -> float:
             joint = np.tensordot(np.exp(log_w), stack, axes=1)
@@ -383,6 +422,30 @@ class PlaceModel(ParamsMixin):
 
         res = minimize(nll, np.zeros(len(names)), method="L-BFGS-B", bounds=[(-9.0, 5.0)] * len(names))
         return {t: float(w) for t, w in zip(names, np.exp(res.x), strict=True)}
+
+    def _fit_temper(self, names: tuple[str, ...]) -> float:
+        """The factor ``temper_`` (``temper=True``): maximum held-out log-probability of the right place.
+
+        The weighted sum of :meth:`_held_out`'s log-likelihoods (the weights
+        as given; ``weights="fit"`` counts 1 each here), times a factor in
+        ``[exp(-6), exp(2)]``; 1 without held-out rows.
+        """
+        from scipy.optimize import minimize_scalar
+
+        held = self._held_out(names)
+        if held is None:
+            return 1.0
+        stack, y, present = held
+        w = np.array([1.0 if self.weights == "fit" else self._weight(t) for t in names])
+        joint = np.where(present, np.tensordot(w, stack, axes=1), -np.inf)
+        rows = np.arange(y.size)
+
+        def nll(log_tau: float) -> float:
+            z = math.exp(log_tau) * joint
+            return -float(np.mean(z[rows, y] - logsumexp(z, axis=1)))
+
+        res = minimize_scalar(nll, bounds=(-6.0, 2.0), method="bounded")
+        return float(math.exp(res.x))
 
     # -- inference -------------------------------------------------------------
     def _check_fitted(self) -> None:
@@ -412,7 +475,7 @@ class PlaceModel(ParamsMixin):
 
     def _joint(self, terms: Mapping[str, FArray]) -> FArray:
         total = sum(self._weight(t) * ll for t, ll in terms.items())
-        return np.asarray(total, dtype=np.float64)
+        return np.asarray(total, dtype=np.float64) * self.__dict__.get("temper_", 1.0)
 
     def combine(self, term_log_likelihoods: Mapping[str, FArray]) -> FArray:
         """The weighted sum of per-term log-likelihoods (:meth:`term_log_likelihoods`' answer), shape ``(n, P)``.
@@ -499,6 +562,7 @@ class PlaceModel(ParamsMixin):
         bg = np.zeros(len(obs))
         for name, t in self.terms_.items():
             bg += self._weight(name) * t.unknown_log_likelihood(obs)
+        bg *= self.__dict__.get("temper_", 1.0)
         n_places = joint.shape[1]
         known = logsumexp(joint, axis=1) + math.log((1 - self.unknown_prior) / n_places)
         unknown = bg + math.log(self.unknown_prior)
@@ -532,15 +596,25 @@ class PlaceModel(ParamsMixin):
     def headings_with_reference(
         self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
     ) -> tuple[FArray, NDArray[np.int64]]:
-        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none).
+        """:meth:`headings`, and the index of the place's training view each heading is measured against (-1: none)."""
+        h, ref, _ = self.heading_sources(observations, places)
+        return h, ref
 
-        With the aligned-profile term ``AP``, an observation that has a
-        profile takes its heading from the best-matching view's profile
-        (:meth:`fingerloc.terms.ProfileTerm.heading_at`); the others, from
-        the fingerprint string's cyclic alignment.
+    def heading_sources(
+        self, observations: Sequence[Observation], places: Sequence[Hashable] | None = None
+    ) -> tuple[FArray, NDArray[np.int64], list[str | None]]:
+        """:meth:`headings_with_reference`, and what each heading comes from.
+
+        In order: with the local-feature term ``K``, the relative rotation
+        verified against the place's best-matching view
+        (:meth:`fingerloc.terms.KeypointTerm.heading_at`; ``"keypoints"``);
+        with the aligned-profile term ``AP``, the best-matching view's
+        profile (``"profile"``); else the fingerprint string's cyclic
+        alignment (``"fingerprint"``). None where no heading exists.
         """
         self._check_fitted()
         ap = self.terms_.get("AP")
+        kt = self.terms_.get("K")
         fp = self.terms_.get("Fp")
         if not isinstance(fp, FingerprintTerm):  # a model without the string term: its fingerprints, for headings only
             fp = self.__dict__.get("_heading_term")
@@ -556,18 +630,25 @@ class PlaceModel(ParamsMixin):
         labs = list(self.predict(obs)) if places is None else list(places)
         out = np.full(len(obs), np.nan)
         ref = np.full(len(obs), -1, dtype=np.int64)
+        src: list[str | None] = [None] * len(obs)
         for i, (o, lab) in enumerate(zip(obs, labs, strict=True)):
-            if isinstance(ap, ProfileTerm) and o.profile is not None:
-                hp, v = ap.heading_at(o, self.column_of(lab))
-                if hp is not None:  # the fingerprint's convention: bearing in the view = bearing in o - heading
-                    out[i] = float(np.mod(-hp, 360.0))
-                    ref[i] = v
+            col = self.column_of(lab)
+            # every source gives "bearing in the view = bearing in o + h": the fingerprint's convention is -h
+            if isinstance(kt, KeypointTerm) and o.keypoints is not None:
+                hk, v, _ = kt.heading_at(o, col)
+                if hk is not None:
+                    out[i], ref[i], src[i] = float(np.mod(-hk, 360.0)), v, "keypoints"
                     continue
-            h, v = fp.heading_at(o, self.column_of(lab))
+            if isinstance(ap, ProfileTerm) and o.profile is not None:
+                hp, v = ap.heading_at(o, col)
+                if hp is not None:
+                    out[i], ref[i], src[i] = float(np.mod(-hp, 360.0)), v, "profile"
+                    continue
+            h, v = fp.heading_at(o, col)
             if h is not None:
-                out[i] = h
+                out[i], src[i] = h, "fingerprint"
             ref[i] = v
-        return out, ref
+        return out, ref, src
 
     # -- state -------------------------------------------------------------------
     @property
@@ -587,6 +668,7 @@ class PlaceModel(ParamsMixin):
             "observations": [list(p.observations) for p in self.places_.values()],
             "terms": {name: t.to_state() for name, t in self.terms_.items()},
             "weights": dict(self.weights_),
+            "temper": float(self.__dict__.get("temper_", 1.0)),
         }
 
     @classmethod
@@ -611,7 +693,22 @@ class PlaceModel(ParamsMixin):
                 t.set_state(stored[name], groups)
         model.terms_ = fresh
         model.weights_ = {str(k): float(v) for k, v in state.get("weights", {}).items()}
+        model._drop_scans()
+        model.temper_ = float(state.get("temper", 1.0))
         return model
+
+
+def _without_scan(o: Observation) -> Observation:
+    """``o`` without its raw scan (``ranges``, ``range_bearings``): a shallow copy, the other fields shared."""
+    if o.ranges is None:
+        return o
+    out = object.__new__(Observation)
+    for name in _OBSERVATION_FIELDS:  # a frozen dataclass: its fields are set once, here on a new copy
+        object.__setattr__(out, name, None if name in ("ranges", "range_bearings") else getattr(o, name))
+    return out
+
+
+_OBSERVATION_FIELDS = tuple(f.name for f in dataclasses.fields(Observation))
 
 
 def _observations(observations: Sequence[Observation]) -> list[Observation]:

@@ -45,6 +45,7 @@ from ._cyclic_int import ProfileBlocks, cyclic_i8_costs, integer_costs, pack_pro
 from ._encode import FingerprintBatch, FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._energy import EnergyParams, energy_batch_lanes, energy_pair, pack_energy_lanes
 from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
+from ._pairs import paired_cyclic_int
 
 __all__ = [
     "CostModel",
@@ -56,6 +57,7 @@ __all__ = [
     "global_alignment",
     "minimum_energy",
     "minimum_energy_costs",
+    "paired_alignment_costs",
 ]
 
 _UNIT = CostModel()
@@ -395,6 +397,60 @@ def alignment_costs(
     kernel = nw_batch_cyclic if cyclic else nw_batch
     packed = _run(nw, kernel, qcodes, qoff, blocks, blens, block_len, cm.substitution, cm.indel)
     return np.ascontiguousarray(packed[:, slot])
+
+
+def paired_alignment_costs(
+    queries: Any,
+    references: Any,
+    *,
+    cyclic: bool = False,
+    costs: CostModel | None = None,
+) -> NDArray[np.float64]:
+    """Alignment cost of ``queries[k]`` against ``references[k]`` for each ``k``.
+
+    What ``alignment_costs(queries, references)`` holds on its diagonal, without the rest
+    of the matrix: for many small sets of strings (the views of each place).
+
+    Parameters
+    ----------
+    queries, references : sequence of (str or Fingerprint), same length
+    cyclic : bool, default False
+        Cyclic cost (minimum over every rotation).
+    costs : CostModel, optional
+        Edit costs; default unit costs.
+
+    Returns
+    -------
+    ndarray of float64, shape (n,)
+
+    Notes
+    -----
+    Cyclic with integer-scalable costs (unit and feature-aware costs): one
+    kernel call whose vector lanes run over the rotations of each pair
+    (:mod:`fingerloc.align._pairs`), exact. Plain: RapidFuzz's Levenshtein
+    distance (unit costs) or the weighted DP, one pair at a time.
+    """
+    cm = _costs_or_unit(costs)
+    qs = letters_many(queries, "queries")
+    rs = letters_many(references, "references")
+    if len(qs) != len(rs):
+        raise InvalidParameterError(f"paired_alignment_costs: {len(qs)} queries for {len(rs)} references")
+    n = len(qs)
+    if n == 0:
+        return np.zeros(0)
+    small = integer_costs(cm.substitution, cm.indel) if cyclic else None
+    if small is not None:
+        sub8, indel8, scale = small
+        codes, off = encode_many(qs + rs)
+        ints = paired_cyclic_int(codes, off, np.arange(n), n + np.arange(n), sub8, indel8)
+        return np.asarray(ints, dtype=np.float64) / scale
+    if not cyclic and cm.is_unit:
+        return np.array([float(Levenshtein.distance(q, r)) for q, r in zip(qs, rs, strict=True)])
+    if not cyclic:
+        return np.array([float(nw_cost(encode(q), encode(r), cm.substitution, cm.indel)) for q, r in zip(qs, rs, strict=True)])
+    return np.array(
+        [alignment_costs([q], [r], cyclic=True, costs=cm, workers=1)[0, 0] for q, r in zip(qs, rs, strict=True)]
+    )
 
 
 # -- minimum energy (Lamon et al. 2001) --------------------------------------------------

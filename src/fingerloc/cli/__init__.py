@@ -23,7 +23,7 @@ __all__ = ["app", "bench_app", "main", "reproduce_app"]
 def _load() -> ModuleType:
     """Import the application and every command module (which register themselves)."""
     app_module = import_module(".app", __name__)  # not ``from . import app``: that would call __getattr__
-    for name in ("basic", "bench", "compare", "demo", "features", "kidnap", "learn", "localize", "logs", "loops", "mapping", "mog", "places", "reports", "robot", "track"):
+    for name in ("basic", "bench", "compare", "demo", "features", "kidnap", "learn", "live", "localize", "logs", "loops", "mapping", "mog", "places", "reports", "robot", "track"):
         import_module(f".{name}", __name__)
 
     # importing the submodule ``app`` bound the package attribute ``app`` to it: bind the Typer objects
@@ -41,10 +41,33 @@ def _one_line(text: str) -> str:
     return " ".join(str(text).split())  # one line, whatever the message holds
 
 
-def _fail(msg: str) -> None:
-    sys.stderr.write(f"error: {_one_line(msg)}\n")
-    sys.stderr.flush()
-    raise SystemExit(2)
+def _fail(msg: str, code: int = 2) -> None:
+    try:
+        sys.stderr.write(f"error: {_one_line(msg)}\n")
+        sys.stderr.flush()
+    except OSError:  # stderr gone too: the exit code says it
+        pass
+    raise SystemExit(code)
+
+
+class _Interrupted(BaseException):
+    """SIGINT, raised by fingerloc's own handler (typer would turn a KeyboardInterrupt into a silent exit 130)."""
+
+
+def _on_sigint(signum: int, frame: Any) -> None:
+    raise _Interrupted
+
+
+def _quiet_stdout() -> None:
+    """After a fault on standard output: point it at /dev/null so that the exit's flush adds no second line."""
+    import os
+
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -52,7 +75,11 @@ def main(argv: list[str] | None = None) -> None:
 
     Every failure a user can cause ends here as one line ``error: ...`` on
     stderr and exit code 2: fingerloc's own errors, the option parser's usage
-    errors, and command-line arguments that are not valid UTF-8.
+    errors, command-line arguments that are not valid UTF-8, and what the
+    system refuses (a full disk, a file-size limit, a read-only file system,
+    a name too long, a closed output pipe: :func:`fingerloc.cli._io.fault_message`).
+    SIGINT (Ctrl-C) ends in one line and exit code 130. numpy's
+    floating-point RuntimeWarnings are not printed.
     """
     args = sys.argv[1:] if argv is None else list(argv)
     if args == ["--version"]:  # the fast path: nothing else to import
@@ -61,8 +88,6 @@ def main(argv: list[str] | None = None) -> None:
         sys.stdout.write(f"fingerloc {__version__}\n")
         sys.stdout.flush()
         raise SystemExit(0)
-    from ..errors import FingerlocError
-
     try:  # typer >= 0.23 vendors click as typer._click
         from typer import _click
     except ImportError:  # pragma: no cover - older typer on click
@@ -80,8 +105,48 @@ def main(argv: list[str] | None = None) -> None:
             str(a).encode("utf-8")
         except UnicodeEncodeError:
             _fail(f"argument {str(a).encode('utf-8', 'backslashreplace').decode('ascii', 'replace')!r} is not valid UTF-8")
+    import signal
+    import warnings
+
+    try:
+        old_handler = signal.signal(signal.SIGINT, _on_sigint)
+    except ValueError:  # not the main thread: SIGINT stays Python's
+        old_handler = None
+    try:
+        with warnings.catch_warnings():
+            # numpy's floating-point notes: the command line speaks in error: / warning: lines only
+            warnings.simplefilter("ignore", RuntimeWarning)
+            rc = _run(args, aborts, _click)
+    finally:
+        if old_handler is not None:
+            signal.signal(signal.SIGINT, old_handler)
+    raise SystemExit(rc if isinstance(rc, int) else 0)
+
+
+def _run(args: list[str], aborts: tuple[type[BaseException], ...], _click: Any) -> Any:
+    """The application, every failure a user or the system can cause turned into one line."""
+    from ..errors import FingerlocError
+
     try:
         rc = _load().app(args=args, prog_name="fingerloc", standalone_mode=False)
+        sys.stdout.flush()  # a full device or a closed pipe: here, not at the interpreter's exit
+        return rc
+    except _Interrupted:
+        _quiet_stdout()
+        _fail("interrupted (SIGINT); files being written were not kept", 130)
+    except SystemExit as err:
+        if type(sys.stdout).__name__ == "PacifyFlushWrapper":  # typer's handling of a closed pipe (EPIPE)
+            _quiet_stdout()
+            _fail("output closed (broken pipe)")
+        raise err
+    except (OSError, MemoryError) as err:
+        from ._io import fault_message
+
+        msg = fault_message(err)
+        if msg is None:
+            raise
+        _quiet_stdout()
+        _fail(msg)
     except FingerlocError as err:
         _fail(str(err))
     except _click.exceptions.NoArgsIsHelpError as err:
@@ -96,4 +161,4 @@ def main(argv: list[str] | None = None) -> None:
         _fail(err.format_message())
     except aborts:
         _fail("aborted")
-    raise SystemExit(rc if isinstance(rc, int) else 0)
+    return None

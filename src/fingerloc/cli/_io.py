@@ -1,9 +1,11 @@
-"""Plumbing every command shares: output paths checked up front, strict JSON, literal text.
+"""Plumbing every command shares: output paths checked up front, strict JSON, literal text, faults as one line.
 
-* :func:`check_output` runs before any computation: the directory of an
-  output file must exist and be writable, and the path must not be a
-  directory, so that a long run never ends in a traceback or a stray
-  temporary file.
+* :func:`check_output` runs before any computation: an output is a regular
+  file (or a new name) in an existing, writable directory, or ``-`` for
+  standard output; a directory, a device, a FIFO, a socket, a symbolic link
+  loop or a name too long for the file system is refused with one line, so
+  that a long run never ends in a traceback, a stray temporary file or a
+  device replaced by a file.
 * :func:`write_json` writes strict JSON (RFC 8259: no ``NaN`` or
   ``Infinity``; a non-finite number becomes ``null`` and its place is listed
   under ``"nulls"`` with the reason), atomically, with the file mode that the
@@ -11,15 +13,19 @@
 * :func:`lit` makes a user's string (a place label, a path) a
   :class:`rich.text.Text`, which rich never reads as markup; the consoles of
   :mod:`.app` do not interpret markup or emoji codes at all.
+* :func:`warn` prints doubts as ``warning: ...`` lines; :func:`fault_message`
+  turns what the system refuses (a full disk, a file-size limit, a read-only
+  file system, a closed pipe) into the one line the command line prints.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
-import tempfile
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -32,10 +38,22 @@ if TYPE_CHECKING:
 else:
     Text = LazyAttr("rich.text", "Text")  # rich is imported when a command prints
 
-__all__ = ["atomic_write_text", "check_output", "lit", "strict_json", "write_json"]
+__all__ = [
+    "all_or_nothing",
+    "atomic_write_text",
+    "check_output",
+    "fault_message",
+    "lit",
+    "strict_json",
+    "warn",
+    "write_json",
+]
+
+#: The output path that means standard output.
+STDOUT = "-"
 
 
-def check_output(path: Path | None, flag: str, *, directory: bool = False) -> None:
+def check_output(path: Path | None, flag: str, *, directory: bool = False, stdout: bool = True) -> None:
     """Check that ``path`` can be written, before any work; ``None`` passes.
 
     Parameters
@@ -46,37 +64,119 @@ def check_output(path: Path | None, flag: str, *, directory: bool = False) -> No
         The option's name as the user wrote it (``--json``), for the message.
     directory : bool
         The output is a directory (created if missing) rather than a file.
+    stdout : bool
+        ``-`` is accepted for a file (standard output).
 
     Raises
     ------
     InvalidParameterError
         Naming the flag and the path: a missing or read-only parent
-        directory, a directory where a file goes, or a file where a directory goes.
+        directory, a directory where a file goes, a file where a directory
+        goes, a device, FIFO or socket, a symbolic link loop, a name longer
+        than the file system allows.
     """
+    from ..atomic import check_target
+
     if path is None:
         return
     p = Path(path)
-    if str(p) in ("", "."):
-        if directory:
-            parent = Path(".")
-        else:
-            raise InvalidParameterError(f"{flag}: {str(path)!r} is not a file name")
-    parent = p.parent if str(p.parent) else Path(".")
-    if directory and p.is_dir():
-        if not os.access(p, os.W_OK | os.X_OK):
-            raise InvalidParameterError(f"{flag}: directory {p} is not writable")
+    if str(path) == STDOUT:
+        if stdout and not directory:
+            return
+        raise InvalidParameterError(f"{flag}: '-' (standard output) is not accepted here; give a {'folder' if directory else 'file'} name")
+    if directory:
+        if str(p) in ("", "."):
+            p = Path(".")
+        if p.is_dir():
+            if not os.access(p, os.W_OK | os.X_OK):
+                raise InvalidParameterError(f"{flag}: directory {p} is not writable")
+            return
+        if p.exists() or p.is_symlink():
+            raise InvalidParameterError(f"{flag}: {p} exists and is not a directory")
+        parent = p.parent if str(p.parent) else Path(".")
+        if not parent.is_dir():
+            what = "is not a directory" if parent.exists() else "does not exist"
+            raise InvalidParameterError(f"{flag}: {p}: directory {parent} {what}")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InvalidParameterError(f"{flag}: {p}: directory {parent} is not writable")
         return
-    if p.is_dir():
-        raise InvalidParameterError(f"{flag}: {p} is a directory (give a file name)")
-    if directory and p.exists():
-        raise InvalidParameterError(f"{flag}: {p} exists and is not a directory")
-    if not parent.is_dir():
-        what = "is not a directory" if parent.exists() else "does not exist"
-        raise InvalidParameterError(f"{flag}: {p}: directory {parent} {what}")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise InvalidParameterError(f"{flag}: {p}: directory {parent} is not writable")
-    if p.exists() and not os.access(p, os.W_OK) and not os.access(parent, os.W_OK):
-        raise InvalidParameterError(f"{flag}: {p} is not writable")
+    check_target(p, flag)
+
+
+def all_or_nothing(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Run a command inside one :class:`~fingerloc.atomic.OutputGroup`: its outputs are renamed into place together
+    when it succeeds, none when it fails; database locks are held to the end; ``lock_timeout`` (``--lock-timeout``),
+    when the command has it, is the group's lock policy and a wait is said on stderr."""
+    import functools
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from ..atomic import OutputGroup
+        from .app import err_console
+
+        timeout = kwargs.get("lock_timeout")
+        if timeout is not None and (math.isnan(timeout) or timeout < 0):
+            raise InvalidParameterError(f"--lock-timeout must be a number of seconds >= 0 (or inf), got {timeout!r}")
+        with OutputGroup(lock_timeout=timeout, notify=lambda text: err_console.print(lit(text))):
+            return command(*args, **kwargs)
+
+    return wrapper
+
+
+def warn(lines: Iterable[str]) -> None:
+    """Print each doubt as one ``warning: ...`` line on stderr (literally)."""
+    from .app import err_console
+
+    for line in lines:
+        err_console.print(lit("warning: " + " ".join(str(line).split())), soft_wrap=True)
+
+
+#: errno -> what the user is told (the file name comes first when there is one).
+_FAULTS = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file too large (a file-size limit, e.g. ulimit -f)",
+    errno.EROFS: "read-only file system",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.EPIPE: "output closed (broken pipe)",
+    errno.EIO: "input/output error",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.ENOENT: "no such file or directory",
+    errno.ENOTDIR: "not a directory",
+    errno.EISDIR: "is a directory",
+    errno.ELOOP: "too many levels of symbolic links",
+    errno.EMFILE: "too many open files",
+    errno.ENFILE: "too many open files in the system",
+    errno.ENOMEM: "out of memory",
+    errno.ETXTBSY: "text file busy",
+    errno.EXDEV: "cannot rename across file systems",
+}
+
+
+def fault_message(err: BaseException) -> str | None:
+    """One line for an error the system raised (a full disk, a closed pipe...), or ``None`` for anything else.
+
+    ``OSError`` with one of the errno values above, SQLite's "disk is full" /
+    "disk I/O error", and ``MemoryError`` get a message naming the file when
+    the error names one; anything else is a bug and keeps its traceback.
+    """
+    import sqlite3
+
+    if isinstance(err, MemoryError):
+        return "out of memory"
+    if isinstance(err, sqlite3.OperationalError):
+        text = str(err)
+        if any(k in text for k in ("disk is full", "disk I/O error", "readonly database", "unable to open")):
+            return f"the place database cannot be written ({text})"
+        return None
+    if not isinstance(err, OSError) or err.errno not in _FAULTS:
+        return None
+    what = _FAULTS[err.errno]
+    name = err.filename
+    if name is not None:
+        return f"cannot write {os.fsdecode(name)}: {what}" if err.errno != errno.ENOENT else f"{os.fsdecode(name)}: {what}"
+    return what
 
 
 def strict_json(data: Any) -> tuple[Any, dict[str, str]]:
@@ -117,32 +217,24 @@ def strict_json(data: Any) -> tuple[Any, dict[str, str]]:
     return walk(data, ""), nulls
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
 @contextmanager
 def atomic_text_file(path: Path) -> Iterator[TextIO]:
     """A text file (UTF-8) written in place of ``path`` only when the block ends without an error.
 
-    The temporary file sits next to ``path`` and is removed on any failure;
-    the new file gets mode ``0o666 & ~umask`` (or the old file's mode), and a
-    symbolic link at ``path`` stays a link (its target is replaced).
+    The temporary file sits next to ``path`` and is removed on any failure
+    (:func:`fingerloc.atomic.replacing`); the new file gets mode
+    ``0o666 & ~umask`` (or the old file's mode), and a symbolic link at
+    ``path`` stays a link (its target is replaced). ``-`` is standard output.
     """
-    target = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
-    directory = target.parent if str(target.parent) else Path(".")
-    mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            yield fh
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from ..atomic import check_target, replacing
+
+    if str(path) == STDOUT:
+        yield sys.stdout
+        sys.stdout.flush()
+        return
+    target = check_target(path, str(path))
+    with replacing(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        yield fh
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -207,8 +299,11 @@ def write_json(path: Path | None, data: object, *, flag: str = "--json") -> None
     try:
         atomic_write_text(Path(path), text)
     except OSError as err:
+        if err.errno == errno.EPIPE:
+            raise
         raise InvalidParameterError(f"{flag}: cannot write {path}: {err.strerror or err}") from err
-    err_console.print(lit(f"wrote {path}"))
+    if str(path) != STDOUT:
+        err_console.print(lit(f"wrote {path}"))
 
 
 def lit(text: object) -> Text:

@@ -52,25 +52,16 @@ def jsonl_chunks(path: Path, size: int | None = None) -> Iterator[tuple[int, lis
     """
     if size is None:
         size = LOCALIZE_CHUNK  # read when called (tests shrink it)
-    try:
-        fh = path.open("r", encoding="utf-8")
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=path) from err
+    from ..io.jsonl import iter_lines  # bounded lines, NUL bytes and non-UTF-8 refused
+
     count = 0
     chunk: list[tuple[int, str]] = []
-    with fh:
-        lineno = 0
-        try:
-            for lineno, line in enumerate(fh, start=1):
-                if not line.strip():
-                    continue
-                chunk.append((lineno, line))
-                if len(chunk) == size:
-                    yield count, chunk
-                    count += len(chunk)
-                    chunk = []
-        except UnicodeDecodeError as err:
-            raise DataFormatError("not a UTF-8 text file", path=path, line=lineno + 1) from err
+    for lineno, line in iter_lines(path):
+        chunk.append((lineno, line))
+        if len(chunk) == size:
+            yield count, chunk
+            count += len(chunk)
+            chunk = []
     if chunk:
         yield count, chunk
         count += len(chunk)

@@ -77,3 +77,48 @@ def beacons_cmd(
         soft_wrap=True,
     )
     write_json(json_out, res)
+
+
+def _sizes(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        p = part.strip().replace("_", "")
+        if not p.isdigit() or int(p) < 2:
+            raise InvalidParameterError(f"--places: expected sizes like 1000,10000,100000 (each >= 2), got {text!r}")
+        out.append(int(p))
+    return out
+
+
+@bench_app.command("scale")
+def scale_cmd(
+    places: str = typer.Option("1000,10000,100000", "--places", help="Campus sizes, comma-separated."),
+    preset: list[str] = typer.Option([], "--preset", help="Preset to measure (repeatable; default laser2d and paper)."),
+    queries: int = typer.Option(200, "--queries", min=1, max=100_000, help="Queries a size (random places)."),
+    exact_queries: int = typer.Option(20, "--exact-queries", min=0, max=100_000, help="Queries also answered by the linear scan."),
+    repeat: int = typer.Option(3, "--repeat", min=1, max=100, help="Timing rounds a query (the best counts)."),
+    seed: int = typer.Option(20040426, "--seed", min=0, help="Seed of the campus and of the queries."),
+    json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
+) -> None:
+    """Learn and localize on a simulated campus of 1,000 to 100,000 places: time, memory, exactness."""
+    from ..experiments.scale import PRESETS, run_scale
+
+    check_output(json_out, "--json")
+    sizes = _sizes(places)
+    presets = preset or list(PRESETS)
+    for p in presets:
+        if p not in PRESETS:
+            raise InvalidParameterError(f"--preset: unknown preset {p!r} (known: {', '.join(PRESETS)})")
+    with err_console.status("measuring...") as status:
+        res = run_scale(
+            sizes, presets=presets, seed=seed, n_queries=queries, exact_queries=exact_queries, repeat=repeat,
+            on_step=lambda s: status.update(f"measuring {s}..."),
+        )  # fmt: skip
+    cols = ("learn_s", "peak_rss_mb", "db_mb", "localize_ms", "localize_batched_ms", "top1", "mean_rank", "exact", "scored")
+    for name, block in res["presets"].items():
+        console.print(name, style="bold")
+        console.print("  places  " + "  ".join(cols), soft_wrap=True)
+        for n, f in block["sizes"].items():
+            cells = [f"{f[c]:.4g}" if isinstance(f[c], float) else str(f[c]) for c in cols]
+            console.print(f"  {int(n):>6}  " + "  ".join(cells), soft_wrap=True)
+    console.print(f"{res['wall_s']:.0f} s in all", soft_wrap=True)
+    write_json(json_out, res)

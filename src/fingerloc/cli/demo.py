@@ -32,9 +32,10 @@ def demo_cmd(
         "paper",
         "--world",
         help=(
-            "Simulated offices and sensors: 'paper' (calibrated to the paper's Table II; the test measurements at a "
-            "later visit: chairs moved, doors closed, people, daylight), 'paper-static' (the same, nothing changed "
-            "between visits) or 'alike' (the original)."
+            "Simulated offices and robot: 'paper' (calibrated to the paper's Tables II and III; the test "
+            "measurements at a later visit: chairs moved, doors closed, people, daylight, the robot's heading), "
+            "'paper-static' (the same, nothing changed between visits), 'paper-ideal' (the paper world seen with "
+            "perfect perception and the same heading at both visits) or 'alike' (the original)."
         ),
     ),
 ) -> None:
@@ -89,14 +90,23 @@ def demo_cmd(
         page = write_demo_report(out, data, ev, res, timings=timings)
         timings["figures + report"] = time.perf_counter() - t0
 
-    from .robot import print_robot_tables
+    from ..experiments.robot_findings import REFERENCE_RUN, reference_story
+    from .robot import print_findings, print_robot_tables, print_term_scale
 
     console.print(
         f"fingerloc demo: {protocol.n_offices} simulated offices alike "
         f"(world {world}, similarity {protocol.office_similarity:g}), "
         f"{protocol.n_train} training + {protocol.n_test} test measurements each, features from raw sensor data"
     )
+    for line in reference_story():
+        console.print(line, soft_wrap=True)
+    if world != REFERENCE_RUN["world"]:
+        console.print(f"  (those figures are for world {REFERENCE_RUN['world']}; this run's world is {world})")
+    n_q = len(ev.truth)
+    console.print(f"This trial alone ({n_q} test queries: most differences lie within its noise):")
+    print_findings(res, console, title_note=f"seed {seed}")
     print_robot_tables(res, console, title_note=f"seed {seed}")
+    print_term_scale(res, console)
     total = sum(timings.values())
     console.print(
         f"report: {page} (map, scan, panorama, fingerprint, mixture, posterior, confusion matrix); {total:.1f} s in all"

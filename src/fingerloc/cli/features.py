@@ -98,6 +98,13 @@ def features_cmd(
         show_default=False,
     ),
     place: str | None = typer.Option(None, "--place", help="Place label of every observation."),
+    labels: Path | None = typer.Option(
+        None,
+        "--labels",
+        help="CSV of the photos' places (columns file,place[,x,y]; files relative to the CSV's folder): "
+        "a whole tour in one call.",
+        show_default=False,
+    ),
     topic: list[str] | None = typer.Option(None, "--topic", metavar="TOPIC", help=TOPIC_HELP, show_default=False),
     base_frame: str | None = typer.Option(None, "--base-frame", metavar="FRAME", help=BASE_FRAME_HELP, show_default=False),
     pose_source: str = typer.Option("auto", "--pose-source", metavar="SOURCE", help=POSE_SOURCE_HELP),
@@ -141,6 +148,17 @@ def features_cmd(
         from ..io.jsonl import check_text
 
         check_text(place, "--place")
+    places: list[str | None] = [place] * len(files)
+    if labels is not None:
+        from ..io.jsonl import check_text
+        from ..io.labels import match_labels, read_labels
+
+        if place is not None:
+            raise InvalidParameterError("give --place or --labels, not both")
+        rows = match_labels(files, read_labels(labels), labels.parent)
+        for r in rows:
+            check_text(r.place, f"--labels place of {r.file}")
+        places = [r.place for r in rows]
     from ..pipeline.files import KINDS, LASER_KINDS, FeatureOptions, detect_kind
 
     if kind != "auto" and kind not in KINDS:
@@ -177,17 +195,24 @@ def features_cmd(
             if v is not None
         ),
     )
+    from dataclasses import replace
+
+    from rich.progress import Progress
+
     from .logs import format_scan_line
 
     observations: list[Observation] = []
-    for path in files:
-        k = kind
-        if k == "auto":
-            k = detect_kind(path) or ("omni" if center is not None else "panorama")
-        fmt = format_scan_line if k in LASER_KINDS else format_observation
-        for name, obs in KINDS[k](path, opts):
-            console.print(fmt(name, obs), markup=False, soft_wrap=True)
-            observations.append(obs)
+    with Progress(console=real_console(err_console), transient=True, disable=len(files) < 2) as progress:
+        task = progress.add_task("extracting", total=len(files))
+        for path, where in zip(files, places, strict=True):
+            k = kind
+            if k == "auto":
+                k = detect_kind(path) or ("omni" if center is not None else "panorama")
+            fmt = format_scan_line if k in LASER_KINDS else format_observation
+            for name, obs in KINDS[k](path, replace(opts, place=where)):
+                console.print(fmt(name, obs), markup=False, soft_wrap=True)
+                observations.append(obs)
+            progress.advance(task)
     if json_out is not None:
         n = write_observations(json_out, observations)
         err_console.print(f"wrote {n} observations to {json_out}")
@@ -249,8 +274,13 @@ def bench_features_cmd(
 
 @bench_app.command("panorama")
 def bench_panorama_cmd(
-    photo_dir: Path = typer.Argument(..., help="Folder of the tour's equirectangular photos (360_photos_compressed)."),
-    areas: Path = typer.Option(..., "--areas", help="Folder of the tour's area definitions (*.ts, src/data/blocks)."),
+    photo_dir: Path = typer.Argument(..., help="Folder of the equirectangular photos (file names relative to it)."),
+    areas: Path | None = typer.Option(
+        None, "--areas", help="Folder of a virtual tour's area definitions (*.ts).", show_default=False
+    ),
+    labels: Path | None = typer.Option(
+        None, "--labels", help="Labels CSV instead of --areas: columns file,place[,x,y].", show_default=False
+    ),
     minimap: Path | None = typer.Option(
         None,
         "--minimap",
@@ -263,6 +293,22 @@ def bench_panorama_cmd(
     spacing: float = typer.Option(0.03, "--spacing", help="Places by position: centres this far apart, map units."),
     components: int = typer.Option(3, "-k", "--components", help="Mixture components per place (VE, CP)."),
     width: int = typer.Option(1440, "--width", help="Photos are resampled to this many columns (one per 0.25 deg)."),
+    shortlist: int = typer.Option(40, "--shortlist", min=1, help="Views kept by the bag-of-words retrieval (recall)."),
+    preset: str | None = typer.Option(
+        None,
+        "--preset",
+        help="Also answer each query with a PlaceModel of this preset fit on the other photos (slow).",
+        show_default=False,
+    ),
+    unknown_prior: float = typer.Option(
+        0.1, "--unknown-prior", min=0.0, max=0.99, help="With --preset: prior of the unknown place it reports."
+    ),
+    max_queries: int | None = typer.Option(
+        None, "--max-queries", min=1, help="With --preset: at most this many queries (a seeded sample).", show_default=False
+    ),
+    speed_photos: int = typer.Option(
+        0, "--speed", min=0, help="Also time features (on N photos at 2048x1024) and localize (1,000 views)."
+    ),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),
 ) -> None:
     """Leave-one-out place recognition on real 360 deg photos: single terms, fusions, an HSV-histogram baseline."""
@@ -279,6 +325,13 @@ def bench_panorama_cmd(
         raise InvalidParameterError(f"--components must be >= 1, got {components}")
     if width < 64:
         raise InvalidParameterError(f"--width must be >= 64 columns, got {width}")
+    if (areas is None) == (labels is None):
+        raise InvalidParameterError("give --areas (a tour's area definitions) or --labels (a labels CSV), one of them")
+    if preset is not None:
+        from ..pipeline.presets import PRESETS
+
+        if preset not in PRESETS:
+            raise InvalidParameterError(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
     with Progress(console=real_console(err_console), transient=True) as progress:
         tasks: dict[str, object] = {}
 
@@ -290,37 +343,133 @@ def bench_panorama_cmd(
         res = run_panorama_bench(
             photo_dir,
             areas,
+            labels=labels,
             minimap=minimap,
             cache=cache,
             spacing=spacing,
             n_components=components,
             width=width,
+            shortlist=shortlist,
             on_step=step,
         )
-    table = Table(title=f"leave-one-out top-1 / mean rank on {res['photos']} photos")
+        if preset is not None or speed_photos:
+            _bench_panorama_model(res, photo_dir, areas, labels, minimap, cache, width, spacing, preset,
+                                  unknown_prior, max_queries, speed_photos, step)  # fmt: skip
+    _print_panorama(res, PANORAMA_METHODS, Table)
+    write_json(json_out, res)
+
+
+def _bench_panorama_model(
+    res: dict[str, Any],
+    photo_dir: Path,
+    areas: Path | None,
+    labels: Path | None,
+    minimap: Path | None,
+    cache: Path | None,
+    width: int,
+    spacing: float,
+    preset: str | None,
+    unknown_prior: float,
+    max_queries: int | None,
+    speed_photos: int,
+    step: Any,
+) -> None:
+    """The PlaceModel path (``--preset``) and the timings (``--speed``), into ``res``."""
+    from ..experiments.panorama import (
+        extract_features,
+        load_labels_csv,
+        load_tour_layout,
+        places_by_area,
+        places_by_position,
+    )
+    from ..experiments.panorama_model import run_preset_loo, speed
+
+    photos = load_tour_layout(areas, minimap) if areas is not None else load_labels_csv(labels)  # type: ignore[arg-type]
+    feats = extract_features(photo_dir, photos, cache=cache, width=width)
+    if preset is not None:
+        res["preset"] = {}
+        for name, labs in (("area", places_by_area(photos)), ("position", places_by_position(photos, spacing=spacing))):
+            idx = [i for i, f in enumerate(feats) if f is not None and labs[i] is not None]
+            if len({labs[i] for i in idx}) < 2:
+                continue
+            res["preset"][name] = run_preset_loo(
+                [feats[i].observation for i in idx],  # type: ignore[union-attr]
+                [str(labs[i]) for i in idx],
+                preset=preset,
+                unknown_prior=unknown_prior,
+                max_queries=max_queries,
+                on_step=_stepper(step, f"{preset} by {name}"),
+            )
+    if speed_photos:
+        have = [i for i, f in enumerate(feats) if f is not None]
+        by_area = places_by_area(photos)
+        res["speed"] = speed(
+            [photo_dir / photos[i].file for i in have[:speed_photos]],
+            [feats[i].observation for i in have],  # type: ignore[union-attr]
+            [str(by_area[i]) for i in have],
+        )
+
+
+def _fmt(v: float | None, spec: str = ".3f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def _stepper(step: Any, name: str) -> Any:
+    return lambda done, total: step(name, done, total)
+
+
+def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: Any) -> None:
+    table = table_cls(title=f"leave-one-out top-1 / mean rank / calibration error on {res['photos']} photos")
     table.add_column("method")
     for name, r in res["places"].items():
         table.add_column(f"{name} ({r['n_queries']} queries, {r['n_places']} places)", justify="right")
-    for m in PANORAMA_METHODS:
+    for m in methods:
         cells = []
         for r in res["places"].values():
             f = r["methods"][m]
-            cells.append("-" if f["top1"] is None else f"{f['top1']:.3f} / {f['mean_rank']:.2f}")
+            cal = f["calibration"]
+            cells.append(
+                "-" if f["top1"] is None else f"{f['top1']:.3f} / {f['mean_rank']:.2f} / ECE {cal['ece']:.2f}"
+            )
         table.add_row(m, *cells)
     console.print(table)
-    for key, h in res["heading"].items():
-        if key != "pairs" and h["pairs"]:
+    kp = res.get("keypoints", {})
+    if kp:
+        tilt = "-" if kp.get("tilt_deg") is None else f"{kp['tilt_deg']:.2f} deg"
+        console.print(f"keypoints: relative-pose model {kp['model']} (median tilt of the training pairs {tilt})")
+    for name, r in res["places"].items():
+        rr = r.get("retrieval")
+        if rr:
             console.print(
-                f"heading vs image rotation, {key}: {h['pairs']} pairs, median error "
-                f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
+                f"retrieval ({name}, shortlist {rr['shortlist']}): best-verified view kept {rr['best_view']:.3f}, "
+                f"true place kept {rr['true_place']:.3f}; K top-1 {rr['top1_shortlist']:.3f} "
+                f"(every view verified {rr['top1_all']:.3f})"
             )
     for key, h in res.get("heading_links", {}).items():
-        if key != "pairs" and h["pairs"]:
+        if key != "pairs" and h["pairs"] and h["median_error_deg"] is not None:
+            med = h["median_error_estimated_deg"]
             console.print(
-                f"heading vs the tour's arrows, {key}: {h['pairs']} pairs, median error "
-                f"{h['median_error_deg']:.1f} deg, within 30 deg {h['within_30']:.2f}"
+                f"heading vs the tour's arrows, {key}: {h['estimated']} of {h['pairs']} pairs estimated, median error "
+                f"{'-' if med is None else f'{med:.1f}'} deg (all pairs {h['median_error_deg']:.1f}), "
+                f"within 10 deg {h['within_10'] or 0:.2f}"
             )
-    write_json(json_out, res)
+    for name, p in res.get("preset", {}).items():
+        cal = p["calibration"] or {}
+        unk = p["unknown"]
+        console.print(
+            f"preset {p['preset']} by {name}: top-1 {_fmt(p['top1'])} of {p['n_queries']}; ECE {_fmt(cal.get('ece'))}, "
+            f"mean confidence {_fmt(cal.get('mean_confidence'))}, wrong answers above 0.9: "
+            f"{_fmt(cal.get('wrong_above_0.9'))} of {cal.get('wrong', 0)}; P(unknown) known places "
+            f"{_fmt(unk['known']['mean'])}, unknown places {_fmt(unk['unknown']['mean'])}; "
+            f"headings of right answers {p['heading_from']}"
+        )
+    sp = res.get("speed")
+    if sp:
+        console.print(
+            f"speed (load average {' '.join(f'{x:.2f}' for x in sp['load_average'])}): features "
+            f"{sp['features_cpu_s']['median']:.3f} s CPU a 2048x1024 photo (median of {sp['features_cpu_s']['photos']}); "
+            f"localize {1000 * sp['localize_cpu_s']['median']:.1f} ms CPU a query against {sp['views']} views"
+        )
 
 
 @bench_app.command("panorama-edges")

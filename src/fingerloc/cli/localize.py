@@ -11,7 +11,7 @@ import typer
 
 from .._lazy import LazyAttr, LazyModule
 from ..errors import InvalidParameterError
-from ._io import JsonRecordStream, atomic_text_file, lit
+from ._io import JsonRecordStream, atomic_text_file, lit, warn
 from .app import app, console, err_console
 from .options import (
     BASE_FRAME_OPTION,
@@ -31,6 +31,7 @@ else:  # imported when a command runs, not for --help
     np = LazyModule("numpy")
     Table = LazyAttr("rich.table", "Table")
 read_observations = LazyAttr("fingerloc.io.jsonl", "read_observations")
+compat = LazyModule("fingerloc.pipeline.compat")
 
 @app.command("localize")
 def localize_cmd(
@@ -90,12 +91,14 @@ def localize_cmd(
     classes = [str(c) for c in model.classes_]
     preset = None if lm.preset is None else lm.preset.name
     records = json_out is not None
+    doubts: list[str] = []
     if cluster:
         chunks = _cluster_chunks(data, db, top, table=not quiet, records=records, workers=workers, scheduler=scheduler)
     elif jsonl and report is None:  # a stream: a chunk of lines at a time
         chunks = _serial_chunks(data, model, top, table=not quiet, records=records)
     else:
         run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
+        doubts = compat.check_run(lm, run, what=str(data))  # another modality or frame: an error now; doubts below
         obs, names = lm.queries(run, on_note=lambda s: err_console.print(s, markup=False))
         keep = report is not None
         from ..pipeline.localize import LOCALIZE_CHUNK, answer_chunk
@@ -131,6 +134,7 @@ def localize_cmd(
             stream.finish({"summary": summary, "preset": preset})
     if json_out is not None:
         err_console.print(lit(f"wrote {json_out}"))
+    warn(doubts + compat.check_queries(len(rank_list)))  # said once the answers are out; few queries: rough figures
     if rank_list:
         console.print(
             f"right classification: {100 * summary['top1']:.1f}% of {len(rank_list)} labelled; "
@@ -161,6 +165,7 @@ def _serial_chunks(data: Path, model: Any, top: int, *, table: bool, records: bo
 
     for start, lines in jsonl_chunks(data):
         obs = parse_lines(data, lines)
+        warn(compat.check_observations(model, obs, what=str(data)) if start == 0 else [])  # modality, field of view
         names = [f"{data.name}:{start + i + 1}" for i in range(len(obs))]
         yield answer_chunk(model, obs, names, start, top, table=table, records=records)
 

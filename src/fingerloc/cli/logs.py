@@ -108,14 +108,30 @@ def carmen_cmd(
     scheduler: str | None = typer.Option(
         None, "--scheduler", help="Run one task per log on an existing Dask cluster (tcp://HOST:PORT)."
     ),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the methods that draw random numbers (the pose filters)."),
+    odometry_error: float = typer.Option(
+        1.0, "--odometry-error", min=0.0, help="Factor on every method's simulated odometry errors (0 = exact)."
+    ),
+    mapping_part: float = typer.Option(
+        0.5, "--mapping-part", help="Fraction of each log that maps (a harder run: less than 0.5)."
+    ),
+    query_start: float = typer.Option(
+        0.0, "--query-start", help="Fraction of the query pass left out at its start (the robot starts elsewhere)."
+    ),
+    query_cut: tuple[float, float] | None = typer.Option(
+        None, "--query-cut", help="START LENGTH: a block of the query pass left out (fractions of it; a gap)."
+    ),
+    reverse: bool = typer.Option(False, "--reverse", help="Run the query pass backwards."),
 ) -> None:
     """Place recognition on CARMEN logs with the fixed protocol of issue 7.
 
     First half of each log (scan index < n // 2) maps, the rest queries; a place
     every 2 m (strictly) of the mapping pass, training and query scans within
-    1 m (inclusive) of a place centre.
+    1 m (inclusive) of a place centre. --mapping-part, --query-start,
+    --query-cut and --reverse make a harder run than the protocol (recorded in
+    the JSON's "protocol").
     """
-    from ..experiments.carmen import DEFAULT_METHODS, METHODS, load_methods, plot_benchmark, run_benchmark
+    from ..experiments.carmen import DEFAULT_METHODS, METHODS, Hardening, load_methods, plot_benchmark, run_benchmark
 
     load_methods()
     if list_methods:
@@ -132,9 +148,11 @@ def carmen_cmd(
     from ..parallel import check_cluster_options
 
     check_cluster_options(workers, scheduler)
+    hard = Hardening(seed=seed, odometry_error=odometry_error, mapping_part=mapping_part, query_start=query_start,
+                     query_cut=query_cut, reverse=reverse)  # fmt: skip
     with err_console.status("benchmarking...") as status:
         run = run_benchmark(logs, method or None, skip_bad=skip_bad, on_progress=lambda s: status.update(s),
-                            workers=workers, scheduler=scheduler)  # fmt: skip
+                            workers=workers, scheduler=scheduler, hardening=hard)  # fmt: skip
     js = run.to_json()
     for lg in run.logs:
         if lg.skipped:

@@ -10,10 +10,12 @@ from pathlib import Path
 import typer
 
 from ..errors import InvalidParameterError
+from ._io import all_or_nothing, warn
 from .app import app, err_console
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
+    LOCK_TIMEOUT_OPTION,
     POSE_SOURCE_OPTION,
     SKIP_BAD_OPTION,
     TOPIC_OPTION,
@@ -28,6 +30,7 @@ from .reports import check_report, map_report
 __all__ = ["map_cmd"]
 
 @app.command("map")
+@all_or_nothing  # the database and --json / --queries renamed together at the end, or none
 def map_cmd(
     runs: list[Path] = typer.Argument(..., metavar="RUN", help="A recorded run: CARMEN log, ROS bag, or JSON Lines with poses (several files: one run in order)."),
     db: Path = typer.Option(..., "--db", help="Place database to write (schema 4)."),
@@ -65,6 +68,10 @@ def map_cmd(
     report: Path | None = typer.Option(
         None, "--report", help="Write a report folder here: index.html (open it in a browser) with the map and every place."
     ),
+    lock_timeout: float = LOCK_TIMEOUT_OPTION,
+    tum: Path | None = typer.Option(
+        None, "--tum", help="Also write the run's poses (every scan) as a TUM trajectory here: the reference for evo."
+    ),
     places: str = typer.Option(
         "poses", "--places", help="'poses': a place every --spacing metres of the poses; 'fingerprints': places from "
         "the views alone, no pose needed (docs/LOOPS.md; --spacing, --radius, --heading, --scan, --no-calibration do "
@@ -82,6 +89,7 @@ def map_cmd(
     'fingerloc localize' and 'fingerloc track' need only the database.
     """
     from ..config import Config
+    from ..pipeline.compat import check_map, check_run_for_map
     from ..pipeline.mapping import make_map
     from ..pipeline.presets import PRESET_NAMES, empty_terms
 
@@ -105,6 +113,7 @@ def map_cmd(
     check_db_target(db, overwrite)
     check_output(json_out, "--json")
     check_output(queries_out, "--queries")
+    check_output(tum, "--tum")
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
@@ -115,6 +124,7 @@ def map_cmd(
                          mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
                          report=report, data=runs[0])  # fmt: skip
         return
+    doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     config = Config().with_(
         places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,
                 "until_s": until},
@@ -124,6 +134,7 @@ def map_cmd(
         pm = make_map(run, config, preset=preset, overrides=overrides, on_step=lambda s: status.update(s))
     assert pm.preset is not None and pm.calibration is not None and pm.split is not None and pm.training is not None
     err_console.print(pm.preset.reason, markup=False)
+    warn(doubts + check_map(pm))  # one place, beta at a bound, empty training views
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
         err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
@@ -149,6 +160,10 @@ def map_cmd(
         q = run.observations(sp.query_idx, features=features)
         n = write_observations(queries_out, [o.with_label(pm.labels[j]) for o, j in zip(q, sp.query_labels.tolist(), strict=True)])
         err_console.print(f"wrote {n} labelled queries to {queries_out}", markup=False)
+    if tum is not None:
+        from ._follow import write_reference
+
+        write_reference(tum, run.timestamps, run.poses, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
         map_report(report, model=pm.model, centres=pm.positions, radius=radius, edges=pm.graph.edges(),
                    trajectory=run.poses, scans=run.scans, data=runs[0], db=db)  # fmt: skip

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,6 +30,7 @@ __all__ = [
     "BASE_FRAME_HELP",
     "BASE_FRAME_OPTION",
     "KIND_OPTION",
+    "LOCK_TIMEOUT_OPTION",
     "POSE_SOURCE_HELP",
     "POSE_SOURCE_OPTION",
     "RUN_KIND_HELP",
@@ -37,10 +39,10 @@ __all__ = [
     "TOPIC_OPTION",
     "bag_options",
     "check_db_target",
+    "check_lock_timeout",
     "check_output",
     "model_overrides",
     "read_run_files",
-    "stored_options",
 ]
 
 RUN_KIND_HELP = "Input kind: auto | carmen | bag | jsonl (auto: from the name; JSON Lines otherwise)."
@@ -54,6 +56,21 @@ TOPIC_OPTION = typer.Option(None, "--topic", help=TOPIC_HELP)
 POSE_SOURCE_OPTION = typer.Option("auto", "--pose-source", help=POSE_SOURCE_HELP)
 BASE_FRAME_OPTION = typer.Option(None, "--base-frame", help=BASE_FRAME_HELP)
 SKIP_BAD_OPTION = typer.Option(False, "--skip-bad", help="Skip malformed log lines / bag messages and say how many.")
+LOCK_TIMEOUT_OPTION = typer.Option(
+    60.0,
+    "--lock-timeout",
+    help="Seconds to wait while another fingerloc writes the same --db (it says so) before giving up; inf: for ever.",
+)
+
+#: Largest ``-k`` / ``--components`` (mixture components per place and term).
+MAX_COMPONENTS = 1000
+
+
+def check_lock_timeout(value: float) -> float:
+    """``--lock-timeout``: a number of seconds >= 0 (``inf`` waits for ever)."""
+    if math.isnan(value) or value < 0:
+        raise InvalidParameterError(f"--lock-timeout must be a number of seconds >= 0 (or inf), got {value!r}")
+    return value
 
 
 def bag_options(topic: str | list[str] | None, pose_source: str, base_frame: str | None) -> dict[str, Any]:
@@ -82,9 +99,14 @@ def read_run_files(paths: list[Path], *, kind: str, skip_bad: bool, bag: dict[st
 
 
 def check_db_target(db: Path, overwrite: bool) -> None:
-    """A database about to be written as a whole: refuse to replace one without ``--overwrite``."""
-    check_output(db, "--db")
-    if db.exists() and not overwrite:
+    """A database about to be written as a whole: refuse to replace one without ``--overwrite``.
+
+    The location is checked first (:func:`check_output`: a regular file or a
+    new name in a writable folder), so a device, a FIFO or a symbolic link
+    loop is refused even with ``--overwrite``.
+    """
+    check_output(db, "--db", stdout=False)
+    if os.path.lexists(db) and not overwrite:
         raise InvalidParameterError(f"--db: {db} exists; give --overwrite to replace it (or another --db)")
 
 
@@ -118,6 +140,10 @@ def model_overrides(
     seed: int | None = None,
 ) -> dict[str, Any]:
     """The model options given on the command line (JSON form, see fingerloc.pipeline.presets); unset ones left out."""
+    if components is not None and not 1 <= components <= MAX_COMPONENTS:
+        raise InvalidParameterError(f"-k / --components must be an integer in [1, {MAX_COMPONENTS}], got {components}")
+    if unknown_prior is not None and not (0 <= unknown_prior < 1):
+        raise InvalidParameterError(f"--unknown-prior must be a probability in [0, 1), got {unknown_prior!r}")
     given: dict[str, Any] = {
         "n_components": components,
         "terms": None if terms is None else list(_parse_terms(terms)),
@@ -131,22 +157,6 @@ def model_overrides(
         "random_state": seed,
     }
     return {k: v for k, v in given.items() if v is not None}
-
-
-def stored_options(model: Any) -> dict[str, Any]:
-    """A loaded model's options in JSON form (costs by name when they are one of the named ones)."""
-    from ..align import CostModel
-
-    params = model.get_params()
-    c = params["costs"]
-    if c is None:
-        params["costs"] = "unit"
-    else:
-        f = CostModel.feature_aware()
-        same = np.array_equal(c.substitution, f.substitution) and np.array_equal(c.indel, f.indel)
-        params["costs"] = "feature" if same else "custom"
-    params["terms"] = list(params["terms"])
-    return params
 
 
 def _parse_weights(text: str) -> str | dict[str, float]:

@@ -53,6 +53,7 @@ def check_report(report: Path | None) -> None:
         from ..reporting import check_report_dir
 
         check_report_dir(report, flag="--report")
+        check_output(report, "--report", directory=True)  # its folder (or its parent) writable, before any work
 
 
 def _done(path: Path) -> None:
@@ -132,6 +133,13 @@ def localize_report(
         return FeatureView.from_observation(o, laser_letters=letters)
 
     refs, _ = _medoid_views(model, classes)
+    notes = [f"fingerloc localize {data} --db {db}", "Reference view of a place: its medoid training view."]
+    if "K" in model.terms_:  # panoramas: the photos behind the answers, with their verified matches
+        from ..reporting.photos import write_photo_answers
+
+        names = [f"{data.name}:{i + 1}" for i in range(len(observations))]
+        if write_photo_answers(report / "photos", model=model, observations=observations, names=names) is not None:
+            notes.append("The photos behind the answers (verified matches, heading, evidence per term): photos/index.html")
     page = write_localize_report(
         report,
         classes=classes,
@@ -141,7 +149,7 @@ def localize_report(
         query_names=[f"{data.name}:{i + 1}" for i in range(len(observations))],
         query_views=_LazyViews(list(observations), view),
         place_views=_LazyViews(refs, view),
-        notes=[f"fingerloc localize {data} --db {db}", "Reference view of a place: its medoid training view."],
+        notes=notes,
     )
     _done(page)
 

@@ -10,12 +10,13 @@ import typer
 
 from .._lazy import LazyModule
 from ..errors import InvalidParameterError
-from ._io import check_output
+from ._io import all_or_nothing, check_output, warn
 from .app import app, console, err_console
 from .bench import write_json
 from .options import (
     BASE_FRAME_OPTION,
     KIND_OPTION,
+    LOCK_TIMEOUT_OPTION,
     POSE_SOURCE_OPTION,
     SKIP_BAD_OPTION,
     TOPIC_OPTION,
@@ -30,13 +31,17 @@ if TYPE_CHECKING:
     from ..pipeline.placemap import PlaceMap, TrackResult
 else:
     np = LazyModule("numpy")  # imported when a command runs, not for --help
+compat = LazyModule("fingerloc.pipeline.compat")
 
 __all__ = ["track_cmd"]
 
 
 @app.command("track")
+@all_or_nothing  # outputs renamed together at the end, the database's writer lock held to the end
 def track_cmd(
-    data: Path = typer.Argument(..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag."),
+    data: Path = typer.Argument(
+        ..., help="A run in order: JSON Lines, a CARMEN log or a ROS bag ('-': standard input, tracked as it arrives)."
+    ),
     db: Path = typer.Option(..., "--db", help="Place database ('fingerloc map', or 'learn' with the place graph)."),
     json_out: Path | None = typer.Option(None, "--json", help="Write every step's posterior summary as JSON here."),
     map_log: bool = typer.Option(
@@ -68,11 +73,12 @@ def track_cmd(
         "'learn'); their consecutive places give the graph, stored into --db (and odometry when they have poses).",
     ),
     filter_kind: str = typer.Option(
-        "places",
+        "auto",
         "--filter",
-        help="'places': discrete filter over the places; 'pose': particle filter over the robot's pose with the "
-        "odometry increments (needs poses, and place positions: a database made by 'fingerloc map', or "
-        "JSON Lines with --graph-from, both with poses).",
+        help="'pose': particle filter over the robot's pose with the odometry increments (needs poses, and place "
+        "positions: a database made by 'fingerloc map', or JSON Lines with --graph-from, both with poses); "
+        "'places': discrete filter over the places; 'auto': the pose filter when the run and the map allow it, "
+        "else the places (printed on stderr).",
     ),
     odometry_error: float | None = typer.Option(
         None,
@@ -110,25 +116,62 @@ def track_cmd(
     pose_source: str = POSE_SOURCE_OPTION,
     base_frame: str | None = BASE_FRAME_OPTION,
     skip_bad: bool = SKIP_BAD_OPTION,
+    lock_timeout: float = LOCK_TIMEOUT_OPTION,
+    follow: bool = typer.Option(
+        False, "--follow", help="Track line by line as the input arrives (a file: as it grows), one JSON line out "
+        "per step, flushed (docs/ROBOT.md); standard input ('-') always is."
+    ),
+    idle_timeout: float | None = typer.Option(
+        None, "--idle-timeout", help="--follow on a file: stop after this many seconds without a new line [never]."
+    ),
+    max_range: float | None = typer.Option(
+        None, "--max-range", help="Standard input / --follow, CARMEN: metres at and beyond which a reading is no "
+        "return [a known no-return code seen in the stream]."
+    ),
+    tum: Path | None = typer.Option(None, "--tum", help="Write the pose filter's poses as a TUM trajectory here."),
+    kitti: Path | None = typer.Option(None, "--kitti", help="Write the pose filter's poses as KITTI poses here."),
 ) -> None:
     """Filter the posterior over places along a sequence of observations.
 
     Per step: the best place, its probability and the posterior's entropy
     (bits); with known places, the filtered and single-shot top-1 and mean
-    rank of the true place. ``--filter places`` (default) is the discrete
-    Bayes filter on the place graph; ``--filter pose`` the particle filter,
-    which follows the odometry's direction and turn, not only the distance.
+    rank of the true place. ``--filter pose`` is the particle filter, which
+    follows the odometry's direction and turn, not only the distance;
+    ``--filter places`` the discrete Bayes filter over the places (when it was
+    below the single shot on the map's mapping part, it answers the single
+    shot at the observations and says so). Without ``--filter``: the pose
+    filter when the run has poses and the map place positions, else places.
     With a database made by 'fingerloc map', both use its calibration
     (likelihood scale, metres per place change, tempering, kidnapping
     probability). ``--json`` also gives each step's clock (``stamp``) and the
     pose filter's pose estimate with its covariance.
     """
     from ..pipeline.readers import detect_kind
+    from ._follow import write_trajectories
     from .reports import check_report, track_report
 
     check_report(report)
     _check_options(observe, filter_kind, odometry_error, radius, scale, metres_per_move, alpha, uniform_mix, scan_gamma)
     check_output(json_out, "--json")
+    check_output(tum, "--tum")
+    check_output(kitti, "--kitti")
+    if (tum is not None or kitti is not None) and filter_kind != "pose":
+        raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)")
+    if str(data) == "-" or follow:
+        from .track_follow import track_follow
+
+        unused = {"--map": map_log, "--overwrite": overwrite, "--graph-from": graph_from, "--report": report,
+                  "--radius": radius, "--topic": topic, "--base-frame": base_frame}  # fmt: skip
+        track_follow(data, db, unused=unused, json_out=json_out, tum=tum, kitti=kitti, quiet=quiet, kind=kind,
+                     skip_bad=skip_bad, idle_timeout=idle_timeout, max_range=max_range, observe=observe,
+                     tracker_options={"filter": filter_kind, "seed": seed, "scan": scan, "heading": heading,
+                                      "beta": scale, "metres_per_move": metres_per_move, "alpha": alpha,
+                                      "uniform_mix": uniform_mix, "scan_gamma": scan_gamma},
+                     odometry_error=odometry_error)  # fmt: skip
+        return
+    if idle_timeout is not None or max_range is not None:
+        raise InvalidParameterError(f"{'--idle-timeout' if idle_timeout is not None else '--max-range'} goes with "
+                                    "--follow or standard input ('-')")  # fmt: skip
     bag = bag_options(topic, pose_source, base_frame)
     raw_kind = (detect_kind(data) if kind == "auto" else kind) or "jsonl"
     _check_db_flags(raw_kind, db, map_log, graph_from, overwrite)
@@ -136,12 +179,18 @@ def track_cmd(
     pending: list[Any] = []
     run = read_run_files([data], kind=kind, skip_bad=skip_bad, bag=bag)
     pm = _place_map(run, db, map_log=map_log, graph_from=graph_from, radius=radius, heading=heading, scan=scan,
-                    pose=filter_kind == "pose", pending=pending)  # fmt: skip
+                    pose=filter_kind == "pose", pending=pending, load_scan=filter_kind != "places")  # fmt: skip
+    doubts = compat.check_map(pm) if map_log else compat.check_run(pm, run)  # what does not fit: an error now, doubts
+    why = None
+    if filter_kind == "auto":
+        filter_kind, why = pm.default_filter(run)
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
         on_note=lambda s: err_console.print(s, markup=False),
     )  # fmt: skip
+    if why is not None:  # after the tracking: a failed command prints its one error line only
+        err_console.print(why, markup=False)
     for write in pending:
         write()
     steps = tr.steps
@@ -156,7 +205,9 @@ def track_cmd(
                 markup=False,
             )
     _print_summary(tr)
+    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
+    write_trajectories(tr.answers, tum=tum, kitti=kitti, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
         beta = tr.summary["likelihood_scale"]
         track_report(report, result=tr.result, log_likelihood=beta * tr.log_likelihood, truth=tr.truth,
@@ -178,11 +229,13 @@ def _check_options(
     """One-line errors for the filter's options, before anything is read."""
     if observe not in ("queries", "all"):
         raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
-    if filter_kind not in ("places", "pose"):
-        raise InvalidParameterError(f"--filter must be 'places' or 'pose', got {filter_kind!r}")
+    if filter_kind not in ("places", "pose", "auto"):
+        raise InvalidParameterError(f"--filter must be 'pose', 'places' or 'auto', got {filter_kind!r}")
     for flag, v in (("--odometry-error", odometry_error), ("--alpha", alpha), ("--scan-gamma", scan_gamma)):
         if v is not None and not (math.isfinite(v) and v >= 0):
             raise InvalidParameterError(f"{flag} must be a finite number >= 0, got {v!r}")
+    if odometry_error is not None and odometry_error > 100:  # a factor on the odometry's simulated errors
+        raise InvalidParameterError(f"--odometry-error must be a factor in [0, 100], got {odometry_error!r}")
     for flag, v in (("--radius", radius), ("--scale", scale), ("--metres-per-move", metres_per_move)):
         if v is not None and not (math.isfinite(v) and v > 0):
             raise InvalidParameterError(f"{flag} must be a positive number, got {v!r}")
@@ -206,20 +259,23 @@ def _check_db_flags(raw_kind: str, db: Path, map_log: bool, graph_from: Path | N
 
 def _place_map(
     run: Any, db: Path, *, map_log: bool, graph_from: Path | None, radius: float | None, heading: bool, scan: bool,
-    pose: bool, pending: list[Any],
+    pose: bool, pending: list[Any], load_scan: bool = True,
 ) -> PlaceMap:  # fmt: skip
     """The map to track against: made from the run (``--map``, saved later), or the database's (with the visits of
     ``--graph-from``, whose graph is saved later)."""
     from ..config import Config
+    from ..map.database import hold_lock
     from ..pipeline.mapping import make_map
     from ..pipeline.placemap import load_map
 
     if map_log:
+        early = compat.check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning below
         with err_console.status("mapping...") as status:
             pm = make_map(run, Config().with_(calibration={"heading": heading, "scan": scan}),
                           on_step=lambda s: status.update(s))  # fmt: skip
         assert pm.preset is not None and pm.split is not None
         err_console.print(pm.preset.reason, markup=False)
+        warn(early)
         n_places = pm.split.n_places
 
         def save_map() -> None:
@@ -228,7 +284,9 @@ def _place_map(
 
         pending.append(save_map)
         return pm
-    pm = load_map(db, scan=scan and pose)
+    if graph_from is not None:
+        hold_lock(db)  # the writer lock from this read to the graph's store (a concurrent learn waits)
+    pm = load_map(db, scan=scan and load_scan)
     if run.kind != "jsonl" or (graph_from is None and pm.has_positions):
         return pm
     if graph_from is not None:
@@ -271,5 +329,10 @@ def _print_summary(tr: TrackResult) -> None:
         console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g}{evidence})", soft_wrap=True)
     else:
         metres = s["metres_per_move"]
-        odometry = "off" if metres is None else f"{metres:.2f} m per place change"
-        console.print(head + f"uniform mixing {s['uniform_mix']:.3g}, odometry {odometry}", soft_wrap=True)
+        if s.get("transitions") == "metric":
+            odometry = "metric transitions over the place positions (the place spacing, widened by the distance travelled)"
+        else:
+            odometry = "odometry off" if metres is None else f"odometry {metres:.2f} m per place change"
+        console.print(head + f"uniform mixing {s['uniform_mix']:.3g}, {odometry}", soft_wrap=True)
+        if s.get("place_filter"):
+            console.print(s["place_filter"], soft_wrap=True, markup=False)

@@ -67,12 +67,14 @@ __all__ = [
     "PLACE_RADIUS_M",
     "PLACE_SPACING_M",
     "BenchmarkRun",
+    "Hardening",
     "HistogramBaseline",
     "LogRun",
     "Method",
     "MethodRun",
     "ScanContextBaseline",
     "Split",
+    "harden_scans",
     "load_log_scans",
     "load_methods",
     "log_name",
@@ -253,6 +255,17 @@ class FingerprintMethod:
     extremities, beacons; the scan's own field of view); ``score`` is the
     model's log-posterior over places.
 
+    With ``verify`` (and a pose on every training scan) the answer is
+    verified against the mapping run's laser end points
+    (:mod:`fingerloc.map.scan_verify`): each query scan is fitted into the
+    scan map at every place, and the program's log-posterior and the fits
+    are combined with weights fitted on held-out training scans
+    (:func:`fingerloc.experiments.verify.fit_verified`). The scan map is made
+    of the mapping run of the enclosing
+    :func:`~fingerloc.experiments.verify.mapping_context` (the benchmark's
+    runner opens one per log: every mapping-pass scan but the training scans
+    this fit does not hold), else of the training scans themselves.
+
     Parameters
     ----------
     feature_params : dict, optional
@@ -262,17 +275,36 @@ class FingerprintMethod:
         bearings are in the map frame: the heading is then *given* to the
         method (the baselines do not get it). False keeps robot-frame
         bearings (heading unknown).
+    verify : bool, default False
+        Verify the answers against the scan map (above).
+    search : VerifySearch, optional
+        The verifier's search (:class:`~fingerloc.map.scan_verify.VerifySearch`).
     **model_params
         Arguments of :class:`~fingerloc.model.PlaceModel`.
+
+    Attributes
+    ----------
+    model_ : PlaceModel
+    verification_ : Verification or None
+        The fitted weights (``verify``).
+    verifier_ : ScanVerifier or None
     """
 
     name = "fingerprint"
 
     def __init__(
-        self, feature_params: dict[str, Any] | None = None, *, world_frame: bool = False, **model_params: Any
+        self,
+        feature_params: dict[str, Any] | None = None,
+        *,
+        world_frame: bool = False,
+        verify: bool = False,
+        search: Any = None,
+        **model_params: Any,
     ) -> None:
         self.feature_params = dict(feature_params or {})
         self.world_frame = world_frame
+        self.verify = verify
+        self.search = search
         self.model_params = model_params
 
     def _observations(self, scans: Sequence[Scan]) -> list[Any]:
@@ -286,21 +318,41 @@ class FingerprintMethod:
             obs = [o.rotated(s.pose[2]) if s.pose is not None else o for o, s in zip(obs, scans, strict=True)]
         return obs
 
-    def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
-        """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...)."""
+    def _program(self, scans: Sequence[Scan], y: IArray) -> Any:
         from ..model import PlaceModel
         from ..pipeline.places import place_label
 
+        return PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
+
+    def fit(self, scans: Sequence[Scan], labels: Any) -> FingerprintMethod:
+        """Extract features of the training scans and fit the place model (labels as strings ``"0"``, ``"1"``...);
+        with ``verify``, build the scan map and fit the verification's weights."""
         y = _check_fit_input(scans, labels)
         self.n_places_ = int(y.max()) + 1
-        self.model_ = PlaceModel(**self.model_params).fit(self._observations(scans), [place_label(v) for v in y.tolist()])
+        self.model_ = self._program(scans, y)
+        self.verification_ = None
+        self.verifier_ = None
+        if self.verify and all(s.pose is not None for s in scans):
+            from .verify import fit_verified
+
+            self.verifier_, self.verification_ = fit_verified(self, scans, y, self.search)
         return self
 
-    def score(self, scans: Sequence[Scan]) -> FArray:
-        """Log-posterior of each place, shape (n_queries, n_places)."""
-        from ..pipeline.tracker import posterior_columns
+    def program_scores(self, scans: Sequence[Scan]) -> FArray:
+        """The program's log-posterior of each place, shape (n_queries, n_places) (before any verification)."""
+        from ..pipeline.calibration import posterior_columns
 
         return posterior_columns(self.model_, self._observations(scans) if scans else [], self.n_places_)
+
+    def score(self, scans: Sequence[Scan]) -> FArray:
+        """Log-posterior of each place, shape (n_queries, n_places) (verified with ``verify``)."""
+        lp = self.program_scores(scans)
+        if self.verifier_ is None or self.verification_ is None or not len(scans):
+            return lp
+        from ..map.scan_map import end_points
+        from ..map.scan_verify import verify_candidates
+
+        return verify_candidates(lp, [end_points(s) for s in scans], self.verifier_, verification=self.verification_)
 
 
 @register_method("baseline-scancontext")
@@ -343,7 +395,13 @@ def best_fingerprint_params() -> dict[str, Any]:
 
 @register_method("fingerprint")
 def _fingerprint() -> Method:
-    # Our best configuration for 2D laser logs (see best_fingerprint_params).
+    # Our best configuration for 2D laser logs (see best_fingerprint_params), verified against the scan map.
+    return FingerprintMethod(**best_fingerprint_params(), verify=True)
+
+
+@register_method("fingerprint-program", default=False)
+def _fingerprint_program() -> Method:
+    # The program alone (no scan verification): the single shot before the verification.
     return FingerprintMethod(**best_fingerprint_params())
 
 
@@ -424,12 +482,113 @@ class LogRun:
         }
 
 
+@dataclass(frozen=True, slots=True)
+class Hardening:
+    """A benchmark run made harder than the fixed protocol (``bench carmen`` options); the defaults are the protocol.
+
+    Attributes
+    ----------
+    seed : int, default 0
+        Seeds every method that draws random numbers (the pose filter's
+        particles and simulated odometry: a method's ``seed`` attribute).
+    odometry_error : float, default 1.0
+        Factor on the simulated odometry errors of every method that
+        simulates them (times the method's own factor; 0 = exact odometry).
+    mapping_part : float, default 0.5
+        Fraction of the scans that maps (``floor(mapping_part * n)``): a
+        shorter mapping part gives fewer places, fewer training scans and a
+        longer query pass.
+    query_start : float, default 0.0
+        Fraction of the query pass left out at its start: the robot starts
+        somewhere else along its route (global localization from there).
+    query_cut : (float, float) or None
+        ``(start, length)``, fractions of the query pass: that block is left
+        out (a gap in the log; the odometry sees the jump).
+    reverse : bool, default False
+        The query pass in reverse order: the route driven backwards (the
+        scans are the recorded ones, so the robot moves in reverse).
+    """
+
+    seed: int = 0
+    odometry_error: float = 1.0
+    mapping_part: float = 0.5
+    query_start: float = 0.0
+    query_cut: tuple[float, float] | None = None
+    reverse: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise InvalidParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if not (math.isfinite(self.odometry_error) and self.odometry_error >= 0):
+            raise InvalidParameterError(f"odometry_error must be a finite factor >= 0, got {self.odometry_error!r}")
+        if not (isinstance(self.mapping_part, (int, float)) and 0 < self.mapping_part < 1):
+            raise InvalidParameterError(f"mapping_part must be a fraction in (0, 1), got {self.mapping_part!r}")
+        if not (isinstance(self.query_start, (int, float)) and 0 <= self.query_start < 1):
+            raise InvalidParameterError(f"query_start must be a fraction in [0, 1), got {self.query_start!r}")
+        if self.query_cut is not None:
+            a, b = (float(v) for v in self.query_cut)
+            if not (0 <= a < 1 and 0 < b < 1 and a + b <= 1):
+                raise InvalidParameterError(
+                    f"query_cut must be (start, length) fractions with start + length <= 1, got {self.query_cut!r}"
+                )
+            object.__setattr__(self, "query_cut", (a, b))
+
+    def is_protocol(self) -> bool:
+        """True when the run is the fixed protocol (every field at its default)."""
+        return self == Hardening()
+
+    def apply(self, method: Method) -> Method:
+        """``method`` with this run's seed and odometry-error factor, when it has those attributes (the pose filters)."""
+        if self.is_protocol():
+            return method
+        if hasattr(method, "seed"):
+            method.seed = int(self.seed)
+        if hasattr(method, "odometry_error"):
+            method.odometry_error = float(method.odometry_error) * self.odometry_error
+        return method
+
+    def to_json(self) -> dict[str, Any]:
+        """Every field (``query_cut`` as a list or None)."""
+        return {
+            "seed": int(self.seed),
+            "odometry_error": float(self.odometry_error),
+            "mapping_part": float(self.mapping_part),
+            "query_start": float(self.query_start),
+            "query_cut": None if self.query_cut is None else list(self.query_cut),
+            "reverse": bool(self.reverse),
+        }
+
+
+def harden_scans(scans: Sequence[Scan], hardening: Hardening) -> tuple[list[Scan], int]:
+    """A log's scans as a hardened run sees them, and the number of mapping scans.
+
+    The mapping pass (the first ``floor(mapping_part * n)`` scans, ``n // 2``
+    at the default) is kept as recorded; the query pass loses its first
+    ``query_start`` and the ``query_cut`` block (fractions of its scans) and
+    is reversed with ``reverse``.
+    """
+    n = len(scans)
+    n_map = n // 2 if hardening.mapping_part == 0.5 else math.floor(hardening.mapping_part * n)
+    rest = list(scans[n_map:])
+    nq = len(rest)
+    keep = np.ones(nq, dtype=bool)
+    keep[: math.floor(hardening.query_start * nq)] = False
+    if hardening.query_cut is not None:
+        a = math.floor(hardening.query_cut[0] * nq)
+        keep[a : a + math.floor(hardening.query_cut[1] * nq)] = False
+    rest = [s for s, k in zip(rest, keep.tolist(), strict=True) if k]
+    if hardening.reverse:
+        rest.reverse()
+    return list(scans[:n_map]) + rest, n_map
+
+
 @dataclass(slots=True)
 class BenchmarkRun:
     """All logs of one run; :meth:`to_json` gives the issue's JSON layout."""
 
     logs: list[LogRun]
     method_names: list[str]
+    hardening: Hardening = field(default_factory=lambda: Hardening())
 
     def pooled(self) -> dict[str, Any]:
         """Figures over every query of every log (each query weighs the same)."""
@@ -458,8 +617,10 @@ class BenchmarkRun:
             "protocol": {
                 "place_spacing_m": PLACE_SPACING_M,
                 "radius_m": PLACE_RADIUS_M,
-                "mapping": "index < n // 2",
+                "mapping": "index < n // 2" if self.hardening.mapping_part == 0.5 else
+                           f"index < floor({self.hardening.mapping_part:g} n)",
                 "ties": "count against",
+                **({} if self.hardening.is_protocol() else {"hardening": self.hardening.to_json()}),
             },
         }
 
@@ -472,28 +633,43 @@ def run_log(
     on_method: Callable[[str], None] | None = None,
 ) -> dict[str, MethodRun]:
     """Fit and score every method on one log's split."""
+    from .verify import mapping_context
+
     train = [scans[i] for i in split.train_idx.tolist()]
     queries = [scans[i] for i in split.query_idx.tolist()]
     out: dict[str, MethodRun] = {}
-    for m in methods:
-        if on_method is not None:
-            on_method(m.name)
-        fit_log = getattr(m, "fit_log", None)
-        t0 = time.perf_counter()
-        if fit_log is not None:  # methods that need the trajectory (the filters)
-            fit_log(scans, split)
-        else:
-            m.fit(train, split.train_labels.copy())
-        t1 = time.perf_counter()
-        s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
-        t2 = time.perf_counter()
-        if s.shape != (split.n_queries, split.n_places):
-            raise RuntimeError(f"method {m.name} returned scores of shape {s.shape}, expected "
-                               f"({split.n_queries}, {split.n_places})")  # fmt: skip
-        ranks = true_place_ranks(s, split.query_labels)
-        pred = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=1) if s.size else np.zeros(0, np.int64)
-        out[m.name] = MethodRun(ranks=ranks, predicted=pred.astype(np.int64), learn_s=t1 - t0, score_s=t2 - t1)
+    with mapping_context(scans, split):
+        for m in methods:
+            out[m.name] = _run_method(m, scans, split, train, queries, on_method)
     return out
+
+
+def _run_method(
+    m: Method,
+    scans: Sequence[Scan],
+    split: Split,
+    train: list[Scan],
+    queries: list[Scan],
+    on_method: Callable[[str], None] | None,
+) -> MethodRun:
+    """One method of :func:`run_log`: fit, score, ranks."""
+    if on_method is not None:
+        on_method(m.name)
+    fit_log = getattr(m, "fit_log", None)
+    t0 = time.perf_counter()
+    if fit_log is not None:  # methods that need the trajectory (the filters)
+        fit_log(scans, split)
+    else:
+        m.fit(train, split.train_labels.copy())
+    t1 = time.perf_counter()
+    s = np.asarray(m.score(queries), dtype=np.float64) if queries else np.zeros((0, split.n_places))
+    t2 = time.perf_counter()
+    if s.shape != (split.n_queries, split.n_places):
+        raise RuntimeError(f"method {m.name} returned scores of shape {s.shape}, expected "
+                           f"({split.n_queries}, {split.n_places})")  # fmt: skip
+    ranks = true_place_ranks(s, split.query_labels)
+    pred = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=1) if s.size else np.zeros(0, np.int64)
+    return MethodRun(ranks=ranks, predicted=pred.astype(np.int64), learn_s=t1 - t0, score_s=t2 - t1)
 
 
 def run_benchmark(
@@ -504,6 +680,7 @@ def run_benchmark(
     on_progress: Callable[[str], None] | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
+    hardening: Hardening | None = None,
 ) -> BenchmarkRun:
     """Run the benchmark's protocol on CARMEN logs.
 
@@ -523,6 +700,10 @@ def run_benchmark(
         a local cluster of ``workers`` processes, or an existing cluster at
         ``scheduler``. Every method is seeded by its own parameters, so the
         figures are those of the serial run.
+    hardening : Hardening, optional
+        A harder run than the protocol (seed, odometry errors, a shorter
+        mapping part, the query pass cut, started later or reversed);
+        default the protocol itself.
 
     Returns
     -------
@@ -535,12 +716,13 @@ def run_benchmark(
     for n in names:
         if n not in METHODS:
             raise InvalidParameterError(f"unknown method {n!r} (known: {', '.join(METHODS)})")
-    tasks: list[tuple[str, str, list[str], bool]] = []
+    hard = Hardening() if hardening is None else hardening
+    tasks: list[tuple[str, str, list[str], bool, Hardening]] = []
     seen: dict[str, int] = {}
     for path in paths:
         name = log_name(path)
         seen[name] = seen.get(name, 0) + 1
-        tasks.append((str(path), name if seen[name] == 1 else f"{name}#{seen[name]}", names, skip_bad))
+        tasks.append((str(path), name if seen[name] == 1 else f"{name}#{seen[name]}", names, skip_bad, hard))
     if workers is None and scheduler is None:
         logs = [_bench_log(t, on_progress) for t in tasks]
     else:
@@ -548,25 +730,30 @@ def run_benchmark(
 
         done = None if on_progress is None else (lambda k: on_progress(f"{k} of {len(tasks)} logs done"))
         logs = run_tasks(_bench_log, tasks, workers=workers, scheduler=scheduler, on_done=done)
-    return BenchmarkRun(logs=logs, method_names=names)
+    return BenchmarkRun(logs=logs, method_names=names, hardening=hard)
 
 
-def _bench_log(task: tuple[str, str, list[str], bool], on_progress: Callable[[str], None] | None = None) -> LogRun:
-    """One log of :func:`run_benchmark`: ``(path, name, method names, skip_bad)`` -> its :class:`LogRun`."""
-    path, name, names, skip_bad = task
+def _bench_log(
+    task: tuple[str, str, list[str], bool, Hardening], on_progress: Callable[[str], None] | None = None
+) -> LogRun:
+    """One log of :func:`run_benchmark`: ``(path, name, method names, skip_bad, hardening)`` -> its :class:`LogRun`."""
+    path, name, names, skip_bad, hard = task
     load_methods()  # in a fresh worker process too
     if on_progress is not None:
         on_progress(f"{name}: reading")
     scans, skipped = load_log_scans(path, skip_bad=skip_bad)
+    n_map = None
+    if not hard.is_protocol():
+        scans, n_map = harden_scans(scans, hard)
     pos = np.array([s.pose[:2] for s in scans if s.pose is not None], dtype=np.float64)
-    split = make_split(pos)
+    split = make_split(pos, n_mapping=n_map)
     lg = LogRun(name=name, path=str(path), scans=scans, split=split, skipped=skipped)
     if split.n_queries:
         with shared_results():  # one fit, one scoring, one feature extraction per scan, for every method
             lg.methods = run_log(
                 scans,
                 split,
-                [_shareable(make_method(n)) for n in names],
+                [_shareable(hard.apply(make_method(n))) for n in names],
                 on_method=None if on_progress is None else (lambda m: on_progress(f"{name}: {m}")),
             )
     return lg

@@ -4,7 +4,8 @@ Any two ``--json`` outputs of the same benchmark (``bench carmen``, ``bench
 speed``, ``bench kidnap``, ``reproduce ...``) are walked together. Accuracy
 figures (everything but timings) must be equal; timings (keys ending in
 ``_s``, ``_ms``, ``_us``, ``ms_per_query``, ``learn_s`` ...) differ from run to
-run and are listed apart, with their ratio, only when asked for.
+run (as do speed-ups, memory and the load average) and are listed apart,
+with their ratio, only when asked for.
 """
 
 from __future__ import annotations
@@ -16,12 +17,17 @@ from typing import Any
 
 __all__ = ["Difference", "compare_json", "is_timing"]
 
-_TIMING = re.compile(r"(^|_)(s|ms|us|ns|seconds|ms_per_query|per_cpu_second|per_second)$|^(learn_s|score_s|wall|cpu)$")
+#: Words of a key that name a measurement of time or resources (``ms_per_query``, ``speedup_vs_sklearn``,
+#: ``peak_rss_mb``, ``load_average_1min``, ``cyclic_weighted_over_unit``): these vary between runs.
+_TIMING_WORDS = frozenset(
+    {"s", "ms", "us", "ns", "seconds", "cpu", "wall", "speedup", "ratio", "over", "load", "rss", "mb", "kb", "bytes",
+     "second", "hz"}
+)  # fmt: skip
 
 
 def is_timing(key: str) -> bool:
-    """Whether a JSON key names a timing (seconds, milliseconds, rates), which varies between runs."""
-    return bool(_TIMING.search(key)) or key.endswith(("_ms", "_s", "_us", "_seconds"))
+    """Whether a JSON key names a timing or a resource measurement (seconds, rates, speed-ups, memory, load)."""
+    return bool(set(re.split(r"[_\-.]", key.lower())) & _TIMING_WORDS)
 
 
 @dataclass(frozen=True, slots=True)

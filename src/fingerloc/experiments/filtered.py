@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .._lse import logsumexp
 from .._types import FArray, IArray
 from ..config import Config
 from ..errors import InvalidParameterError
@@ -41,7 +42,7 @@ from ..map.motion import wheel_odometry
 from ..map.scan_map import ScanMap, end_points
 from ..pipeline.calibrate import MapCalibration, MappingPart, calibrate_map
 from ..pipeline.calibration import FitScore, implied_headings, step_distances
-from ..pipeline.filters import pose_filter_of, pose_tracking, transition_of
+from ..pipeline.filters import place_transition_of, pose_filter_of, pose_tracking, transition_of
 from ..pipeline.places import place_label
 from ..sensors import Scan
 from .protocol import METHODS, Method, Split, load_methods, register_method
@@ -93,8 +94,15 @@ class FilteredMethod:
         The calibration's settings (default :data:`BENCH_FILTERED`; with
         ``config.calibration.enabled`` False: ``beta = 1``).
     odometry : bool, default True
-        Use the travelled distance of each step (``K = expm(d / L (M - I))``);
-        False uses the per-step stay / move counts.
+        Use the travelled distance of each step; False uses the graph's
+        per-step stay / move counts (no positions).
+    kernel : {"metric", "graph"}, default "metric"
+        The transitions: the metric kernel over the places' positions
+        (:func:`~fingerloc.pipeline.filters.place_transition_of`), or the
+        place graph's chain ``K = expm(d / L (M - I))``.
+    step_aside : bool, default True
+        Answer the single shot at the observed steps when the filter was below
+        it on the mapping pass's held-out views (:func:`~fingerloc.pipeline.calibrate.with_place_check`).
 
     Attributes
     ----------
@@ -110,10 +118,17 @@ class FilteredMethod:
 
     name = "filtered"
 
-    def __init__(self, base: str, config: Config | None = None, *, odometry: bool = True) -> None:
+    def __init__(
+        self, base: str, config: Config | None = None, *, odometry: bool = True, kernel: str = "metric",
+        step_aside: bool = True,
+    ) -> None:  # fmt: skip
+        if kernel not in ("metric", "graph"):
+            raise InvalidParameterError(f"kernel must be 'metric' or 'graph', got {kernel!r}")
         self.base = base
         self.config = BENCH_FILTERED if config is None else config
         self.odometry = odometry
+        self.kernel = kernel
+        self.step_aside = step_aside
 
     def _factory(self) -> Callable[[], Method]:
         from functools import partial
@@ -171,9 +186,14 @@ class FilteredMethod:
         mc = self._calibrate(scans, split)
         self._split = split
         self._positions = full_poses(scans)[:, :2]
-        self.transition_ = TransitionModel.from_graph(
-            mc.graph, alpha=self.config.pose_filter.alpha, metres_per_move=mc.calibration.metres_per_move if self.odometry else None
-        )
+        if self.kernel == "metric" and self.odometry:  # the calibration measured this filter on the mapping pass
+            self.transition_ = place_transition_of(mc.graph, mc.calibration, self.config, split.centres)
+        else:
+            self.transition_ = TransitionModel.from_graph(
+                mc.graph, alpha=self.config.pose_filter.alpha,
+                metres_per_move=mc.calibration.metres_per_move if self.odometry else None,
+            )  # fmt: skip
+        self.steps_aside_ = self.step_aside and mc.calibration.place_filter_steps_aside()
         return self
 
     def _need_split(self) -> Split:
@@ -220,8 +240,16 @@ class FilteredMethod:
         """What a subclass computes from the queries before the filter runs."""
 
     def _run_query_pass(self, log_likelihood: FArray, distances: FArray) -> FilterResult:
-        """The filter over the whole query pass (rows of :meth:`step_log_likelihoods`)."""
-        return run_filter(log_likelihood, self.transition_, distances=distances)
+        """The filter over the whole query pass (rows of :meth:`step_log_likelihoods`); at the observed steps the
+        single shot instead when the filter steps aside."""
+        res = run_filter(log_likelihood, self.transition_, distances=distances)
+        if not getattr(self, "steps_aside_", False):
+            return res
+        out = res.log_posterior.copy()
+        seen = ~np.all(np.isnan(log_likelihood), axis=1)
+        rows = np.where(np.isnan(log_likelihood[seen]), -np.inf, log_likelihood[seen])
+        out[seen] = rows - logsumexp(rows, axis=1, keepdims=True)
+        return FilterResult.from_log_posterior(out)
 
 
 class PoseFilteredMethod(FilteredMethod):
@@ -348,6 +376,11 @@ def _register() -> None:
     """The filtered methods of the benchmark (``default=False``: run only when named)."""
     register_method("fingerprint-filtered")(lambda: FilteredMethod("fingerprint"))
     register_method("fingerprint-filtered-no-odometry", default=False)(lambda: FilteredMethod("fingerprint", odometry=False))
+    # The former default: the place graph's chain, always filtering.
+    register_method("fingerprint-filtered-graph", default=False)(
+        lambda: FilteredMethod("fingerprint", kernel="graph", step_aside=False)
+    )
+    register_method("fingerprint-filtered-nocheck", default=False)(lambda: FilteredMethod("fingerprint", step_aside=False))
     register_method("fingerprint-filtered-unscaled", default=False)(
         lambda: FilteredMethod("fingerprint", BENCH_FILTERED.with_(calibration={"enabled": False}))
     )
@@ -371,6 +404,8 @@ def _register() -> None:
     register_method("fingerprint-odometry-noheading", default=False)(_pose(calibration={"heading": False}))
     register_method("fingerprint-odometry-heading-untempered", default=False)(_pose(calibration={"heading_temper_m": 0.0}))
     register_method("fingerprint-odometry-reset", default=False)(_pose(pose_filter={"strategy": "reset"}))
+    # The former lost re-draw: its prior entirely the place filter's belief.
+    register_method("fingerprint-odometry-lostplace", default=False)(_pose(scan=True, pose_filter={"lost_uniform_share": 0.0}))
     for factor in (2.0, 4.0):  # the simulated odometry errors times 2 and 4
         register_method(f"fingerprint-odometry-x{factor:g}", default=False)(_pose(scan=True, odometry_error=factor))
         register_method(f"odometry-only-x{factor:g}", default=False)(_pose(observe=False, odometry_error=factor))

@@ -113,15 +113,20 @@ def prepare_tracking(
     **options: Any,
 ) -> TrackingData:
     """Split a log (benchmark protocol), fit ``FilteredMethod(base, config)`` (``pose``:
-    :class:`~fingerloc.experiments.filtered.PoseFilteredMethod` with ``options``) and score its queries."""
+    :class:`~fingerloc.experiments.filtered.PoseFilteredMethod` with ``options``) and score its queries, as
+    ``bench carmen`` does (a verifying base maps the log's mapping pass)."""
     pos = full_poses(scans)[:, :2]
     split = make_split(pos)
     if split.n_queries == 0:
         raise InvalidParameterError("the log's query pass has no scan within a place's radius")
+    from .shared import shared_results
+    from .verify import mapping_context
+
     m = PoseFilteredMethod(base, config, **options) if pose else FilteredMethod(base, config, **options)
-    m.fit_log(scans, split)
     queries = [scans[i] for i in split.query_idx.tolist()]
-    qs = np.asarray(m.base_.score(queries), dtype=np.float64)
+    with shared_results(), mapping_context(scans, split):  # as bench carmen fits and scores (the same answers)
+        m.fit_log(scans, split)
+        qs = np.asarray(m.base_.score(queries), dtype=np.float64)
     ll, dist = m.step_log_likelihoods(qs)
     truth = np.full(split.n_scans - split.n_mapping, -1, dtype=np.int64)
     truth[split.query_idx - split.n_mapping] = split.query_labels

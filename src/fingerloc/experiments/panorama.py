@@ -1,41 +1,49 @@
 """Development benchmark on real 360 deg photographs (``fingerloc bench panorama``).
 
-Data: a folder of equirectangular photos (one per spot of a virtual campus
-tour) and the tour's area definitions, TypeScript files that list each area's
-photos (``id: '...'``, ``imageUrl: '...'``, ``buildingBlock``, ``floorLevel``),
-and optionally a table of hand-placed map positions per photo id
-(``'photo-id': { x: 0.5, y: 0.7 }``). Nothing of the data ships with
-fingerloc: the command reads it from the paths the user gives.
+Data: a folder of equirectangular photos and their places, from a virtual
+tour's source files or a labels CSV (:mod:`.panorama_tour`). Nothing of the
+data ships with fingerloc: the command reads it from the paths the user gives.
 
 Protocol:
 
 1. Every photo is read, the band of elevations ``band`` (parts of the height,
    default 0.25..0.75, i.e. -45..+45 deg, as ``fingerloc features``) is resampled to ``width`` columns,
-   and :func:`fingerloc.features.vision.observation_from_views` gives VE, CP
-   and the appearance descriptor. The observations are cached as JSON Lines
-   (``cache``), keyed by the photo's relative path.
-2. Places are defined two ways: ``area`` (the tour's areas), and ``position``
-   (greedy place centres ``spacing`` apart, in map units, per building and
-   floor, in file order; each photo goes to its nearest centre; photos
-   without a position are left out).
+   and :func:`fingerloc.features.vision.observation_from_views` gives VE, CP,
+   the appearance descriptor and the column profile,
+   :func:`fingerloc.features.keypoints.extract_keypoints` the keypoints. The
+   observations are cached as JSON Lines (``cache``), keyed by the photo's
+   relative path, with the extraction's CPU time.
+2. Places are defined two ways: ``area`` (the tour's areas, or the labels'
+   places), and ``position`` (greedy place centres ``spacing`` apart, in map
+   units, per building and floor, in file order; each photo goes to its
+   nearest centre; photos without a position are left out).
 3. Leave-one-out over the photos whose place has two or more: the query's
    photo is removed, every other photo is a reference. Scores per place for
-   each method; top-1 and mean rank (ties counted against) of the true place.
+   each method; top-1 and mean rank (ties counted against) of the true place,
+   and the calibration of each method's posterior (softmax of its scores):
+   expected calibration error of the top answer and the share of wrong
+   answers above 0.9 (:func:`calibration`).
 
 Methods: the single terms ``VE``, ``CP`` (angle-space mixtures, heading as
 recorded), ``Fp`` (cyclic alignment, feature-aware costs, ``exp`` likelihood),
-``A`` (:class:`~fingerloc.terms.appearance.AppearanceTerm`), sums of their
-log-likelihoods, and an independent baseline: rotation-invariant hue,
-saturation and value histograms compared by the Jeffrey divergence (after
-Ulrich and Nourbakhsh, "Appearance-based place recognition for topological
-localization", ICRA 2000), nearest reference photo.
+``A`` (:class:`~fingerloc.terms.appearance.AppearanceTerm`), ``AP`` (the
+aligned column profiles), ``K`` (verified keypoint inliers,
+:mod:`fingerloc.terms.keypoints`, the relative-pose model chosen as the term
+chooses it) and ``K unverified`` (the descriptor matches alone), sums of their
+log-likelihoods (``weighted``: one weight per term fit on the other queries;
+``tempered``: one common factor fit on the other queries), and an
+independent baseline: rotation-invariant hue, saturation and value
+histograms compared by the Jeffrey divergence (after Ulrich and Nourbakhsh,
+"Appearance-based place recognition for topological localization", ICRA
+2000), nearest reference photo. The ``PlaceModel`` path (a model fit per
+query, as ``learn`` / ``localize`` run it) is :mod:`.panorama_model`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import re
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,282 +57,66 @@ from ..errors import DataFormatError, InvalidParameterError
 from ..features.vision import PHOTO_EDGE_PARAMS
 from ..metrics import min_per_place, true_place_ranks
 from ..observation import Observation
+from .panorama_heading import (
+    HEADING_ESTIMATORS,
+    band_signature,
+    feature_heading_deg,
+    fingerprint_heading_deg,
+    heading_errors,
+    heading_link_errors,
+    image_rotation_deg,
+    load_edge_labels,
+    run_edge_bench,
+    signature_rotation_deg,
+)
+from .panorama_tour import (
+    DEFAULT_BAND,
+    DEFAULT_WIDTH,
+    CampusPhoto,
+    TourLink,
+    load_labels_csv,
+    load_photo_band,
+    load_tour_layout,
+    load_tour_links,
+    places_by_area,
+    places_by_position,
+)
 
 __all__ = [
     "HEADING_ESTIMATORS",
+    "KEYPOINT_PARAMS",
     "PANORAMA_METHODS",
     "CampusPhoto",
+    "KeypointPairs",
     "PhotoFeatures",
     "TourLink",
     "band_signature",
+    "calibration",
     "extract_features",
     "feature_heading_deg",
     "fingerprint_heading_deg",
+    "heading_errors",
     "heading_link_errors",
     "hsv_histogram",
     "image_rotation_deg",
     "jeffrey_divergence",
-    "keypoint_distances",
+    "keypoint_pairs",
     "load_edge_labels",
+    "load_labels_csv",
     "load_photo_band",
     "load_tour_layout",
     "load_tour_links",
     "places_by_area",
     "places_by_position",
     "profile_distances",
+    "retrieval_recall",
     "run_edge_bench",
     "run_panorama_bench",
     "signature_rotation_deg",
 ]
 
-
-#: Default band of elevations (parts of the image height, top = 0) and width.
-DEFAULT_BAND = (0.25, 0.75)
-DEFAULT_WIDTH = 1440
-
-
-@dataclass(frozen=True, slots=True)
-class CampusPhoto:
-    """One photo of the tour.
-
-    Attributes
-    ----------
-    photo_id : str
-    file : str
-        Path relative to the photo folder (``/``-separated).
-    area : str
-        Area id.
-    floor : str
-        ``"<building>-<floor>"``.
-    position : (x, y) or None
-        Map position (map units), when known.
-    """
-
-    photo_id: str
-    file: str
-    area: str
-    floor: str
-    position: tuple[float, float] | None
-
-
-_AREA = re.compile(r":\s*Area\s*=\s*\{")
-_PHOTO = re.compile(r"\bid:\s*'([^']+)',\s*imageUrl:\s*'([^']+)'")
-_FIRST_ID = re.compile(r"\bid:\s*'([^']+)'")
-_BLOCK = re.compile(r"\bbuildingBlock:\s*'([^']+)'")
-_FLOOR = re.compile(r"\bfloorLevel:\s*(\d+)")
-_POS = re.compile(r"'([^']+)':\s*\{\s*x:\s*([0-9.]+|null),\s*y:\s*([0-9.]+|null)\s*\}")
-
-
-def load_tour_layout(areas_dir: str | Path, minimap: str | Path | None = None) -> list[CampusPhoto]:
-    """The tour's photos with their area, floor and map position.
-
-    Parameters
-    ----------
-    areas_dir : path
-        Folder searched recursively for ``*.ts`` files holding ``... : Area = {``
-        objects.
-    minimap : path, optional
-        File of ``'photo-id': { x: .., y: .. }`` entries; default: the first
-        ``minimap/minimapLocations.ts`` next to ``areas_dir`` or above it.
-
-    Returns
-    -------
-    list of CampusPhoto
-        In the order of the sorted file names, then of the files' text; one per
-        image file (the first area listing it wins).
-    """
-    root = Path(areas_dir)
-    if not root.is_dir():
-        raise DataFormatError("not a folder of area definitions (*.ts)", path=root)
-    if minimap is None:
-        for cand in (root.parent / "minimap" / "minimapLocations.ts", root / "minimap" / "minimapLocations.ts"):
-            if cand.is_file():
-                minimap = cand
-                break
-    positions: dict[str, tuple[float, float]] = {}
-    if minimap is not None:
-        try:
-            text = Path(minimap).read_text(encoding="utf-8")
-        except OSError as err:
-            raise DataFormatError(f"cannot read: {err.strerror or err}", path=Path(minimap)) from err
-        for pid, x, y in _POS.findall(text):
-            if x != "null" and y != "null":
-                positions[pid] = (float(x), float(y))
-    out: list[CampusPhoto] = []
-    seen: set[str] = set()
-    for ts in sorted(root.rglob("*.ts")):
-        text = ts.read_text(encoding="utf-8")
-        starts = [m.end() for m in _AREA.finditer(text)]
-        for k, s in enumerate(starts):
-            chunk = text[s : starts[k + 1] if k + 1 < len(starts) else len(text)]
-            area = _FIRST_ID.search(chunk)
-            if area is None:
-                continue
-            block = _BLOCK.search(chunk)
-            floor = _FLOOR.search(chunk)
-            floor_key = f"{block.group(1) if block else '?'}-{floor.group(1) if floor else '?'}"
-            for pid, url in _PHOTO.findall(chunk):
-                rel = url.split("360_photos_compressed/", 1)[-1].lstrip("/")
-                if rel in seen:
-                    continue
-                seen.add(rel)
-                out.append(CampusPhoto(pid, rel, area.group(1), floor_key, positions.get(pid)))
-    if not out:
-        raise DataFormatError("no area with photos found in the *.ts files", path=root)
-    return out
-
-
-#: Bearing of each tour arrow relative to the photo's ``startingAngle`` (the tour's ``DIRECTION_ANGLES``).
-_ARROW_OFFSETS: dict[str, float] = {
-    "forward": 0.0,
-    "forwardRight": 45.0,
-    "right": 90.0,
-    "backRight": 135.0,
-    "back": 180.0,
-    "backLeft": 225.0,
-    "left": 270.0,
-    "forwardLeft": 315.0,
-}
-#: The tour's explicit arrow angles for horizontal moves (its ``ARROW_OVERRIDES``).
-_ARROW_OVERRIDES: dict[tuple[str, str], float] = {
-    ("w-f1-main-entrance", "forwardLeft"): 155.0,
-    ("w-gym-entry", "forward"): 220.0,
-}
-_START = re.compile(r"\bstartingAngle:\s*(-?[0-9.]+)")
-_ARROW = re.compile(
-    r"\b(forward|forwardRight|right|backRight|back|backLeft|left|forwardLeft):\s*\{\s*connection:\s*'([^']+)'\s*\}"
-)
-
-
-@dataclass(frozen=True, slots=True)
-class TourLink:
-    """Two photos the tour links both ways, with the heading between them from the tour's arrows.
-
-    Attributes
-    ----------
-    a, b : str
-        Photo files (relative, as :attr:`CampusPhoto.file`).
-    heading_deg : float
-        A feature at bearing ``x`` in ``a`` is at bearing ``x + heading_deg``
-        in ``b`` (bearings counter-clockwise, the image's columns clockwise).
-    same_area : bool
-    """
-
-    a: str
-    b: str
-    heading_deg: float
-    same_area: bool
-
-
-def load_tour_links(areas_dir: str | Path) -> list[TourLink]:
-    """Ground-truth headings between linked photos, from the tour's navigation arrows.
-
-    The tour shows, in photo ``a``, an arrow towards each linked photo at the
-    viewer angle ``startingAngle + offset(direction)`` (or an explicit
-    override); when ``b`` links back to ``a``, the line from ``a`` to ``b``
-    is seen at viewer angle ``alpha`` in ``a`` and the opposite direction at
-    ``beta`` in ``b``, so the two photos' frames differ by
-    ``beta - 180 - alpha`` viewer degrees. The viewer angle grows with the
-    image column (checked on the photos: the other sign doubles the median
-    disagreement with an image-to-image correlation), i.e. clockwise, so the
-    heading in bearings is ``alpha - beta + 180``. The arrows were placed by
-    hand, at 45 deg steps from one angle per photo: a few degrees of error
-    and sometimes more where a corridor bends.
-    """
-    root = Path(areas_dir)
-    if not root.is_dir():
-        raise DataFormatError("not a folder of area definitions (*.ts)", path=root)
-    photos: dict[str, tuple[str, str, dict[str, float]]] = {}
-    for ts in sorted(root.rglob("*.ts")):
-        text = ts.read_text(encoding="utf-8")
-        starts = [m.end() for m in _AREA.finditer(text)]
-        for k, s0 in enumerate(starts):
-            chunk = text[s0 : starts[k + 1] if k + 1 < len(starts) else len(text)]
-            area = _FIRST_ID.search(chunk)
-            if area is None:
-                continue
-            found = list(_PHOTO.finditer(chunk))
-            for j, m in enumerate(found):
-                body = chunk[m.end() : found[j + 1].start() if j + 1 < len(found) else len(chunk)]
-                st = _START.search(body)
-                start = float(st.group(1)) if st else 0.0
-                arrows = {
-                    target: _ARROW_OVERRIDES.get((m.group(1), d), (start + _ARROW_OFFSETS[d]) % 360.0)
-                    for d, target in _ARROW.findall(body)
-                }
-                rel = m.group(2).split("360_photos_compressed/", 1)[-1].lstrip("/")
-                photos.setdefault(m.group(1), (rel, area.group(1), arrows))
-    links: list[TourLink] = []
-    for pid, (file_a, area_a, arrows) in photos.items():
-        for target, alpha in arrows.items():
-            other = photos.get(target)
-            if other is None or target <= pid or pid not in other[2]:
-                continue
-            beta = other[2][pid]
-            links.append(TourLink(file_a, other[0], float((alpha - beta + 180.0) % 360.0), area_a == other[1]))
-    return links
-
-
-def places_by_area(photos: Sequence[CampusPhoto]) -> list[str | None]:
-    """Place label of each photo: its area id."""
-    return [p.area for p in photos]
-
-
-def places_by_position(photos: Sequence[CampusPhoto], *, spacing: float = 0.03) -> list[str | None]:
-    """Place label of each photo from its map position (None without one).
-
-    Per floor, in order, a photo farther than ``spacing`` (map units) from
-    every existing centre becomes a new centre; each photo then takes its
-    nearest centre (as the laser benchmark's places, :mod:`.carmen`).
-    """
-    if not (math.isfinite(spacing) and spacing > 0):
-        raise InvalidParameterError(f"spacing must be a positive number of map units, got {spacing!r}")
-    centres: dict[str, list[tuple[float, float]]] = {}
-    for p in photos:
-        if p.position is None:
-            continue
-        cs = centres.setdefault(p.floor, [])
-        if not cs or min(math.dist(c, p.position) for c in cs) > spacing:
-            cs.append(p.position)
-    out: list[str | None] = []
-    for p in photos:
-        if p.position is None:
-            out.append(None)
-            continue
-        cs = centres[p.floor]
-        k = int(np.argmin([math.dist(c, p.position) for c in cs]))
-        out.append(f"{p.floor}#{k}")
-    return out
-
-
-# ---------------------------------------------------------------------------
-# reading photos and extracting observations
-
-
-def load_photo_band(path: str | Path, *, band: tuple[float, float] = DEFAULT_BAND, width: int = DEFAULT_WIDTH) -> Any:
-    """The band of elevations of an equirectangular photo, resampled to ``width`` columns (a Panorama).
-
-    Column 0's left edge is at bearing 0; bearings decrease to the right (the
-    defaults of ``fingerloc features``).
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    from ..sensors import Panorama
-
-    p = Path(path)
-    try:
-        with Image.open(p) as im:
-            rgb = im.convert("RGB")
-    except FileNotFoundError as err:
-        raise DataFormatError("no such file", path=p) from err
-    except (UnidentifiedImageError, OSError, ValueError) as err:
-        raise DataFormatError(f"cannot read image: {err}", path=p) from err
-    w, h = rgb.size
-    top, bottom = round(band[0] * h), round(band[1] * h)
-    crop = rgb.crop((0, top, w, bottom))
-    new_h = max(2, round((bottom - top) * width / w))
-    small = crop.resize((width, new_h), Image.Resampling.BOX)
-    return Panorama(np.asarray(small, dtype=np.uint8), meta={"source": str(p)})
+#: Keypoint extraction parameters of the benchmark (those of ``fingerloc features``: the defaults).
+KEYPOINT_PARAMS: dict[str, Any] = {}
 
 
 def _extract(pano: Any, source: str) -> Observation:
@@ -334,7 +126,7 @@ def _extract(pano: Any, source: str) -> Observation:
     from ..features.vision import observation_from_views
 
     obs = observation_from_views(panorama=pano, appearance=True, profile=True, source=source, **PHOTO_EDGE_PARAMS)
-    return replace(obs, keypoints=extract_keypoints(pano))
+    return replace(obs, keypoints=extract_keypoints(pano, **KEYPOINT_PARAMS))
 
 
 @dataclass(frozen=True, slots=True)
@@ -344,16 +136,19 @@ class PhotoFeatures:
     Attributes
     ----------
     observation : Observation
-        VE, CP, the appearance descriptor, ``source`` = the relative file.
+        VE, CP, the appearance descriptor, the column profile, the keypoints; ``source`` = the relative file.
     hsv_hist : ndarray, shape (96,)
         The baseline's histograms (:func:`hsv_histogram`).
     signature : ndarray, shape (360, 12)
         :func:`band_signature`, for the image-to-image rotation.
+    extract_cpu_s : float
+        CPU seconds of the observation's extraction from the band (NaN when unknown).
     """
 
     observation: Observation
     hsv_hist: FArray
     signature: FArray
+    extract_cpu_s: float = math.nan
 
 
 def _features_to_record(f: PhotoFeatures) -> dict[str, Any]:
@@ -362,6 +157,7 @@ def _features_to_record(f: PhotoFeatures) -> dict[str, Any]:
     rec = observation_to_record(f.observation, ndigits=6)
     rec["hsv_hist"] = [round(float(x), 8) for x in f.hsv_hist]
     rec["signature"] = np.round(f.signature, 3).tolist()
+    rec["extract_cpu_s"] = round(f.extract_cpu_s, 4)
     return rec
 
 
@@ -372,6 +168,7 @@ def _features_from_record(rec: dict[str, Any]) -> PhotoFeatures:
         observation_from_record(rec),
         np.asarray(rec["hsv_hist"], dtype=np.float64),
         np.asarray(rec["signature"], dtype=np.float64),
+        float(rec.get("extract_cpu_s", math.nan)),
     )
 
 
@@ -394,7 +191,7 @@ def extract_features(
     if not root.is_dir():
         raise DataFormatError("not a folder of photos", path=root)
     known: dict[str, PhotoFeatures] = {}
-    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 5}
+    key = {"band": list(band), "width": width, "edges": PHOTO_EDGE_PARAMS, "version": 6, "keypoints": KEYPOINT_PARAMS}
     cpath = Path(cache) if cache is not None else None
     if cpath is not None and not cpath.parent.is_dir():
         raise InvalidParameterError(f"--cache: no folder {str(cpath.parent)!r} to write {cpath.name!r} into")
@@ -418,7 +215,11 @@ def extract_features(
     for i, ph in enumerate(photos):
         if ph.file not in known and (root / ph.file).is_file():
             pano = load_photo_band(root / ph.file, band=band, width=width)
-            known[ph.file] = PhotoFeatures(_extract(pano, ph.file), hsv_histogram(pano.image), band_signature(pano))
+            t0 = time.process_time()
+            obs = _extract(pano, ph.file)
+            got = PhotoFeatures(obs, hsv_histogram(pano.image), band_signature(pano), time.process_time() - t0)
+            # as the cache stores it (rounded), so that a run from the cache gives the same figures
+            known[ph.file] = _features_from_record(json.loads(json.dumps(_features_to_record(got))))
             n_new += 1
         out.append(known.get(ph.file))
         if on_step is not None:
@@ -478,6 +279,197 @@ def jeffrey_divergence(h: FArray, k: FArray) -> FArray:
     return out
 
 
+
+# ---------------------------------------------------------------------------
+# keypoints: every pair verified once
+
+
+@dataclass(frozen=True, slots=True)
+class KeypointPairs:
+    """Every pair of photos verified once (:func:`keypoint_pairs`), as symmetric ``(n, n)`` matrices.
+
+    Attributes
+    ----------
+    model : str
+        The relative-pose model (chosen by :func:`fingerloc.terms.keypoints.choose_model`).
+    tilt_deg : float or None
+        The median tilt of the training pairs it was chosen by.
+    matches, inliers : ndarray of int, shape (n, n)
+        Descriptor matches and verified inliers (0 on the diagonal).
+    heading_deg : ndarray, shape (n, n)
+        ``[a, b]``: a feature at bearing ``x`` in ``a`` is at ``x + heading`` in ``b`` (NaN without a pose).
+    sizes : ndarray of int, shape (n,)
+        Keypoints per photo.
+    """
+
+    model: str
+    tilt_deg: float | None
+    matches: NDArray[np.int64]
+    inliers: NDArray[np.int64]
+    heading_deg: FArray
+    sizes: NDArray[np.int64]
+
+    def distances(self, *, verified: bool = True) -> FArray:
+        """The ``K`` term's distance between every two photos (:func:`fingerloc.terms.keypoints.keypoint_distance`)."""
+        from ..terms.keypoints import keypoint_distance
+
+        counts = self.inliers if verified else self.matches
+        return np.stack([keypoint_distance(counts[i], int(self.sizes[i]), self.sizes) for i in range(self.sizes.size)])
+
+
+def keypoint_pairs(
+    obs: Sequence[Observation],
+    groups: Sequence[Sequence[int]],
+    *,
+    model: str = "auto",
+    on_step: Callable[[int, int], None] | None = None,
+) -> KeypointPairs:
+    """Verify every pair of photos once, with the ``K`` term's defaults (:class:`fingerloc.terms.KeypointTerm`).
+
+    ``groups``: indices of the photos of each place, for the model choice
+    (``model="auto"``: :func:`fingerloc.terms.keypoints.choose_model` on pairs of one place).
+    The checks go through the term's memo, so that ``PlaceModel`` fits on the
+    same photos (:mod:`.panorama_model`) do not verify them again.
+    """
+    from ..features.keypoints import Keypoints
+    from ..terms.keypoints import KeypointTerm, choose_model
+
+    empty = Keypoints(np.empty(0), np.empty(0), np.empty(0), np.zeros((0, 128), dtype=np.uint8))
+    kps = [o.keypoints if o.keypoints is not None else empty for o in obs]
+    defaults = KeypointTerm()
+    tilt = None
+    if model == "auto":
+        model, tilt = choose_model(
+            [[kps[i] for i in g if len(kps[i])] for g in groups],
+            ratio=defaults.ratio,
+            threshold_deg=defaults.threshold_deg,
+            max_tilt_deg=defaults.max_tilt_deg,
+        )
+    term = KeypointTerm(shortlist=0).store([[Observation(keypoints=k)] for k in kps], model)
+    stored = np.flatnonzero([len(k) > 0 for k in kps])
+    n = len(kps)
+    matches = np.zeros((n, n), dtype=np.int64)
+    inliers = np.zeros((n, n), dtype=np.int64)
+    heading = np.full((n, n), np.nan)
+    for a_pos, a in enumerate(stored):
+        rest = np.arange(a_pos + 1, stored.size)
+        for c, b_pos in zip(term.checks(kps[a], rest), rest, strict=True):
+            b = stored[b_pos]
+            matches[a, b] = matches[b, a] = c.matches
+            inliers[a, b] = inliers[b, a] = c.inliers
+            heading[a, b] = math.degrees(c.heading)
+            heading[b, a] = -math.degrees(c.heading)
+        if on_step is not None:
+            on_step(a_pos + 1, stored.size)
+    return KeypointPairs(model, tilt, matches, inliers, heading, np.array([len(k) for k in kps], dtype=np.int64))
+
+
+def retrieval_recall(
+    obs: Sequence[Observation], owner: NDArray[np.int64], queries: Sequence[int], pairs: KeypointPairs, shortlist: int
+) -> dict[str, Any]:
+    """How often the bag-of-words shortlist (:class:`fingerloc.terms.keypoints.Vocabulary`) keeps what verification needs.
+
+    Two vocabularies, each learned on the photos of even or odd index, rank
+    the other half's queries against every other photo (the query left out);
+    the ``shortlist`` best are kept. Returns the share of queries whose
+    best-verified photo is in the shortlist (``best_view``), whose true place
+    has a photo in it (``true_place``), and the top-1 of ``K`` when only the
+    shortlist is verified (``top1_shortlist``) against every photo (``top1_all``).
+    """
+    from ..terms.keypoints import Vocabulary
+
+    units = [o.keypoints.unit_descriptors() if o.keypoints is not None else np.zeros((0, 128), np.float32) for o in obs]
+    n = len(obs)
+    vocabs = [Vocabulary([units[i] for i in range(n) if i % 2 == half]) for half in (0, 1)]
+    # each photo's histogram under each vocabulary
+    hist = [np.stack([v.histogram(u) for u in units]) for v in vocabs]
+    best_in = true_in = hit_short = hit_all = 0
+    n_places = int(owner.max()) + 1
+    for q in queries:
+        voc = 1 - q % 2  # the vocabulary learned without the query
+        s = hist[voc] @ hist[voc][q]
+        s[q] = -np.inf
+        short = np.argsort(-s, kind="stable")[:shortlist]
+        inl = pairs.inliers[q].astype(np.float64)
+        inl[q] = -1.0
+        best = int(np.argmax(inl))
+        best_in += int(best in short)
+        true_in += int(np.any(owner[short] == owner[q]))
+        for counts, hits in ((inl, "all"), (np.where(np.isin(np.arange(n), short), inl, 0.0), "short")):
+            d = np.where(np.arange(n) == q, np.inf, -counts)
+            per = min_per_place(d[None], owner, n_places)[0]
+            ok = bool(per[owner[q]] < np.delete(per, owner[q]).min()) if n_places > 1 else True
+            if hits == "all":
+                hit_all += int(ok)
+            else:
+                hit_short += int(ok)
+    m = max(len(queries), 1)
+    return {
+        "shortlist": shortlist,
+        "queries": len(queries),
+        "best_view": best_in / m,
+        "true_place": true_in / m,
+        "top1_shortlist": hit_short / m,
+        "top1_all": hit_all / m,
+    }
+
+
+# ---------------------------------------------------------------------------
+# calibration of a posterior
+
+
+def calibration(log_post: FArray, truth: NDArray[np.int64], *, bins: int = 10) -> dict[str, Any]:
+    """Reliability of the top answer of posteriors ``(n, P)`` (log, normalised) against the true places.
+
+    Returns ``ece`` (expected calibration error of the top answer: the mean
+    over ``bins`` equal-width confidence bins of ``|accuracy - mean
+    confidence|``, weighted by the bin's share of queries), ``accuracy``,
+    ``mean_confidence``, ``wrong_above_0.9`` (share of the wrong answers whose
+    posterior exceeds 0.9) and ``wrong`` (their number).
+    """
+    p = np.exp(log_post - log_post.max(axis=1, keepdims=True))
+    p /= p.sum(axis=1, keepdims=True)
+    top = np.argmax(p, axis=1)
+    conf = p[np.arange(len(p)), top]
+    right = top == truth
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.searchsorted(edges, conf, side="right") - 1, 0, bins - 1)
+    ece = 0.0
+    for b in range(bins):
+        sel = which == b
+        if sel.any():
+            ece += sel.mean() * abs(float(right[sel].mean()) - float(conf[sel].mean()))
+    wrong = ~right
+    return {
+        "ece": float(ece),
+        "accuracy": float(right.mean()) if right.size else None,
+        "mean_confidence": float(conf.mean()) if conf.size else None,
+        "wrong": int(wrong.sum()),
+        "wrong_above_0.9": float(np.mean(conf[wrong] > 0.9)) if wrong.any() else None,
+    }
+
+
+def _loo_tempered(ll: FArray, truth: NDArray[np.int64]) -> FArray:
+    """``tau * ll`` per query, one factor ``tau`` fit on the *other* queries (maximum mean log-probability of the right place)."""
+    from scipy.optimize import minimize_scalar
+    from scipy.special import logsumexp
+
+    x = np.where(np.isfinite(ll), ll, -1e6)
+    rows = np.arange(truth.size)
+    right = x[rows, truth]
+    out = np.empty_like(x)
+    for k in range(truth.size):
+        keep = rows != k
+
+        def nll(log_tau: float, keep: NDArray[np.bool_] = keep) -> float:
+            z = math.exp(log_tau) * x[keep]
+            return float(-(math.exp(log_tau) * right[keep] - logsumexp(z, axis=1)).mean())
+
+        res = minimize_scalar(nll, bounds=(-6.0, 3.0), method="bounded")
+        out[k] = math.exp(res.x) * x[k]
+    return out
+
+
 # ---------------------------------------------------------------------------
 # leave-one-out
 
@@ -488,23 +480,24 @@ PANORAMA_METHODS: tuple[str, ...] = (
     "CP",
     "Fp",
     "A",
+    "AP",
+    "K",
+    "K unverified",
     "VE+CP+Fp",
     "Fp+A",
-    "VE+CP+Fp+A",
     "VE+CP+Fp+A weighted",
-    "hsv-baseline",
-    "AP",
     "A+AP",
-    "Fp+A+AP",
-    "A+AP weighted",
     "Fp+A+AP weighted",
-    "K",
     "A+K",
+    "A+K unverified",
+    "A+AP+K",
     "A+K weighted",
     "Fp+A+AP+K weighted",
+    "A+K tempered",
+    "hsv-baseline",
 )
 
-#: Terms whose weights :func:`_loo_weighted_sum` fits.
+#: Terms whose weights :func:`_loo_weighted_sum` fits in ``"VE+CP+Fp+A weighted"``.
 WEIGHTED_TERMS: tuple[str, ...] = ("VE", "CP", "Fp", "A")
 
 
@@ -579,25 +572,13 @@ def profile_distances(obs: Sequence[Observation]) -> FArray:
     return np.stack([1.0 - profile_peaks(p, ffts, prof.shape[1])[0] for p in prof])
 
 
-def keypoint_distances(obs: Sequence[Observation]) -> FArray:
-    """The ``K`` term's distance from every observation (row) to every other (column), shape ``(n, n)``.
-
-    :func:`fingerloc.terms.keypoints.match_counts` of each view against all
-    (query -> reference, as the term matches), turned into
-    :func:`fingerloc.terms.keypoints.keypoint_distance`; inf where a view has
-    no keypoints.
-    """
-    from ..features.keypoints import Keypoints
-    from ..terms.keypoints import _Refs, keypoint_distance, match_counts
-
-    empty = Keypoints(np.empty(0), np.empty(0), np.empty(0), np.zeros((0, 1), dtype=np.uint8))
-    kps = [o.keypoints if o.keypoints is not None else empty for o in obs]
-    refs = _Refs(kps)
-    return np.stack([keypoint_distance(match_counts(k, refs), len(k), refs.sizes) for k in kps])
-
-
 def _loo_scores(
-    obs: list[Observation], labels: list[str], hists: list[FArray], queries: Sequence[int], n_components: int
+    obs: list[Observation],
+    labels: list[str],
+    hists: list[FArray],
+    queries: Sequence[int],
+    n_components: int,
+    kdist: dict[str, FArray],
 ) -> tuple[dict[str, FArray], NDArray[np.int64]]:
     """Per-method scores ``(n_queries, P)`` and the true place of each query."""
     from scipy.spatial.distance import cdist
@@ -636,84 +617,121 @@ def _loo_scores(
     app = np.stack([o.appearance for o in obs])  # type: ignore[misc]
     out["A"] = _loo_distance_ll(cdist(app, app, metric="cityblock"), owner, n_places, queries)
     out["AP"] = _loo_distance_ll(profile_distances(obs), owner, n_places, queries)
-    out["K"] = _loo_distance_ll(keypoint_distances(obs), owner, n_places, queries)
-    for combo in PANORAMA_METHODS:
-        if "+" in combo and " " not in combo:
-            out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
-    out["VE+CP+Fp+A weighted"] = _loo_weighted_sum([out[t] for t in WEIGHTED_TERMS], owner[list(queries)])
-    out["A+AP weighted"] = _loo_weighted_sum([out["A"], out["AP"]], owner[list(queries)])
-    out["Fp+A+AP weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP")], owner[list(queries)])
-    out["A+K weighted"] = _loo_weighted_sum([out["A"], out["K"]], owner[list(queries)])
-    out["Fp+A+AP+K weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP", "K")], owner[list(queries)])
+    out["K"] = _loo_distance_ll(kdist["K"], owner, n_places, queries)
+    out["K unverified"] = _loo_distance_ll(kdist["K unverified"], owner, n_places, queries)
+    truth = owner[list(queries)]
+    for combo in ("VE+CP+Fp", "Fp+A", "A+AP", "A+K", "A+AP+K"):
+        out[combo] = np.sum([out[t] for t in combo.split("+")], axis=0)
+    out["A+K unverified"] = out["A"] + out["K unverified"]
+    out["VE+CP+Fp+A weighted"] = _loo_weighted_sum([out[t] for t in WEIGHTED_TERMS], truth)
+    out["Fp+A+AP weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP")], truth)
+    out["A+K weighted"] = _loo_weighted_sum([out["A"], out["K"]], truth)
+    out["Fp+A+AP+K weighted"] = _loo_weighted_sum([out[t] for t in ("Fp", "A", "AP", "K")], truth)
+    out["A+K tempered"] = _loo_tempered(out["A+K"], truth)
     h = np.stack(hists)
     dj = jeffrey_divergence(h, h)
     np.fill_diagonal(dj, np.inf)
     out["hsv-baseline"] = -min_per_place(dj[list(queries)], owner, n_places)
-    return out, owner[list(queries)]
+    return out, truth
 
 
 def run_panorama_bench(
     photo_dir: str | Path,
-    areas_dir: str | Path,
+    areas_dir: str | Path | None = None,
     *,
+    labels: str | Path | None = None,
     minimap: str | Path | None = None,
     cache: str | Path | None = None,
     spacing: float = 0.03,
     n_components: int = 3,
     width: int = DEFAULT_WIDTH,
     max_queries: int | None = None,
+    shortlist: int = 40,
     on_step: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
-    """Leave-one-out top-1 and mean rank per method, places by area and by position (module docstring).
+    """Leave-one-out top-1, mean rank and calibration per method, places by area and by position (module docstring).
+
+    Give the tour's area definitions (``areas_dir``, with ``minimap``) or a
+    labels CSV (``labels``: ``file,place[,x,y]``, files relative to
+    ``photo_dir``).
 
     Returns
     -------
     dict
-        ``{"photos": n, "features": {...}, "places": {"area": {...}, "position": {...}}}``;
-        per definition: ``n_places``, ``n_queries``, and per method ``top1``, ``mean_rank``.
+        ``{"photos", "features", "keypoints", "places": {"area": {...}, "position": {...}}, "heading_links"}``;
+        per definition: ``n_places``, ``n_queries``, per method ``top1``,
+        ``mean_rank`` and ``calibration``, and the shortlist's ``retrieval`` recall.
     """
-    photos = load_tour_layout(areas_dir, minimap)
-    feats = extract_features(
-        photo_dir,
-        photos,
-        cache=cache,
-        width=width,
-        on_step=None if on_step is None else lambda i, n: on_step("extract", i, n),
-    )
+    if (areas_dir is None) == (labels is None):
+        raise InvalidParameterError("give the tour's area definitions (--areas) or a labels CSV (--labels), one of them")
+    photos = load_tour_layout(areas_dir, minimap) if areas_dir is not None else load_labels_csv(labels)  # type: ignore[arg-type]
+    step = (lambda name: (lambda i, n: on_step(name, i, n))) if on_step is not None else (lambda name: None)
+    feats = extract_features(photo_dir, photos, cache=cache, width=width, on_step=step("extract"))
     have = [i for i, f in enumerate(feats) if f is not None]
-    obs = [None if f is None else f.observation for f in feats]
-    hists = [None if f is None else f.hsv_hist for f in feats]
     if len(have) < 3:
         raise DataFormatError(f"only {len(have)} of the tour's photos were found", path=Path(photo_dir))
+    obs_all: list[Observation | None] = [None if f is None else f.observation for f in feats]
+    obs = [obs_all[i] for i in have]
+    cpu = np.array([feats[i].extract_cpu_s for i in have])  # type: ignore[union-attr]
     res: dict[str, Any] = {
         "photos": len(have),
         "photos_listed": len(photos),
         "features": {
-            "VE_per_photo": float(np.mean([obs[i].ve.size for i in have])),  # type: ignore[union-attr]
-            "CP_per_photo": float(np.mean([obs[i].cp.size for i in have])),  # type: ignore[union-attr]
+            "VE_per_photo": float(np.mean([o.ve.size for o in obs])),  # type: ignore[union-attr]
+            "CP_per_photo": float(np.mean([o.cp.size for o in obs])),  # type: ignore[union-attr]
+            "keypoints_per_photo": float(np.mean([len(o.keypoints or ()) for o in obs])),  # type: ignore[union-attr, arg-type]
+            "extract_cpu_s_per_photo": float(np.nanmean(cpu)) if np.isfinite(cpu).any() else None,
         },
         "places": {},
     }
+    by_area = places_by_area(photos)
+    groups: dict[str, list[int]] = {}
+    for k, i in enumerate(have):
+        groups.setdefault(str(by_area[i]), []).append(k)
+    pairs = keypoint_pairs(obs, list(groups.values()), on_step=step("verify"))  # type: ignore[arg-type]
+    res["keypoints"] = {
+        "model": pairs.model,
+        "tilt_deg": pairs.tilt_deg,
+        "inliers_same_area_median": _median_pairs(pairs.inliers, [by_area[i] for i in have], True),
+        "inliers_other_area_p99": _quantile_pairs(pairs.inliers, [by_area[i] for i in have], 0.99),
+    }
+    kd = {"K": pairs.distances(), "K unverified": pairs.distances(verified=False)}
     res["heading"] = heading_errors(photos, feats)
-    res["heading_links"] = heading_link_errors(load_tour_links(areas_dir), photos, feats)
-    for name, labels_all in (
-        ("area", places_by_area(photos)),
-        ("position", places_by_position(photos, spacing=spacing)),
-    ):
-        idx = [i for i in have if labels_all[i] is not None]
-        sub_obs = [obs[i] for i in idx]
-        sub_lab = [str(labels_all[i]) for i in idx]
-        sub_h = [hists[i] for i in idx]
+    if areas_dir is not None:
+        pos = {i: k for k, i in enumerate(have)}
+
+        def check(a: Observation, b: Observation) -> Any:
+            from ..terms.keypoints import PairCheck
+
+            ia, ib = pos[_index_of(feats, a)], pos[_index_of(feats, b)]
+            h = pairs.heading_deg[ia, ib]
+            return PairCheck(int(pairs.matches[ia, ib]), int(pairs.inliers[ia, ib]), math.radians(h) if np.isfinite(h) else math.nan, math.nan)
+
+        res["heading_links"] = heading_link_errors(load_tour_links(areas_dir), photos, feats, keypoint_check=check)
+    for name, labels_all in (("area", by_area), ("position", places_by_position(photos, spacing=spacing))):
+        idx = [k for k, i in enumerate(have) if labels_all[i] is not None]
+        sub_obs = [obs[k] for k in idx]
+        sub_lab = [str(labels_all[have[k]]) for k in idx]
+        sub_h = [feats[have[k]].hsv_hist for k in idx]  # type: ignore[union-attr]
         counts: dict[str, int] = {}
         for lab in sub_lab:
             counts[lab] = counts.get(lab, 0) + 1
         queries = [k for k, lab in enumerate(sub_lab) if counts[lab] >= 2]
         if max_queries is not None and len(queries) > max_queries:
             queries = sorted(np.random.default_rng(0).choice(queries, max_queries, replace=False).tolist())
+        if len(counts) < 2 or not queries:
+            continue
         if on_step is not None:
             on_step(name, 0, len(queries))
-        scores, truth = _loo_scores(sub_obs, sub_lab, sub_h, queries, n_components)  # type: ignore[arg-type]
+        sub = np.ix_(idx, idx)
+        scores, truth = _loo_scores(
+            sub_obs, sub_lab, sub_h, queries, n_components, {k: v[sub] for k, v in kd.items()}  # type: ignore[arg-type]
+        )
         ranks = {m: true_place_ranks(scores[m], truth).tolist() for m in PANORAMA_METHODS}
+        classes = sorted(set(sub_lab))
+        owner = np.array([classes.index(lab) for lab in sub_lab], dtype=np.int64)
+        sub_pairs = KeypointPairs(pairs.model, pairs.tilt_deg, pairs.matches[sub], pairs.inliers[sub],
+                                  pairs.heading_deg[sub], pairs.sizes[idx])  # fmt: skip
         res["places"][name] = {
             "n_places": len(counts),
             "n_queries": len(queries),
@@ -721,320 +739,38 @@ def run_panorama_bench(
                 m: {
                     "top1": float(np.mean(np.asarray(r) == 1)) if r else None,
                     "mean_rank": float(np.mean(r)) if r else None,
+                    "calibration": calibration(_normalised(scores[m]), truth),
                 }
                 for m, r in ranks.items()
             },
+            "retrieval": retrieval_recall(sub_obs, owner, queries, sub_pairs, shortlist),  # type: ignore[arg-type]
         }
     return res
 
 
-# ---------------------------------------------------------------------------
-# vertical edges against hand labels
+def _normalised(scores: FArray) -> FArray:
+    from scipy.special import logsumexp
+
+    x = np.where(np.isfinite(scores), scores, -1e6)
+    return np.asarray(x - logsumexp(x, axis=1, keepdims=True))
 
 
-def _match_count(found: FArray, truth: FArray, tol: float) -> int:
-    """Greedy one-to-one matches within ``tol`` degrees on the circle, closest pairs first."""
-    if found.size == 0 or truth.size == 0:
-        return 0
-    d = np.abs((found[:, None] - truth[None, :] + 180.0) % 360.0 - 180.0)
-    pairs = sorted((float(d[i, j]), i, j) for i in range(found.size) for j in range(truth.size) if d[i, j] <= tol)
-    used_f: set[int] = set()
-    used_t: set[int] = set()
-    for _, i, j in pairs:
-        if i not in used_f and j not in used_t:
-            used_f.add(i)
-            used_t.add(j)
-    return len(used_f)
+def _index_of(feats: Sequence[PhotoFeatures | None], o: Observation) -> int:
+    for i, f in enumerate(feats):
+        if f is not None and f.observation is o:
+            return i
+    raise KeyError(o.source)
 
 
-def load_edge_labels(path: str | Path) -> dict[str, Any]:
-    """Read and check a hand-label file (see ``tests/data/campus_edges.json`` for the format)."""
-    p = Path(path)
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
-    except json.JSONDecodeError as err:
-        raise DataFormatError(f"malformed JSON ({err.msg})", path=p) from err
-    try:
-        tol = float(data["tolerance_deg"])
-        photos = data["photos"]
-        for ph in photos:
-            lo, hi = (float(v) for v in ph["range_deg"])
-            cols = [float(v) for v in ph["column_deg"]]
-            if not (0 <= lo < hi <= 360) or any(not lo <= c <= hi for c in cols) or not isinstance(ph["file"], str):
-                raise ValueError(ph.get("file"))
-    except (KeyError, TypeError, ValueError) as err:
-        raise DataFormatError(
-            f'expected {{"tolerance_deg": x, "photos": [{{"file", "range_deg", "column_deg"}}, ...]}} ({err})', path=p
-        ) from err
-    if not (math.isfinite(tol) and tol > 0):
-        raise DataFormatError(f"tolerance_deg must be > 0, got {tol!r}", path=p)
-    return dict(data)
+def _median_pairs(m: NDArray[np.int64], labels: Sequence[Any], same: bool) -> float | None:
+    iu = np.triu_indices(len(labels), 1)
+    lab = np.asarray([str(x) for x in labels])
+    sel = (lab[iu[0]] == lab[iu[1]]) == same
+    return float(np.median(m[iu][sel])) if sel.any() else None
 
 
-def run_edge_bench(
-    labels: str | Path,
-    photo_dir: str | Path,
-    *,
-    band: tuple[float, float] = DEFAULT_BAND,
-    width: int = DEFAULT_WIDTH,
-    edge_params: dict[str, Any] | None = None,
-    tol_deg: float | None = None,
-) -> dict[str, Any]:
-    """Precision and recall of :func:`~fingerloc.features.vision.vertical_edges` against hand labels.
-
-    Only detections inside each photo's labelled ``range_deg`` count.
-    ``edge_params`` default to :data:`PHOTO_EDGE_PARAMS`. Detected bearings
-    are turned into column degrees (``column_deg = -bearing``, the panorama's
-    default orientation).
-    """
-    from ..features.vision import vertical_edges
-
-    data = load_edge_labels(labels)
-    tol = float(data["tolerance_deg"]) if tol_deg is None else float(tol_deg)
-    params = dict(PHOTO_EDGE_PARAMS if edge_params is None else edge_params)
-    root = Path(photo_dir)
-    per: list[dict[str, Any]] = []
-    tp = n_found = n_true = 0
-    for ph in data["photos"]:
-        pano = load_photo_band(root / ph["file"], band=band, width=width)
-        cols = np.mod(-np.rad2deg(vertical_edges(pano, **params)), 360.0)
-        lo, hi = (float(v) for v in ph["range_deg"])
-        cols = cols[(cols >= lo) & (cols <= hi)]
-        truth = np.asarray(ph["column_deg"], dtype=np.float64)
-        m = _match_count(cols, truth, tol)
-        per.append({"file": ph["file"], "found": int(cols.size), "true": int(truth.size), "matched": m})
-        tp, n_found, n_true = tp + m, n_found + cols.size, n_true + truth.size
-    return {
-        "tolerance_deg": tol,
-        "band": list(band),
-        "width": width,
-        "edge_params": params,
-        "photos": per,
-        "precision": tp / n_found if n_found else None,
-        "recall": tp / n_true if n_true else None,
-        "matched": tp,
-        "found": int(n_found),
-        "true": int(n_true),
-    }
-
-
-# ---------------------------------------------------------------------------
-# heading between two panoramas
-
-
-def band_signature(pano: Any, *, columns: int = 360, strips: int = 4) -> FArray:
-    """Per-bearing signature of a panorama for the image-to-image rotation, shape ``(columns, 3 * strips)``.
-
-    The band is averaged into ``columns`` columns and ``strips`` horizontal
-    strips; each cell holds its mean log luminance and two chromaticities;
-    each channel is standardised over the columns.
-    """
-    img = np.asarray(pano.image, dtype=np.float64)
-    h, w, _ = img.shape
-    lum = img @ np.array([0.299, 0.587, 0.114])
-    tot = img.sum(axis=2) + 0.06
-    chans = np.stack([np.log(lum + 0.02), img[:, :, 0] / tot, img[:, :, 1] / tot], axis=2)
-    # cell means by cumulative sums over the strip and column boundaries
-    rb = np.linspace(0, h, strips + 1).round().astype(np.int64)
-    cb = np.linspace(0, w, columns + 1).round().astype(np.int64)
-    cum = np.zeros((h + 1, w + 1, 3))
-    cum[1:, 1:] = chans.cumsum(axis=0).cumsum(axis=1)
-    box = cum[rb[1:]][:, cb[1:]] - cum[rb[:-1]][:, cb[1:]] - cum[rb[1:]][:, cb[:-1]] + cum[rb[:-1]][:, cb[:-1]]
-    area = np.maximum(np.diff(rb)[:, None] * np.diff(cb)[None, :], 1)[:, :, None]
-    sig = (box / area).transpose(1, 0, 2).reshape(columns, strips * 3)  # (columns, strips * channels)
-    sig -= sig.mean(axis=0)
-    sig /= np.maximum(sig.std(axis=0), 1e-9)
-    return sig
-
-
-def image_rotation_deg(a: Any, b: Any, *, columns: int = 360) -> tuple[float, float]:
-    """Rotation between two panoramas by brute-force circular cross-correlation of their band signatures.
-
-    Returns ``(heading_deg, peak)``: a feature at bearing ``x`` in ``a`` is at
-    bearing ``x + heading_deg`` in ``b`` (degrees, ``[0, 360)``), and the
-    correlation at the best shift (1: identical up to rotation). Both
-    panoramas must share the column orientation (``clockwise``).
-    """
-    if a.clockwise != b.clockwise:
-        raise InvalidParameterError("both panoramas must have the same column orientation (clockwise)")
-    return signature_rotation_deg(
-        band_signature(a, columns=columns), band_signature(b, columns=columns), clockwise=a.clockwise
-    )
-
-
-def signature_rotation_deg(sa: FArray, sb: FArray, *, clockwise: bool = True) -> tuple[float, float]:
-    """:func:`image_rotation_deg` on two :func:`band_signature` arrays of one shape ``(columns, c)``."""
-    columns = sa.shape[0]
-    # corr[s] = mean over columns of <sa[j], sb[j + s]>
-    fa, fb = np.fft.rfft(sa, axis=0), np.fft.rfft(sb, axis=0)
-    corr = np.fft.irfft(np.conj(fa) * fb, n=columns, axis=0).sum(axis=1) / (columns * sa.shape[1])
-    s = int(np.argmax(corr))
-    sign = -1.0 if clockwise else 1.0  # b's column j + s holds a's column j
-    return float(np.mod(sign * s * 360.0 / columns, 360.0)), float(corr[s])
-
-
-def fingerprint_heading_deg(a: Observation, b: Observation) -> float | None:
-    """Heading from the cyclic alignment of the fingerprints (feature-aware costs), same convention as above."""
-    from ..align import CostModel, cyclic_alignment
-    from ..fingerprint import make_fingerprint
-
-    r = cyclic_alignment(make_fingerprint(a), make_fingerprint(b), costs=CostModel.feature_aware())
-    if r.heading_deg is None:
-        return None
-    # cyclic_alignment: bearing_a = bearing_b + heading_deg  ->  bearing_b = bearing_a - heading_deg
-    return float(np.mod(-r.heading_deg, 360.0))
-
-
-def feature_heading_deg(a: Observation, b: Observation, *, sigma_deg: float = 2.0, bins: int = 720) -> float | None:
-    """Heading by brute-force circular correlation of the feature bearings (same convention as above).
-
-    Each feature type becomes a circular density on ``bins`` bins (a Gaussian
-    of ``sigma_deg`` per feature; colour patches one density per hue letter,
-    so that only patches of one letter pair up); the heading maximises the sum
-    over the types of the correlation of ``a``'s densities with ``b``'s. None
-    when the two share no feature type.
-    """
-    from ..fingerprint import hue_letter
-
-    grid = np.arange(bins) * 360.0 / bins
-
-    def density(bearings_rad: FArray) -> FArray:
-        deg = np.mod(np.rad2deg(bearings_rad), 360.0)
-        d = (grid[None, :] - deg[:, None] + 180.0) % 360.0 - 180.0
-        out: FArray = np.exp(-0.5 * (d / sigma_deg) ** 2).sum(axis=0)
-        return out
-
-    def groups(o: Observation) -> dict[str, FArray]:
-        g = {"VE": o.ve}
-        letters = [hue_letter(float(h)) for h in o.cp_hue]
-        for letter in sorted(set(letters)):
-            g["CP" + letter] = o.cp[[k for k, x in enumerate(letters) if x == letter]]
-        return g
-
-    ga, gb = groups(a), groups(b)
-    corr = np.zeros(bins)
-    shared = False
-    for key in ga.keys() & gb.keys():
-        if ga[key].size and gb[key].size:
-            shared = True
-            fa, fb = np.fft.rfft(density(ga[key])), np.fft.rfft(density(gb[key]))
-            corr += np.fft.irfft(np.conj(fa) * fb, n=bins)  # corr[s] = sum_j da[j] db[j + s]
-    if not shared:
-        return None
-    return float(grid[int(np.argmax(corr))])
-
-
-def heading_errors(photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures | None]) -> dict[str, Any]:
-    """Fingerprint heading against the image-to-image rotation, on consecutive photos of one area.
-
-    Returns the number of pairs, the median absolute error (degrees) and the
-    share of pairs within 30 deg, over all pairs and over the pairs whose
-    signature correlation peak is at least 0.5 (the oracle is then clear),
-    and the median error of a random heading (90 deg) for reference.
-    """
-    errs: list[float] = []
-    errs_f: list[float] = []
-    peaks: list[float] = []
-    rows: list[dict[str, Any]] = []
-    for k in range(len(photos) - 1):
-        a, b = photos[k], photos[k + 1]
-        fa, fb = feats[k], feats[k + 1]
-        if a.area != b.area or fa is None or fb is None:
-            continue
-        truth, peak = signature_rotation_deg(fa.signature, fb.signature)
-        h = fingerprint_heading_deg(fa.observation, fb.observation)
-        err = 180.0 if h is None else abs((h - truth + 180.0) % 360.0 - 180.0)
-        hf = feature_heading_deg(fa.observation, fb.observation)
-        errf = 180.0 if hf is None else abs((hf - truth + 180.0) % 360.0 - 180.0)
-        errs.append(err)
-        errs_f.append(errf)
-        peaks.append(peak)
-        rows.append(
-            {
-                "a": a.file,
-                "b": b.file,
-                "oracle_deg": truth,
-                "peak": peak,
-                "fp_deg": h,
-                "error_deg": err,
-                "features_deg": hf,
-                "features_error_deg": errf,
-            }
-        )
-    pk = np.asarray(peaks)
-
-    def summary(e: FArray, sel: NDArray[np.bool_]) -> dict[str, Any]:
-        if not sel.any():
-            return {"pairs": 0, "median_error_deg": None, "within_30": None}
-        return {
-            "pairs": int(sel.sum()),
-            "median_error_deg": float(np.median(e[sel])),
-            "within_30": float(np.mean(e[sel] <= 30.0)),
-        }
-
-    out: dict[str, Any] = {}
-    for name, e in (("Fp", np.asarray(errs)), ("features", np.asarray(errs_f))):
-        out[f"{name}, all pairs"] = summary(e, np.ones(e.size, dtype=bool))
-        out[f"{name}, clear oracle"] = summary(e, pk >= 0.5)
-    out["pairs"] = rows
-    return out
-
-
-#: Heading estimators of :func:`heading_link_errors`.
-HEADING_ESTIMATORS: tuple[str, ...] = ("profile", "Fp", "features", "signature")
-
-
-def heading_link_errors(
-    links: Sequence[TourLink], photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures | None]
-) -> dict[str, Any]:
-    """Heading estimators against the tour's arrows (:func:`load_tour_links`), on the photos linked both ways.
-
-    Estimators: ``profile`` (:func:`fingerloc.features.vision.profile_rotation_deg`
-    on the observations' column profiles, what ``localize`` reports with the
-    ``AP`` term), ``Fp`` (the fingerprint's cyclic alignment), ``features``
-    (:func:`feature_heading_deg`) and ``signature`` (the former oracle,
-    :func:`signature_rotation_deg`). Per estimator, over all linked pairs and
-    over the pairs of one area: the number of pairs, the median absolute
-    error (degrees) and the share within 30 deg; ``pairs`` lists every pair.
-    """
-    from ..features.vision import profile_rotation_deg
-
-    by_file = {p.file: f for p, f in zip(photos, feats, strict=True)}
-    errs: dict[str, list[float]] = {k: [] for k in HEADING_ESTIMATORS}
-    same: list[bool] = []
-    rows: list[dict[str, Any]] = []
-
-    def err(h: float | None, truth: float) -> float:
-        return 180.0 if h is None else abs((h - truth + 180.0) % 360.0 - 180.0)
-
-    for ln in links:
-        fa, fb = by_file.get(ln.a), by_file.get(ln.b)
-        if fa is None or fb is None:
-            continue
-        oa, ob = fa.observation, fb.observation
-        est: dict[str, float | None] = {
-            "profile": None
-            if oa.profile is None or ob.profile is None
-            else profile_rotation_deg(oa.profile, ob.profile)[0],
-            "Fp": fingerprint_heading_deg(oa, ob),
-            "features": feature_heading_deg(oa, ob),
-            "signature": signature_rotation_deg(fa.signature, fb.signature)[0],
-        }
-        for k, h in est.items():
-            errs[k].append(err(h, ln.heading_deg))
-        same.append(ln.same_area)
-        rows.append({"a": ln.a, "b": ln.b, "truth_deg": ln.heading_deg, "same_area": ln.same_area, **est})
-    sel_same = np.asarray(same, dtype=bool)
-    out: dict[str, Any] = {}
-    for k, e in errs.items():
-        arr = np.asarray(e)
-        for name, sel in (("all links", np.ones(arr.size, dtype=bool)), ("same area", sel_same)):
-            out[f"{k}, {name}"] = {
-                "pairs": int(sel.sum()),
-                "median_error_deg": float(np.median(arr[sel])) if sel.any() else None,
-                "within_30": float(np.mean(arr[sel] <= 30.0)) if sel.any() else None,
-            }
-    out["pairs"] = rows
-    return out
+def _quantile_pairs(m: NDArray[np.int64], labels: Sequence[Any], q: float) -> float | None:
+    iu = np.triu_indices(len(labels), 1)
+    lab = np.asarray([str(x) for x in labels])
+    sel = lab[iu[0]] != lab[iu[1]]
+    return float(np.quantile(m[iu][sel], q)) if sel.any() else None

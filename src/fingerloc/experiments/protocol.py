@@ -70,11 +70,14 @@ def make_split(
     *,
     place_spacing: float = PLACE_SPACING_M,
     radius: float = PLACE_RADIUS_M,
+    n_mapping: int | None = None,
 ) -> Split:
     """Apply the benchmark's protocol to a trajectory (module docstring, steps 1-3).
 
     The library's :func:`~fingerloc.pipeline.places.places_from_trajectory`
-    with the first half of the scans mapping (``fingerloc map``'s defaults).
+    with the first half of the scans mapping (``fingerloc map``'s defaults),
+    or the first ``n_mapping`` scans when given (a hardened benchmark run:
+    :func:`fingerloc.experiments.carmen.run_benchmark`'s ``mapping_part``).
 
     Parameters
     ----------
@@ -85,13 +88,16 @@ def make_split(
     radius : float, default 1.0
         ``R``, metres (inclusive).
 
+    n_mapping : int, optional
+        Scans of the mapping pass (default ``n // 2``).
+
     Returns
     -------
     Split
     """
     if not (isinstance(place_spacing, (int, float)) and place_spacing > 0 and math.isfinite(place_spacing)):
         raise InvalidParameterError(f"place_spacing must be a positive number of metres, got {place_spacing!r}")
-    return places_from_trajectory(positions, mapping_part=0.5, spacing=place_spacing, radius=radius)
+    return places_from_trajectory(positions, mapping_part=0.5, n_mapping=n_mapping, spacing=place_spacing, radius=radius)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -33,7 +33,9 @@ __all__ = [
     "QueryExplanation",
     "confusion_matrix",
     "explain_query",
+    "findings_markdown",
     "robot_tables_markdown",
+    "term_scale_markdown",
     "write_demo_report",
 ]
 
@@ -133,6 +135,48 @@ def robot_tables_markdown(res: RobotResult) -> str:
         if err is not None:
             lines += ["", f"Median heading error of the cyclic alignment (true place): {err:.1f} deg."]
     lines += ["", f"Brackets: {res.ci_method()}."]
+    lines += ["", findings_markdown(res), term_scale_markdown(res)]
+    return "\n".join(lines) + "\n"
+
+
+def findings_markdown(res: RobotResult) -> str:
+    """The paper's findings beside ours (:meth:`RobotResult.findings`) as a Markdown table."""
+    n = len(res.trials)
+    how = f"paired over {n} trials" if n > 1 else "paired over this trial's test queries"
+    lines = [
+        f"### The paper's findings (difference in right classification, points; 95 % interval {how})",
+        "",
+        "| finding | paper | ours | verdict |",
+        "|---|---:|---:|---|",
+    ]
+    for f in res.findings():
+        lines.append(f"| {f.claim} | {100 * f.paper:+.1f} | {_ci(f.ours, f.ci95, '+.1f', 100)} | {f.verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def term_scale_markdown(res: RobotResult) -> str:
+    """How far each term moves the places, and the fitted weights (:meth:`RobotResult.term_stats`), as Markdown."""
+    stats = res.term_stats()
+    if not stats:
+        return ""
+    lines = [
+        "### How far each term moves the places (nats), and the weights fit on the training views",
+        "",
+        "Median over the test queries of (largest - smallest log-likelihood over the places). The paper's "
+        "P(Fp) = 1/(cost+1) spans little next to the mixtures: with weights of 1 the string barely counts.",
+        "",
+        "| k | VE | Ex | Fp, 1/(cost+1) | Fp, exp(-λ cost) | λ | fitted weights VE / Ex / Fp |",
+        "|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for k, st in stats.items():
+        sp, w, lam = st["spread_nats"], st["fitted_weights"], st.get("fp_lambda")
+        lines.append(
+            f"| {k} | {sp['VE']:.1f} | {sp['Ex']:.1f} | {sp['Fp']:.2f} | {sp.get('Fp-exp', math.nan):.1f} | "
+            + ("-" if lam is None else f"{lam:.2f}")
+            + " | "
+            + " / ".join(f"{w.get(t, math.nan):.2f}" for t in ("VE", "Ex", "Fp"))
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -306,10 +350,24 @@ def _visit_note(data: TrialData, office: str) -> str:
     """What changed in ``office`` between the training and the test visit, as a sentence ("" if nothing)."""
     from ..sim.sessions import describe_visit
 
+    turn = _visit_turn_deg(data, office)
+    turned = f"the robot's heading {turn:+.0f} deg off the training visit's" if abs(turn) >= 1.0 else ""
     for before, after in zip(data.worlds, data.test_worlds or data.worlds, strict=True):
         if before.name == office and after is not before:
-            return f" Between the training and the test visit of {office}: {describe_visit(before, after)}."
-    return ""
+            what = describe_visit(before, after)
+            what = turned if what == "nothing changed" and turned else ", ".join(v for v in (what, turned) if v)
+            return f" Between the training and the test visit of {office}: {what}."
+    return f" Between the training and the test visit of {office}: {turned}." if turned else ""
+
+
+def _visit_turn_deg(data: TrialData, office: str) -> float:
+    """Mean heading of the office's test measurements minus that of its training ones, degrees (0 if none)."""
+    idx = next((i for i, w in enumerate(data.worlds) if w.name == office), None)
+    heads = {r: [m.pose[2] for m in data.measurements if m.office == idx and m.role == r] for r in ("train", "test")}
+    if not heads["train"] or not heads["test"]:
+        return 0.0
+    d = float(np.mean(heads["test"])) - float(np.mean(heads["train"]))
+    return math.degrees(math.atan2(math.sin(d), math.cos(d)))
 
 
 _PROGRAM_NAMES = {
@@ -515,8 +573,19 @@ def _page(
     out: Path,
     why: QueryExplanation | None = None,
 ) -> str:
+    from .robot_findings import reference_story
+
     p = res.protocol
+    perception = p.perception
+    change = p.session_change
+    turn_note = (
+        f" (set by eye: at the later test visit it is off the training visit's by an angle per office, "
+        f"{change.heading_offset_deg:g} deg standard deviation)"
+        if change is not None and change.heading_offset_deg > 0
+        else ""
+    )
     n_meas = sum(1 for m in data.measurements if m.role in ("train", "test"))
+    story = reference_story()
     top1 = float(np.mean(np.argmax(ev.posterior, axis=1) == ev.truth)) if ev.posterior.size else math.nan
     lines = [
         "# fingerloc demo report",
@@ -528,11 +597,18 @@ def _page(
         "",
         f"1. **Simulate**: {p.n_offices} offices that resemble each other; in each, {p.n_train} training "
         f"measurements on a circle of {100 * p.train_radius_m[0]:.0f}-{100 * p.train_radius_m[1]:.0f} cm radius "
-        f"and {p.n_test} test measurements inside it, same heading ({n_meas} measurements). Each gives a raw "
+        f"and {p.n_test} test measurements inside it, about the same heading{turn_note} ({n_meas} measurements). "
+        "Each gives a raw "
         f"360 deg laser scan ({p.n_beams} beams, intensities) and a raw {p.omni_size[0]}x{p.omni_size[1]} "
         "omnidirectional image.",
         "2. **Extract**: laser corners, extremities and beacons from the scan; the donut unwarped to a panorama, "
-        "then vertical edges and colour patches. No ground truth is used.",
+        "then vertical edges and colour patches. No ground truth is used."
+        + (
+            " The robot's extractors then miss and invent a few features, as a real robot's do "
+            f"(detection probability {perception.camera_detection:g} per feature)."
+            if perception is not None
+            else ""
+        ),
         "3. **Learn**: per office, a mixture of Gaussians on the circle for each feature type (EM) and the "
         "training fingerprints.",
         f"4. **Localize**: the {p.n_offices * p.n_test} test measurements, by the Bayesian program "
@@ -541,6 +617,7 @@ def _page(
         f"Full program (VE, Ex & fingerprint, k = {max(p.ks)}): **{100 * top1:.0f}%** of the test measurements "
         "placed in the right office in this trial. `fingerloc reproduce robot` averages over many trials.",
         "",
+        *(["## What reproduces, and what does not", "", *(f"    {line}" for line in story), ""] if story else []),
         "## Tables (one trial), beside the paper's robot",
         "",
         robot_tables_markdown(res),

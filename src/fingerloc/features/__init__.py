@@ -4,7 +4,11 @@
   beacons ``B`` of a :class:`~fingerloc.sensors.Scan`.
 - :mod:`fingerloc.features.vision`: vertical edges ``VE`` and colour patches
   ``CP`` of a :class:`~fingerloc.sensors.Panorama`, and the unwarping of an
-  omnidirectional image.
+  omnidirectional image; :mod:`fingerloc.features.appearance`: the
+  appearance descriptor (``A``) and the column profile (``AP``).
+- :mod:`fingerloc.features.keypoints`: OpenCV SIFT keypoints on the sphere
+  (``K``); :mod:`fingerloc.features.sphere`: two-view geometry on bearing
+  vectors (relative pose by RANSAC, headings).
 """
 
 from __future__ import annotations

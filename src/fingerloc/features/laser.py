@@ -45,18 +45,19 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 from .._types import FArray
 from ..angles import TWO_PI, wrap
 from ..errors import InvalidParameterError
 from ..observation import Observation
 from ..sensors import Scan
+from .laser_beacons import beacon_bearings
+from .laser_params import LaserParams
 
 __all__ = [
     "LaserFeatures",
@@ -76,172 +77,6 @@ _EDGE = 0  # first or last beam of a scan that does not close the circle
 _JUMP = 1  # a depth discontinuity between two returns
 _GAP = 2  # one or more beams without a return
 _SEAM = 3  # artificial cut of a closed scan without any discontinuity
-
-
-@dataclass(frozen=True, slots=True)
-class LaserParams:
-    """Tuning of the laser extractor; every field is a keyword of :func:`extract_laser_features`.
-
-    Parameters
-    ----------
-    range_sigma : float, default 0.015
-        Standard deviation of the range noise, metres.
-    breakpoint_angle_deg : float, default 7
-        Smallest incidence angle (between beam and surface) at which a
-        surface stays one segment; grazing views break it. Degrees.
-    max_bridge_beams : int, default 2
-        Runs of at most this many beams without a return are bridged when the
-        returns on both sides are close (isolated drop-outs).
-    split_tol : float, default 0.04
-        Split-and-merge tolerance at zero range, metres.
-    split_tol_rel : float, default 0.01
-        Part of the range added to ``split_tol`` (1 % of the range).
-    min_line_points : int, default 5
-        Fewest beams a fitted line may have.
-    min_line_length : float, default 0.2
-        Shortest fitted line, metres.
-    merge_angle_deg : float, default 6
-        Neighbouring lines closer than this in direction are merged when the
-        joint fit stays within tolerance. Degrees.
-    corner_min_angle_deg : float, default 35
-        Two lines meeting at less than this (or more than 180 minus this)
-        degrees do not make a corner.
-    corner_max_dist : float, default 0.3
-        Largest distance, metres, between the lines' intersection and the
-        lines' facing end points for a corner.
-    bridge_min_points : int, default 2
-        Returns needed on a surface seen edge-on between two segments to join
-        them by two corners instead of ending them at a jump...
-    bridge_max_length : float, default 1.0
-        ...when that surface is at most this long (metres)...
-    bridge_max_gap : float, default 0.6
-        ...and no stretch of it longer than this part of its length lacks a return.
-    min_segment_points : int, default 3
-        Segments with fewer beams are clutter: they give no feature (but
-        still occlude their neighbours).
-    min_extremity_extent : float, default 0.1
-        Smallest extent (metres, end point to end point) of a segment whose
-        ends count as extremities.
-    extremity_max_tail : float, default 0.3
-        A segment end is a line extremity only when a fitted line ends within
-        this distance (metres) of it: a short unfitted tail (a door jamb seen
-        edge-on) is allowed, a ragged clutter end is not.
-    beacon_threshold : float or None, default None
-        Absolute intensity above which a beam is bright, in the sensor's unit.
-        ``None``: adapt to the scan (see ``beacon_ratio``, ``beacon_global_ratio``).
-    beacon_ratio : float, default 2
-        Adaptive threshold: a bright beam is at least this factor above the
-        median intensity of the beams around it (``beacon_window_m``)...
-    beacon_global_ratio : float, default 2.5
-        ...and at least this factor above the scan's median intensity
-        (retro-reflectors return 3 to 10 times a wall; a glossy surface at
-        twice the median is not a beacon).
-    beacon_window_m : float, default 0.4
-        Half width of the local background window, metres at the beam's
-        range (so wider in bearing for near beams): at least twice the
-        widest reflector (15 cm), so that the window's median is background.
-    beacon_window_deg : float, default 3
-        ...and at least this many degrees, and at least three beams, on each
-        side (far beams); at most 60 degrees.
-    beacon_gap_deg : float, default 1
-        Bright beams at most this far apart (degrees; at least two beam
-        steps) join one beacon: dim or missing beams inside a reflector.
-    beacon_min_width : float, default 0.04
-        A beacon has at least as many bright beams as this width (metres)
-        spans at its range, and at least one: on a dense scanner a lone
-        bright beam, or a few on a glossy surface, is noise, not a reflector
-        (retro-reflective targets are 4 to 15 cm wide).
-    beacon_max_width : float, default 0.5
-        A bright run wider than this (metres) is a reflective surface, not a
-        beacon.
-    beacon_max_fraction : float, default 0.2
-        When more than this part of the returns is bright, the adaptive
-        threshold is not trusted and no beacon is reported.
-    """
-
-    range_sigma: float = 0.015
-    breakpoint_angle_deg: float = 7.0
-    max_bridge_beams: int = 2
-    split_tol: float = 0.04
-    split_tol_rel: float = 0.01
-    min_line_points: int = 5
-    min_line_length: float = 0.2
-    merge_angle_deg: float = 6.0
-    corner_min_angle_deg: float = 35.0
-    corner_max_dist: float = 0.3
-    bridge_min_points: int = 2
-    bridge_max_length: float = 1.0
-    bridge_max_gap: float = 0.6
-    min_segment_points: int = 3
-    min_extremity_extent: float = 0.1
-    extremity_max_tail: float = 0.3
-    beacon_threshold: float | None = None
-    beacon_ratio: float = 2.0
-    beacon_global_ratio: float = 2.5
-    beacon_window_m: float = 0.4
-    beacon_window_deg: float = 3.0
-    beacon_gap_deg: float = 1.0
-    beacon_min_width: float = 0.04
-    beacon_max_width: float = 0.5
-    beacon_max_fraction: float = 0.2
-
-    def __post_init__(self) -> None:
-        positive = (
-            "range_sigma",
-            "split_tol",
-            "min_line_length",
-            "corner_max_dist",
-            "beacon_ratio",
-            "beacon_global_ratio",
-            "bridge_max_length",
-            "bridge_max_gap",
-            "beacon_max_width",
-            "beacon_max_fraction",
-            "beacon_window_m",
-            "beacon_window_deg",
-            "beacon_gap_deg",
-            "beacon_min_width",
-        )
-        for name in positive:
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise InvalidParameterError(f"{name} must be a positive number, got {v!r}")
-        for name in ("split_tol_rel", "min_extremity_extent", "extremity_max_tail"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise InvalidParameterError(f"{name} must be a number >= 0, got {v!r}")
-        if not 0 < self.breakpoint_angle_deg < 90:
-            raise InvalidParameterError(
-                f"breakpoint_angle_deg must be in (0, 90) degrees, got {self.breakpoint_angle_deg!r}"
-            )
-        if not 0 <= self.merge_angle_deg < 45:
-            raise InvalidParameterError(f"merge_angle_deg must be in [0, 45) degrees, got {self.merge_angle_deg!r}")
-        if not 0 < self.corner_min_angle_deg < 90:
-            raise InvalidParameterError(
-                f"corner_min_angle_deg must be in (0, 90) degrees, got {self.corner_min_angle_deg!r}"
-            )
-        for name, lo in (
-            ("max_bridge_beams", 0),
-            ("min_line_points", 2),
-            ("min_segment_points", 1),
-            ("bridge_min_points", 1),
-        ):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise InvalidParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
-        if self.beacon_threshold is not None and not np.isfinite(self.beacon_threshold):
-            raise InvalidParameterError(f"beacon_threshold must be finite or None, got {self.beacon_threshold!r}")
-
-    @classmethod
-    def from_kwargs(cls, params: dict[str, Any]) -> LaserParams:
-        """Build from keyword arguments, naming any unknown one."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(params) - known)
-        if unknown:
-            raise InvalidParameterError(
-                f"unknown laser feature parameter {unknown[0]!r} (known: {', '.join(sorted(known))})"
-            )
-        return cls(**params)
 
 
 def _ro(a: object, shape_tail: tuple[int, ...] = ()) -> FArray:
@@ -690,119 +525,6 @@ def _bridge(a: _Line, b: _Line, prep: _Prepared, p: LaserParams) -> list[FArray]
     return [np.array(a.p1), np.array(b.p0)]
 
 
-#: Widest background window of the beacon detector, degrees on each side.
-_BEACON_WINDOW_MAX_DEG = 60.0
-
-
-def _local_background(values: FArray, prep: _Prepared, p: LaserParams) -> FArray:
-    """Running median of ``values`` over a window of ``beacon_window_m`` metres at each beam's range.
-
-    The half width in beams, ``max(3, atan(window_m / r) / step, window_deg / step)``,
-    is rounded up to a geometric ladder of sizes (ratio 1.25), and one median
-    filter runs per size used: a few filters over the scan, whatever its length.
-    """
-    n = values.size
-    step = abs(prep.step) if prep.step else np.pi / 180
-    r = prep.r
-    finite = np.isfinite(r) & (r > 0)
-    r_use = np.where(finite, r, np.median(r[finite]) if np.any(finite) else 1.0)
-    half = np.maximum(np.arctan(p.beacon_window_m / r_use), np.deg2rad(p.beacon_window_deg))
-    half = np.minimum(half, np.deg2rad(_BEACON_WINDOW_MAX_DEG))
-    beams = np.maximum(3, np.ceil(half / step)).astype(np.int64)
-    beams = np.minimum(beams, max(3, (n - 1) // 2))
-    ladder = np.unique(np.ceil(3 * 1.25 ** np.arange(0, 64)).astype(np.int64))
-    ladder = ladder[ladder <= max(3, (n - 1) // 2)]
-    if ladder.size == 0 or ladder[-1] < beams.max():
-        ladder = np.r_[ladder, beams.max()]
-    size_idx = np.searchsorted(ladder, beams)
-    mode = "wrap" if prep.circular else "nearest"
-    out = np.empty_like(values)
-    for j in np.unique(size_idx):
-        w = int(ladder[j])
-        sel = size_idx == j
-        out[sel] = ndimage.median_filter(values, size=2 * w + 1, mode=mode)[sel]
-    return out
-
-
-def _beacons(scan: Scan, prep: _Prepared, p: LaserParams) -> FArray:
-    """Step 5: beacon bearings from the intensity channel (narrow runs of bright beams).
-
-    Parameters
-    ----------
-    scan : Scan
-        The raw scan; no ``intensities``, no beacons.
-    prep : _Prepared
-        The segmented scan (rolled ranges and points).
-    p : LaserParams
-        ``beacon_threshold`` (sensor's unit) or the adaptive ratios, and the
-        beacon widths (metres) and gap (degrees).
-
-    Returns
-    -------
-    ndarray of float, shape (m,)
-        Bearing of each beacon's intensity-weighted centre, radians, robot
-        frame, in scan order.
-    """
-    if scan.intensities is None:
-        return np.empty(0)
-    inten = np.roll(np.asarray(scan.intensities, dtype=np.float64), -prep.shift)
-    valid = np.isfinite(prep.r) & np.isfinite(inten)
-    if not np.any(valid):
-        return np.empty(0)
-    contrast: FArray | None = None
-    if p.beacon_threshold is not None:
-        bright = valid & (inten > p.beacon_threshold)
-    else:
-        pos = valid & (inten > 0)
-        if np.count_nonzero(pos) < 10:
-            return np.empty(0)
-        li = np.full(inten.shape, np.nan)
-        li[pos] = np.log(inten[pos])
-        med = float(np.median(li[pos]))
-        # local background: median log intensity of the beams around (beams without a return
-        # count as the scan's median); smooth trends with range and incidence cancel out
-        filled = np.where(pos, li, med)
-        local = _local_background(filled, prep, p)
-        contrast = np.minimum(filled - local - np.log(p.beacon_ratio), filled - med - np.log(p.beacon_global_ratio))
-        contrast[~pos] = np.nan
-        bright = pos & (contrast > 0)
-        if np.count_nonzero(bright) > p.beacon_max_fraction * np.count_nonzero(valid):
-            return np.empty(0)
-    idx = np.flatnonzero(bright)
-    if idx.size == 0:
-        return np.empty(0)
-    # group bright beams closer than beacon_gap_deg (dim or missing beams inside a reflector)
-    max_step = max(2, int(np.ceil(np.deg2rad(p.beacon_gap_deg) / abs(prep.step) - 1e-9)))
-    groups: list[list[int]] = [[int(idx[0])]]
-    for k in idx[1:]:
-        if k - groups[-1][-1] <= max_step:
-            groups[-1].append(int(k))
-        else:
-            groups.append([int(k)])
-    if prep.circular and len(groups) > 1 and groups[0][0] + prep.r.size - groups[-1][-1] <= max_step:
-        groups[0] = groups.pop() + groups[0]
-    out = []
-    n = prep.r.size
-    for g in groups:
-        if contrast is not None:
-            # the run as a whole, dim beams inside included, must stand out (not only its noisiest beams)
-            span = np.arange(g[0], g[-1] + (n if g[-1] < g[0] else 0) + 1) % n
-            c_span = contrast[span]
-            if not float(np.nanmedian(c_span)) > 0:
-                continue
-            r_g = float(np.median(prep.r[g]))
-            if len(g) < max(1, int(p.beacon_min_width / (r_g * abs(prep.step)))):
-                continue
-        pts = prep.pts[g]
-        width = _norm(pts[-1] - pts[0])
-        if width > p.beacon_max_width:
-            continue
-        w = inten[g]
-        c = (pts * w[:, None]).sum(axis=0) / w.sum()
-        out.append(float(np.arctan2(c[1], c[0])))
-    return np.asarray(out, dtype=np.float64)
-
-
 # ---------------------------------------------------------------------------
 # the extractor's steps
 
@@ -1122,7 +844,7 @@ def extract_laser_features(scan: Scan, **params: Any) -> LaserFeatures:
     bridge_corners, bridged = _bridge_corners(prep, seg_lines, p)
     corners = _inner_corners(seg_lines, p) + bridge_corners + _boundary_corners(scan, prep, seg_lines, bridged, p)
     extremities = _extremities(scan, prep, seg_lines, bridged, p)
-    return _assemble(corners, extremities, _beacons(scan, prep, p), _wall_segments(seg_lines))
+    return _assemble(corners, extremities, beacon_bearings(scan, prep, p), _wall_segments(seg_lines))
 
 
 def observation_from_scan(

@@ -39,19 +39,32 @@ maximum-range field, then a ``PARAM`` maximum; with none of these, every
 reading is kept. Readings at or above the threshold become ``inf``
 (:class:`~fingerloc.sensors.Scan`'s convention).
 
-Logs are streamed: a log of a million lines is never held in memory.
+**Reading.** A log is opened once, as a stream: plain or gzip is told from
+its first bytes on that one stream, so a pipe or a FIFO works
+(``--kind carmen <(zcat log.gz)``). :func:`read_log` reads a log in one pass
+(its no-return thresholds and its records together: what ``map``,
+``localize`` and ``track`` use); :func:`iter_laser` streams a regular file in
+two passes (thresholds first, then the scans: memory does not grow with the
+log) and reads anything else in one. A line longer than
+:data:`MAX_LINE_BYTES` is an error (a file of NUL bytes, ``/dev/zero``, one
+giant line: one line within a second, memory bounded), and runs of blank or
+foreign lines are skipped a block at a time (a gzip of a gigabyte of blank
+lines is read at the speed of decompression).
 """
 
 from __future__ import annotations
 
 import gzip
+import io
 import math
+import os
+import stat
 import zlib
 from collections import Counter
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import Any
 
 import numpy as np
 
@@ -75,10 +88,23 @@ __all__ = [
     "iter_laser",
     "iter_records",
     "iter_scans",
+    "laser_scans",
     "parse_line",
+    "read_log",
     "read_scans",
     "require_laser",
 ]
+
+#: Longest line a log may have, bytes (a 3600-beam ROBOTLASER line with remissions takes about 60 KB).
+MAX_LINE_BYTES = 1 << 20
+#: Bytes read at a time.
+_BLOCK = 1 << 16
+#: Largest |x| or |y| of a pose, metres (the JSON Lines reader's bound).
+MAX_COORD_M = 1e9
+#: The first bytes of every message this reader reads (a line starting with anything else is skipped).
+_KEYWORDS = (b"FLASER", b"RLASER", b"ROBOTLASER", b"ODOM", b"PARAM")
+#: What a block must hold to have one of them (three searches instead of five).
+_SEARCH = (b"LASER", b"ODOM", b"PARAM")
 
 #: Laser message types this reader turns into scans.
 LASER_MESSAGES: tuple[str, ...] = ("FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2")
@@ -205,6 +231,8 @@ class LogInfo:
     counts: dict[str, int]
     max_range: dict[str, float | None]
     params: dict[str, str]
+    head: bytes = b""
+    compressed: bool = False
 
 
 def is_carmen_path(path: str | Path) -> bool:
@@ -231,31 +259,112 @@ def flaser_bearings(n: int, *, rear: bool = False) -> np.ndarray:
     return start + step * np.arange(n, dtype=np.float64)
 
 
-def _open_text(path: Path) -> IO[str]:
-    with open(path, "rb") as fh:
-        magic = fh.read(2)
-    if magic == b"\x1f\x8b":
-        return gzip.open(path, "rt", encoding="utf-8", errors="replace", newline=None)
-    return open(path, encoding="utf-8", errors="replace", newline=None)
+class _Source:
+    """One open log: its binary stream (gunzipped when it starts with gzip's magic) and its first bytes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        try:
+            raw = open(path, "rb")
+        except FileNotFoundError:
+            raise DataFormatError("no such file", path=path) from None
+        except IsADirectoryError:
+            raise DataFormatError("is a directory, not a CARMEN log", path=path) from None
+        except OSError as err:
+            raise DataFormatError(f"cannot read: {err.strerror or err}", path=path) from None
+        self.raw = raw
+        buffered = raw if isinstance(raw, io.BufferedReader) else io.BufferedReader(raw)  # type: ignore[arg-type]
+        try:
+            magic = buffered.peek(2)[:2]
+        except OSError as err:
+            raw.close()
+            raise DataFormatError(f"cannot read: {err.strerror or err}", path=path) from None
+        self.compressed = magic == b"\x1f\x8b"
+        self.stream: Any = gzip.GzipFile(fileobj=buffered, mode="rb") if self.compressed else buffered
+        self.head = b""
+        self.lines = 0  # lines read so far (blank and foreign ones included)
+
+    def close(self) -> None:
+        try:
+            self.stream.close()
+        finally:
+            self.raw.close()
+
+
+def is_regular(path: str | Path) -> bool:
+    """True when ``path`` is a regular file (it can be read twice); a pipe, a FIFO or a device cannot."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _blocks(src: _Source) -> Iterator[bytes]:
+    while True:
+        try:
+            block = src.stream.read(_BLOCK)
+        except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
+            raise DataFormatError(f"corrupt or truncated file after line {src.lines}: {err}", path=src.path) from None
+        if not block:
+            return
+        if len(src.head) < 4096:
+            src.head += block[: 4096 - len(src.head)]
+        yield block
+
+
+def _too_long(src: _Source, lineno: int) -> DataFormatError:
+    if b"\x00" in src.head:
+        return DataFormatError("not a CARMEN log: binary data, not text", path=src.path)
+    return DataFormatError(
+        f"line {lineno} is longer than {MAX_LINE_BYTES:,} bytes: not a CARMEN log line", path=src.path
+    )
+
+
+def _source_lines(src: _Source) -> Iterator[tuple[int, str]]:
+    """Numbered lines (1-based) that may hold a message; blank and foreign lines are skipped (still counted)."""
+    lineno = 0
+    carry = b""
+    for block in _blocks(src):
+        data = carry + block if carry else block
+        cut = data.rfind(b"\n")
+        if cut < 0:
+            if len(data) > MAX_LINE_BYTES:
+                raise _too_long(src, lineno + 1)
+            carry = data
+            continue
+        carry = data[cut + 1 :]
+        if len(carry) > MAX_LINE_BYTES:
+            raise _too_long(src, lineno + data.count(b"\n") + 1)
+        body = data[:cut]
+        if not body.strip() or not any(k in body for k in _SEARCH):  # nothing to read in the block: count its lines
+            if len(body) > MAX_LINE_BYTES and max(map(len, body.split(b"\n"))) > MAX_LINE_BYTES:
+                raise _too_long(src, lineno + 1)
+            lineno += body.count(b"\n") + 1
+            src.lines = lineno
+            continue
+        for line in body.split(b"\n"):
+            lineno += 1
+            if len(line) > MAX_LINE_BYTES:
+                raise _too_long(src, lineno)
+            head = line.lstrip()[:10]
+            if head.startswith(_KEYWORDS):
+                src.lines = lineno
+                yield lineno, line.decode("utf-8", "replace")
+        src.lines = lineno
+    if carry:
+        lineno += 1
+        src.lines = lineno
+        if carry.lstrip()[:10].startswith(_KEYWORDS):
+            yield lineno, carry.decode("utf-8", "replace")
 
 
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
-    """Numbered lines (1-based) of a plain or gzip file; read errors become :class:`DataFormatError`."""
+    """Numbered lines (1-based) of a plain or gzip file, opened once; read errors become :class:`DataFormatError`."""
+    src = _Source(path)
     try:
-        fh = _open_text(path)
-    except FileNotFoundError:
-        raise DataFormatError("no such file", path=path) from None
-    except IsADirectoryError:
-        raise DataFormatError("is a directory, not a CARMEN log", path=path) from None
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=path) from None
-    lineno = 0
-    with fh:
-        try:
-            for lineno, text in enumerate(fh, start=1):
-                yield lineno, text
-        except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
-            raise DataFormatError(f"corrupt or truncated file after line {lineno}: {err}", path=path) from None
+        yield from _source_lines(src)
+    finally:
+        src.close()
 
 
 def _float(tok: str, what: str) -> float:
@@ -296,6 +405,8 @@ def _pose(toks: list[str], what: str) -> tuple[float, float, float]:
     x, y, th = (_float(t, what) for t in toks)
     if not all(math.isfinite(v) for v in (x, y, th)):
         raise DataFormatError(f"{what} must be finite, got {' '.join(toks)}")
+    if abs(x) > MAX_COORD_M or abs(y) > MAX_COORD_M:
+        raise DataFormatError(f"{what} must lie within +-{MAX_COORD_M:g} m, got {' '.join(toks)}")
     return (x, y, th)
 
 
@@ -441,18 +552,24 @@ def iter_records(
     """
     p = Path(path)
     st = stats if stats is not None else ReadStats()
-    for lineno, text in _lines(p):
-        st.lines += 1
-        try:
-            rec = parse_line(text, line=lineno)
-        except DataFormatError as err:
-            located = err.at(path=p, line=lineno)
-            if skip_bad:
-                st.record_skip(located)
-                continue
-            raise located from None
-        if rec is not None:
-            yield rec
+    src = _Source(p)
+    start = st.lines
+    try:
+        for lineno, text in _source_lines(src):
+            st.lines = start + lineno
+            try:
+                rec = parse_line(text, line=lineno)
+            except DataFormatError as err:
+                located = err.at(path=p, line=lineno)
+                if skip_bad:
+                    st.record_skip(located)
+                    continue
+                raise located from None
+            if rec is not None:
+                yield rec
+        st.lines = start + src.lines
+    finally:
+        src.close()
 
 
 def _saturation_value(counts: Counter[float], *, min_repeats: int, saturation_band: float) -> float | None:
@@ -466,6 +583,66 @@ def _saturation_value(counts: Counter[float], *, min_repeats: int, saturation_ba
         if any(math.isclose(top, code, abs_tol=1e-9) for code in KNOWN_NO_RETURN_CODES):
             return top
     return None
+
+
+class _Inspector:
+    """What :func:`inspect_log` counts, fed line by line (one pass may also keep the records)."""
+
+    def __init__(self, min_repeats: int, saturation_band: float, top_values: int) -> None:
+        if min_repeats < 1:
+            raise InvalidParameterError(f"min_repeats must be >= 1, got {min_repeats}")
+        if not (0 <= saturation_band < 1):
+            raise InvalidParameterError(f"saturation_band must be in [0, 1), got {saturation_band!r}")
+        self.min_repeats, self.saturation_band, self.top_values = min_repeats, saturation_band, top_values
+        self.counts: Counter[str] = Counter()
+        self.tops: dict[str, Counter[float]] = {}
+        self.line_max: dict[str, float] = {}
+        self.params: dict[str, str] = {}
+
+    def param(self, text: str) -> None:
+        parts = text.split()
+        if len(parts) >= 3:
+            self.params[parts[1]] = parts[2]
+
+    def laser(self, rec: LaserRecord) -> None:
+        self.counts[rec.message] += 1
+        c = self.tops.setdefault(rec.message, Counter())
+        vals, reps = np.unique(rec.ranges, return_counts=True)
+        # Keep the top values only: a cheap bound on memory for huge logs.
+        k = self.top_values
+        for v, n in zip(vals[-k:].tolist(), reps[-k:].tolist(), strict=True):
+            c[v] += n
+        if len(c) > 4 * k:
+            for v in sorted(c)[: len(c) - k]:
+                del c[v]
+        if rec.max_range is not None:
+            self.line_max[rec.message] = rec.max_range
+
+    def info(self, src: _Source | None) -> LogInfo:
+        max_range: dict[str, float | None] = {}
+        for msg in self.tops:
+            found = _saturation_value(self.tops[msg], min_repeats=self.min_repeats, saturation_band=self.saturation_band)
+            if found is None and msg in self.line_max:
+                found = self.line_max[msg]
+            if found is None:
+                for name in _PARAM_MAX_RANGE.get(msg, ()):
+                    if name in self.params and _is_number(self.params[name]) and 0 < float(self.params[name]) < math.inf:
+                        found = float(self.params[name])
+                        break
+            max_range[msg] = found
+        head, gz = (src.head, src.compressed) if src is not None else (b"", False)
+        return LogInfo(counts=dict(self.counts), max_range=max_range, params=self.params, head=head, compressed=gz)
+
+
+def _is_message(text: str) -> str:
+    head = text.lstrip()[:12]
+    if head.startswith("PARAM"):
+        return "PARAM"
+    if head.startswith(("FLASER", "RLASER", "ROBOTLASER")):
+        return "LASER"
+    if head.startswith("ODOM"):
+        return "ODOM"
+    return ""
 
 
 def inspect_log(
@@ -495,55 +672,75 @@ def inspect_log(
     -------
     LogInfo
     """
-    if min_repeats < 1:
-        raise InvalidParameterError(f"min_repeats must be >= 1, got {min_repeats}")
-    if not (0 <= saturation_band < 1):
-        raise InvalidParameterError(f"saturation_band must be in [0, 1), got {saturation_band!r}")
+    acc = _Inspector(min_repeats, saturation_band, top_values)
+    src = _Source(Path(path))
+    try:
+        for lineno, text in _source_lines(src):
+            kind = _is_message(text)
+            if kind == "PARAM":
+                acc.param(text)
+            elif kind == "ODOM":
+                acc.counts["ODOM"] += 1
+            elif kind == "LASER":
+                try:
+                    rec = parse_line(text, line=lineno)
+                except DataFormatError:
+                    continue
+                if isinstance(rec, LaserRecord):
+                    acc.laser(rec)
+    finally:
+        src.close()
+    return acc.info(src)
+
+
+def read_log(
+    path: str | Path,
+    *,
+    skip_bad: bool = False,
+    stats: ReadStats | None = None,
+    min_repeats: int = 3,
+    saturation_band: float = 0.005,
+    top_values: int = 64,
+) -> tuple[LogInfo, list[LaserRecord]]:
+    """Read a log once: what :func:`inspect_log` finds, and every laser record in file order.
+
+    For a stream that cannot be read twice (a pipe, a FIFO), and for callers
+    that keep every scan anyway (``map``, ``localize``, ``track``).
+
+    Raises
+    ------
+    DataFormatError
+        A malformed line (unless ``skip_bad``), a line too long, an unreadable file.
+    """
+    acc = _Inspector(min_repeats, saturation_band, top_values)
+    st = stats if stats is not None else ReadStats()
     p = Path(path)
-    counts: Counter[str] = Counter()
-    tops: dict[str, Counter[float]] = {}
-    line_max: dict[str, float] = {}
-    params: dict[str, str] = {}
-    for lineno, text in _lines(p):
-        head = text[:12]
-        if head.startswith("PARAM"):
-            parts = text.split()
-            if len(parts) >= 3:
-                params[parts[1]] = parts[2]
-            continue
-        if not (head.startswith("FLASER") or head.startswith("RLASER") or head.startswith("ROBOTLASER")):
-            if head.startswith("ODOM"):
-                counts["ODOM"] += 1
-            continue
-        try:
-            rec = parse_line(text, line=lineno)
-        except DataFormatError:
-            continue
-        if not isinstance(rec, LaserRecord):
-            continue
-        counts[rec.message] += 1
-        c = tops.setdefault(rec.message, Counter())
-        vals, reps = np.unique(rec.ranges, return_counts=True)
-        # Keep the top values only: a cheap bound on memory for huge logs.
-        for v, k in zip(vals[-top_values:].tolist(), reps[-top_values:].tolist(), strict=True):
-            c[v] += k
-        if len(c) > 4 * top_values:
-            for v in sorted(c)[: len(c) - top_values]:
-                del c[v]
-        if rec.max_range is not None:
-            line_max[rec.message] = rec.max_range
-    max_range: dict[str, float | None] = {}
-    for msg in tops:
-        found = _saturation_value(tops[msg], min_repeats=min_repeats, saturation_band=saturation_band)
-        if found is None and msg in line_max:
-            found = line_max[msg]
-        if found is None:
-            for name in _PARAM_MAX_RANGE.get(msg, ()):
-                if name in params and _is_number(params[name]) and float(params[name]) > 0:
-                    found = float(params[name])
-                    break
-        max_range[msg] = found
-    return LogInfo(counts=dict(counts), max_range=max_range, params=params)
+    records: list[LaserRecord] = []
+    src = _Source(p)
+    try:
+        start = st.lines
+        for lineno, text in _source_lines(src):
+            st.lines = start + lineno
+            if _is_message(text) == "PARAM":
+                acc.param(text)
+                continue
+            try:
+                rec = parse_line(text, line=lineno)
+            except DataFormatError as err:
+                located = err.at(path=p, line=lineno)
+                if skip_bad:
+                    st.record_skip(located)
+                    continue
+                raise located from None
+            if isinstance(rec, LaserRecord):
+                acc.laser(rec)
+                records.append(rec)
+            elif isinstance(rec, OdomRecord):
+                acc.counts["ODOM"] += 1
+        st.lines = start + src.lines
+    finally:
+        src.close()
+    return acc.info(src), records
 
 
 def detect_max_range(path: str | Path, message: str = "FLASER") -> float | None:
@@ -577,8 +774,15 @@ def iter_laser(
     messages: Collection[str] | None = None,
     max_range: float | None = None,
     stats: ReadStats | None = None,
+    info: LogInfo | None = None,
 ) -> Iterator[tuple[LaserRecord, Scan]]:
-    """Like :func:`iter_scans`, but yield each scan with its raw record (message type, line number)."""
+    """Like :func:`iter_scans`, but yield each scan with its raw record (message type, line number).
+
+    ``info``: the log's :func:`inspect_log` when the caller has it (its
+    thresholds are used; the log is then read once more). Without it, a
+    regular file is inspected first, and a stream that cannot be read twice
+    (a pipe, a FIFO) is read once by :func:`read_log`.
+    """
     p = Path(path)
     wanted = set(LASER_MESSAGES if messages is None else messages)
     unknown = wanted - set(LASER_MESSAGES)
@@ -589,15 +793,48 @@ def iter_laser(
     if max_range is not None and not (math.isfinite(max_range) and max_range > 0):
         raise InvalidParameterError(f"max_range must be a positive number of metres, got {max_range!r}")
     thresholds: dict[str, float | None] = {}
-    if max_range is None:
-        thresholds = inspect_log(p).max_range
     st = stats if stats is not None else ReadStats()
-    for rec in iter_records(p, skip_bad=skip_bad, stats=st):
+    source: Iterator[LaserRecord | OdomRecord]
+    if max_range is None and info is None and not is_regular(p):
+        found, recs = read_log(p, skip_bad=skip_bad, stats=st)
+        thresholds, source = found.max_range, iter(recs)
+    else:
+        if max_range is None:
+            thresholds = (info if info is not None else inspect_log(p)).max_range
+        source = iter_records(p, skip_bad=skip_bad, stats=st)
+    for rec in source:
         if not isinstance(rec, LaserRecord) or rec.message not in wanted:
             continue
         thr = max_range if max_range is not None else thresholds.get(rec.message)
         try:
             scan = _to_scan(rec, thr, p)
+        except DataFormatError as err:
+            if skip_bad:
+                st.record_skip(err)
+                continue
+            raise
+        st.scans += 1
+        yield rec, scan
+
+
+def laser_scans(
+    path: str | Path,
+    records: Collection[LaserRecord],
+    info: LogInfo,
+    messages: Collection[str],
+    *,
+    skip_bad: bool = False,
+    stats: ReadStats | None = None,
+) -> Iterator[tuple[LaserRecord, Scan]]:
+    """The scans of records :func:`read_log` kept, of the message types ``messages``, with the log's thresholds."""
+    p = Path(path)
+    st = stats if stats is not None else ReadStats()
+    wanted = set(messages)
+    for rec in records:
+        if rec.message not in wanted:
+            continue
+        try:
+            scan = _to_scan(rec, info.max_range.get(rec.message), p)
         except DataFormatError as err:
             if skip_bad:
                 st.record_skip(err)
@@ -662,26 +899,29 @@ def require_laser(path: str | Path, info: LogInfo) -> None:
     if any(info.counts.get(m, 0) for m in LASER_MESSAGES):
         return
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(4096)
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
+    head, compressed = info.head, info.compressed
+    if not head and is_regular(p):  # a LogInfo made elsewhere: look at the file (a regular file reads again)
+        try:
+            with open(p, "rb") as fh:
+                head = fh.read(4096)
+        except OSError as err:
+            raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
+        if head[:2] == b"\x1f\x8b":
+            compressed = True
+            with gzip.open(p, "rb") as zfh:
+                try:
+                    head = zfh.read(4096)
+                except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
+                    raise DataFormatError(f"corrupt gzip file ({err})", path=p) from None
     if not head:
         raise DataFormatError("empty file: no laser scan", path=p)
-    if head[:2] == b"\x1f\x8b":
-        with gzip.open(p, "rb") as zfh:
-            try:
-                head = zfh.read(4096)
-            except (EOFError, zlib.error, gzip.BadGzipFile, OSError) as err:
-                raise DataFormatError(f"corrupt gzip file ({err})", path=p) from None
     try:
         head.decode("utf-8")
         binary = b"\x00" in head
     except UnicodeDecodeError as err:
         binary = err.start < len(head) - 4  # not only a character cut at the end of the block
     if binary:
-        gz = " (and not gzip)" if p.name.lower().endswith(".gz") and head[:2] != b"\x1f\x8b" else ""
+        gz = " (and not gzip)" if p.name.lower().endswith(".gz") and not compressed else ""
         raise DataFormatError(f"not a CARMEN log: binary data, not text{gz}", path=p)
     raise DataFormatError(f"no laser scan: not one {', '.join(LASER_MESSAGES)} line in this log", path=p)
 

@@ -37,6 +37,7 @@ __all__ = [
     "Transform3",
     "TransformSeries",
     "TransformTree",
+    "checked_transform",
     "compose_planar",
     "interpolate",
     "invert_planar",
@@ -131,6 +132,31 @@ class Transform3:
 
 
 IDENTITY = Transform3()
+
+#: Largest translation (metres) of a transform read from a file: a robot's frames are not further apart.
+MAX_TRANSLATION_M = 1e9
+
+
+def checked_transform(translation: Any, rotation: Any) -> Transform3:
+    """:meth:`Transform3.from_msg` of message fields, refusing what is not a rigid transform.
+
+    Raises
+    ------
+    DataFormatError
+        A translation that is not finite or farther than :data:`MAX_TRANSLATION_M`
+        (naming ``translation``), or a rotation that is not a finite quaternion
+        (naming ``rotation``; an all-zero one, an unset field, is no rotation).
+    """
+    try:
+        t = (float(translation.x), float(translation.y), float(translation.z))
+        q = (float(rotation.x), float(rotation.y), float(rotation.z), float(rotation.w))
+    except (AttributeError, TypeError, ValueError) as err:
+        raise DataFormatError(f"malformed transform ({err})") from None
+    if not all(math.isfinite(v) and abs(v) <= MAX_TRANSLATION_M for v in t):
+        raise DataFormatError(f"translation must be finite and within +-{MAX_TRANSLATION_M:g} m, got {t!r}")
+    if not all(math.isfinite(v) for v in q):
+        raise DataFormatError(f"rotation must be a finite quaternion, got {q!r}")
+    return Transform3(t, q)
 
 
 def interpolate(a: Transform3, b: Transform3, s: float) -> Transform3:
@@ -449,6 +475,15 @@ def _covers(fov: Sequence[tuple[float, float]], a: np.ndarray) -> np.ndarray:
     return out
 
 
+def _relative(intensities: np.ndarray) -> np.ndarray:
+    """A lidar's intensities over their median positive finite value (unchanged when it has none)."""
+    v = np.asarray(intensities, dtype=np.float64)
+    pos = v[np.isfinite(v) & (v > 0)]
+    if pos.size == 0:
+        return v
+    return v / float(np.median(pos))
+
+
 def merge_scans(
     scans: Sequence[Scan],
     *,
@@ -479,8 +514,12 @@ def merge_scans(
     Returns
     -------
     Scan
-        ``sensor_offset`` zero; intensities when every scan has them;
-        ``max_range`` the largest reach from the robot's origin.
+        ``sensor_offset`` zero; ``max_range`` the largest reach from the
+        robot's origin; intensities when any scan has them, each lidar's
+        divided by its own median (lidars of different makes report on
+        different scales: so that a beacon one lidar alone sees stands out of
+        the merged scan as it stood out of its own; ``NaN`` for the beams of a
+        lidar without intensities, which the beacon detector skips).
     """
     if not scans:
         raise InvalidParameterError("merge_scans needs at least one scan")
@@ -508,13 +547,16 @@ def merge_scans(
                 keep &= ~(_covers(fovs[j], b) & ((dj < dist) | ((dj == dist) & (j < k))))
         bear.append(wrap(b[keep]))
         rng.append(r[keep])
-        inten.append(None if s.intensities is None else s.intensities[keep])
+        inten.append(None if s.intensities is None else _relative(s.intensities)[keep])
     b = np.concatenate(bear)
     r = np.concatenate(rng)
     order = np.argsort(b, kind="stable")
     b, r = b[order], r[order]
-    has_int = all(i is not None for i in inten)
-    it = np.concatenate([i for i in inten if i is not None])[order] if has_int else None
+    has_int = any(i is not None for i in inten)
+    it = None
+    if has_int:
+        it = np.concatenate([np.full(x.shape, np.nan) if i is None else i for x, i in zip(rng, inten, strict=True)])
+        it = it[order]
     uniq = np.concatenate([[True], np.diff(b) > 1e-12])
     b, r = b[uniq], r[uniq]
     it = None if it is None else it[uniq]

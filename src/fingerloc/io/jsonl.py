@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import replace
 from pathlib import Path
@@ -42,7 +40,9 @@ from ..errors import DataFormatError, EmptyInputError, FingerlocError
 from ..observation import FEATURE_TYPES, FULL_FOV, Observation, fov_from_degrees
 
 __all__ = [
+    "MAX_LINE_BYTES",
     "check_text",
+    "iter_lines",
     "iter_observations",
     "observation_from_record",
     "observation_to_record",
@@ -64,6 +64,10 @@ def _parse_int(text: str) -> int:
 
 #: Largest |x| or |y| of a pose, metres (beyond it, distances overflow; no map is that large).
 MAX_COORD_M = 1e9
+
+#: Longest line (bytes) of a JSON Lines file: a view with 500 keypoints, a profile and a 3600-beam scan takes
+#: under 1 MB; a longer line (a file of NUL bytes, ``/dev/zero``) is refused before it fills the memory.
+MAX_LINE_BYTES = 16 << 20
 
 
 class _LimitError(ValueError):
@@ -411,8 +415,48 @@ def observation_to_record(obs: Observation, *, ndigits: int = 9) -> dict[str, An
     return rec
 
 
+def iter_lines(path: str | Path) -> Iterator[tuple[int, str]]:
+    """The non-blank lines of a text file with their 1-based numbers, each at most :data:`MAX_LINE_BYTES`.
+
+    The file is opened once (a pipe or a FIFO works) and read as UTF-8.
+
+    Raises
+    ------
+    DataFormatError
+        The file cannot be read, is binary (a NUL byte), is not UTF-8, or has a line too long (naming the line).
+    """
+    p = Path(path)
+    try:
+        fh = open(p, "rb")
+    except OSError as err:
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
+    with fh:
+        lineno = 0
+        while True:
+            try:
+                raw = fh.readline(MAX_LINE_BYTES + 1)
+            except OSError as err:
+                raise DataFormatError(f"cannot read after line {lineno}: {err.strerror or err}", path=p) from err
+            if not raw:
+                return
+            lineno += 1
+            if len(raw) > MAX_LINE_BYTES:
+                what = "binary data (NUL bytes), not JSON Lines" if b"\x00" in raw[:4096] else (
+                    f"line longer than {MAX_LINE_BYTES:,} bytes")  # fmt: skip
+                raise DataFormatError(what, path=p, line=lineno)
+            if not raw.strip():
+                continue
+            if b"\x00" in raw:
+                raise DataFormatError("binary data (a NUL byte), not JSON Lines", path=p, line=lineno)
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as err:
+                raise DataFormatError("not a UTF-8 text file", path=p, line=lineno) from err
+            yield lineno, text
+
+
 def iter_observations(path: str | Path) -> Iterator[Observation]:
-    """Stream the observations of a JSON Lines file, one per non-blank line.
+    """Stream the observations of a JSON Lines file, one per non-blank line (:func:`iter_lines`).
 
     Raises
     ------
@@ -422,26 +466,15 @@ def iter_observations(path: str | Path) -> Iterator[Observation]:
         When the file holds no observation.
     """
     p = Path(path)
-    try:
-        fh = p.open("r", encoding="utf-8")
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from err
     count = 0
-    with fh:
-        lineno = 0
+    for lineno, line in iter_lines(p):
         try:
-            for lineno, line in enumerate(fh, start=1):
-                if not line.strip():
-                    continue
-                try:
-                    record = parse_record(line)
-                    obs = observation_from_record(record)
-                except DataFormatError as err:
-                    raise err.at(path=p, line=lineno) from err
-                count += 1
-                yield obs
-        except UnicodeDecodeError as err:
-            raise DataFormatError("not a UTF-8 text file", path=p, line=lineno + 1) from err
+            record = parse_record(line)
+            obs = observation_from_record(record)
+        except DataFormatError as err:
+            raise err.at(path=p, line=lineno) from err
+        count += 1
+        yield obs
     if count == 0:
         raise EmptyInputError("no observation in file (empty)", path=p)
 
@@ -454,30 +487,30 @@ def read_observations(path: str | Path) -> list[Observation]:
 def write_observations(path: str | Path, observations: Iterable[Observation]) -> int:
     """Write observations as JSON Lines, atomically (a temporary file renamed over ``path``).
 
+    ``-`` writes to standard output. A symbolic link at ``path`` stays a link
+    (its target is replaced); a device, FIFO or link loop is refused
+    (:func:`fingerloc.atomic.check_target`); inside an
+    :class:`~fingerloc.atomic.OutputGroup` the rename waits for the group's end.
+
     Returns
     -------
     int
         Number of observations written.
     """
-    p = Path(path)
+    import sys
+
+    from ..atomic import check_target, replacing
+
     n = 0
-    if p.is_symlink():  # write through the link: it stays a link
-        p = Path(os.path.realpath(p))
-    if p.is_file():
-        mode = p.stat().st_mode & 0o7777
-    else:
-        mask = os.umask(0o022)
-        os.umask(mask)
-        mode = 0o666 & ~mask
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            for obs in observations:
-                fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
-                n += 1
-        os.chmod(tmp, mode)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    if str(path) == "-":
+        for obs in observations:
+            sys.stdout.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
+            n += 1
+        sys.stdout.flush()
+        return n
+    target = check_target(path, str(path))
+    with replacing(target) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        for obs in observations:
+            fh.write(json.dumps(observation_to_record(obs), separators=(", ", ": "), allow_nan=False) + "\n")
+            n += 1
     return n

@@ -31,6 +31,12 @@ after the profile's values: ``3 n`` little-endian uint16 positions then
 extractor puts positions on that grid). An observation without keypoints is
 written as version 1 or 2, so databases of older versions read as before.
 
+Codec version 4 has the layout of version 3, with keypoints of
+:data:`fingerloc.features.keypoints.KEYPOINT_VERSION` 2 (OpenCV SIFT; the
+elevation stored as an angle). A version 3 record (keypoints of the former
+hand-written detector) is refused with a message to extract the features
+again.
+
 Decoding gives back the very observation (every array bit for bit: the
 stored bearings are already wrapped and sorted, and wrapping them again
 changes nothing), so what the place database recomputes from it (the
@@ -54,7 +60,8 @@ __all__ = ["decode_observation", "encode_observation"]
 
 _VERSION = 1
 _VERSION_PROFILE = 2
-_VERSION_KEYPOINTS = 3
+_VERSION_OLD_KEYPOINTS = 3
+_VERSION_KEYPOINTS = 4
 _PROFILE_NONE, _PROFILE_F64, _PROFILE_MILLI = 0, 1, 2
 _PROFILE_HEAD = "<BHH"
 _KEYPOINT_HEAD = "<IH"
@@ -147,6 +154,22 @@ def _encode_profile(profile: np.ndarray) -> tuple[int, bytes]:
     return _PROFILE_F64, np.ascontiguousarray(profile, dtype="<f8").tobytes()
 
 
+#: Largest |x| or |y| of a stored pose, metres (the JSON Lines reader's bound).
+_MAX_COORD_M = 1e9
+
+
+def _check_pose_time(pose: tuple[float, ...] | None, timestamp: float | None) -> None:
+    """A decoded pose must be finite and within +-1e9 m, a timestamp finite."""
+    if pose is not None and not (
+        all(np.isfinite(v) for v in pose) and abs(pose[0]) <= _MAX_COORD_M and abs(pose[1]) <= _MAX_COORD_M
+    ):
+        raise DatabaseError(
+            f"corrupt observation record in the place database (pose {pose!r}: finite, x and y within +-1e9 m)"
+        )
+    if timestamp is not None and not np.isfinite(timestamp):
+        raise DatabaseError(f"corrupt observation record in the place database (timestamp {timestamp!r})")
+
+
 def decode_observation(
     data: object, *, label: str | None = None, source: str | None = None, default_fov: Fov | None = None
 ) -> Observation:
@@ -160,6 +183,10 @@ def decode_observation(
     if not isinstance(data, bytes) or len(data) < 2 + _N_COUNTS:
         raise DatabaseError(f"corrupt observation record in the place database (got {type(data).__name__})")
     version, flags = data[0], data[1]
+    if version == _VERSION_OLD_KEYPOINTS:
+        from ..features.keypoints import OLD_KEYPOINTS_MESSAGE
+
+        raise DatabaseError(f"the place database holds {OLD_KEYPOINTS_MESSAGE}")
     if version not in (_VERSION, _VERSION_PROFILE, _VERSION_KEYPOINTS) or (flags & _FOV and flags & _DEFAULT_FOV) or (flags & _DEFAULT_FOV and default_fov is None):
         raise DatabaseError(f"corrupt observation record in the place database (version {version}, flags {flags})")
     fmt = f"<{_N_COUNTS}{'I' if flags & _WIDE else 'B'}"
@@ -208,6 +235,7 @@ def decode_observation(
         rest = parts[9:]
     pose = tuple(float(v) for v in rest.pop(0)) if flags & _POSE else None
     timestamp = float(rest.pop(0)[0]) if flags & _TIME else None
+    _check_pose_time(pose, timestamp)
     fov_v, app, ranges, bearings = rest
     fov = tuple((float(fov_v[2 * k]), float(fov_v[2 * k + 1])) for k in range(n_fov)) if n_fov else FULL_FOV
     if flags & _DEFAULT_FOV and default_fov is not None:

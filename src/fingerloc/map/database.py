@@ -1,10 +1,12 @@
 """The place database: one SQLite file, versioned schema, atomic saves, never pickle.
 
-Layout (schema version 4, written now; docs/FORMATS.md §2)::
+Layout (schema version 5, written now; docs/FORMATS.md §2)::
 
     meta(key TEXT PRIMARY KEY, value TEXT)         -- format, schema_version, fingerloc_version,
                                                    -- params, lambdas, unknown_costs, fitted_weights,
-                                                   -- default_fov, preset, calibration, runs (JSON)
+                                                   -- default_fov, preset, calibration, runs,
+                                                   -- term_params (the keypoint term's fitted choices),
+                                                   -- temper (PlaceModel's fitted factor) (JSON)
     places(id INTEGER PRIMARY KEY, label TEXT UNIQUE, medoid INTEGER,
            consensus_letters TEXT, consensus_bearings BLOB)
     observations(id INTEGER PRIMARY KEY, place_id INTEGER, idx INTEGER, data BLOB, source TEXT)
@@ -29,35 +31,43 @@ of a recorded run (place positions, hex content hashes, float64 range
 descriptors, the meta keys preset, calibration and runs); version 3 stored
 observations as binary records, digests as bytes and range counts as small
 integers; version 4 adds the ``scan_map`` table (a map without one, and every
-older file: no scan evidence). All still load.
-Learning an observation whose content hash is stored again does not duplicate it.
+older file: no scan evidence); version 5 adds the meta keys ``sensor`` (what
+the views were made of: modality, field of view) and ``checksum`` (a digest of
+every table's rows, :func:`fingerloc.map._validate.table_digests`, checked when
+a table is read). All
+still load. Learning an observation whose content hash is stored again does not
+duplicate it.
 
 Arrays are little-endian float64 blobs (radians) unless said otherwise. A save writes a complete new
 file next to the target in one transaction, syncs it, and renames it over the
 target: a crash mid-write leaves the old file as it was.
 
 Writers are serialised by an exclusive lock (``flock``) on ``<db>.lock`` next
-to the database: :func:`locked` holds it around a read-modify-write (``learn``
-into an existing database), and :func:`save_model` takes it too, so two
-writers at once never lose each other's places. Under the lock, temporary
-files ``<db>.*.tmp`` that a killed writer left are removed. A symbolic link
-at the target is written through (the link stays, its target is replaced);
-a new file's mode follows the umask, a replaced file keeps its mode.
-Reading opens the file read-only; a hot rollback journal left by a foreign
-SQLite writer is handed to SQLite to roll back (under the lock) first.
-Every value read is checked: a crafted but valid SQLite file gives a
-:class:`~fingerloc.errors.DatabaseError`, never a wrong model or a traceback.
+to the database (:mod:`fingerloc.map._lock`): :func:`locked` holds it around a
+read-modify-write (``learn`` into an existing database), and
+:func:`save_model` takes it too, so two writers at once never lose each
+other's places; a writer that waits says so and gives up after a timeout.
+Under the lock, temporary files ``<db>.*.tmp`` that a killed writer left are
+removed, and SQLite's own leftovers of another program (a hot rollback
+journal, a WAL file) are settled by SQLite before the database is read or
+replaced. Only a regular file (or a symbolic link to one: the link stays,
+its target is replaced) is written; a new file's mode follows the umask, a
+replaced file keeps its mode. Inside an :class:`~fingerloc.atomic.OutputGroup`
+the rename waits for the group's end. Reading opens the file read-only.
+Every value read is checked (:mod:`fingerloc.map._validate`): a crafted but
+valid SQLite file gives a :class:`~fingerloc.errors.DatabaseError` naming the
+table and field, never a wrong model or a traceback.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
 import os
 import sqlite3
 import tempfile
-import threading
 from collections.abc import Iterator, Mapping
 from contextlib import closing, contextmanager
 from dataclasses import dataclass, field
@@ -67,15 +77,30 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..atomic import check_target, replace, temporary_name, temporary_patterns, umask, write_fault
 from ..errors import DatabaseError, DataFormatError, FingerlocError
 from ..io.jsonl import observation_from_record, observation_to_record, parse_record
 from ..model import PlaceModel
+from ._lock import DEFAULT_LOCK_TIMEOUT_S, locked, real_path
 from ._records import decode_observation, encode_observation
+from ._validate import (
+    DIGEST_KEY,
+    check_calibration,
+    check_digest,
+    check_number_map,
+    check_positions,
+    check_preset,
+    check_runs,
+    digest_value,
+    missing_tables,
+)
 
 __all__ = [
+    "DEFAULT_LOCK_TIMEOUT_S",
     "FORMAT",
     "SCHEMA_VERSION",
     "MapInfo",
+    "hold_lock",
     "load_model",
     "locked",
     "observation_hash",
@@ -85,11 +110,13 @@ __all__ = [
 ]
 
 FORMAT = "fingerloc-places"
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 #: Schema versions this fingerloc reads.
-READABLE_VERSIONS = ("1", "2", "3", "4")
+READABLE_VERSIONS = ("1", "2", "3", "4", "5")
 #: SQLite page size of a written database: small pages keep the tables of a small map small.
 PAGE_SIZE = 1024
+#: Largest number of mixture components a stored model may have (``-k``).
+MAX_COMPONENTS = 1000
 
 _SCHEMA = """
 CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -143,6 +170,13 @@ class MapInfo:
         The mapping run's laser end points
         (:class:`~fingerloc.map.scan_map.ScanMap`, schema version 4); ``None``:
         none stored (a run without ranges, ``map --no-scan``, older files).
+    sensor : dict or None
+        What the stored views were made of (schema version 5,
+        :func:`sensor_summary`): ``modality`` (``"laser"``, ``"image"`` or
+        both), ``fov_deg`` (the views' median field of view, degrees),
+        ``poses`` (how many views have one), and whatever a command adds
+        (a bag's ``topics``); ``None`` in older files (then computed from the
+        stored views on load).
     """
 
     preset: dict[str, Any] | None = None
@@ -151,6 +185,39 @@ class MapInfo:
     content_hashes: set[str] = field(default_factory=set)
     runs: list[dict[str, Any]] = field(default_factory=list)
     scan_map: Any = None
+    sensor: dict[str, Any] | None = None
+
+
+#: Feature kinds of a laser view and of an image view (what :func:`sensor_summary` calls the modality).
+LASER_FIELDS = ("c", "ex", "b", "w", "ranges")
+IMAGE_FIELDS = ("ve", "cp", "appearance", "profile", "keypoints")
+
+
+def view_modality(obs: Any) -> set[str]:
+    """``{"laser"}``, ``{"image"}``, both or neither: what an observation's features come from."""
+    out = set()
+    for kind, names in (("laser", LASER_FIELDS), ("image", IMAGE_FIELDS)):
+        for n in names:
+            v = getattr(obs, n, None)
+            if v is not None and (not hasattr(v, "size") or v.size) and (not hasattr(v, "__len__") or len(v)):
+                out.add(kind)
+                break
+    return out
+
+
+def sensor_summary(observations: Any) -> dict[str, Any]:
+    """What a set of views was made of: ``{"modality": [...], "fov_deg": median width, "poses": count, "views": n}``."""
+    views = list(observations)
+    kinds: set[str] = set()
+    for o in views:
+        kinds |= view_modality(o)
+    fov = [math.degrees(sum(w for _, w in o.fov)) for o in views]
+    return {
+        "modality": sorted(kinds),
+        "fov_deg": round(float(np.median(fov)), 3) if fov else None,
+        "poses": sum(o.pose is not None for o in views),
+        "views": len(views),
+    }
 
 
 def observation_hash(obs: Any) -> str:
@@ -176,6 +243,7 @@ def _write_map_info(con: sqlite3.Connection, info: MapInfo | None) -> None:
         "preset": info.preset,
         "calibration": info.calibration,
         "runs": info.runs,
+        "sensor": info.sensor,
     }
     con.executemany("INSERT INTO meta VALUES (?, ?)", [(k, _meta_json(v)) for k, v in meta.items() if v])
     con.executemany(
@@ -265,118 +333,91 @@ def _read_scan_map(con: sqlite3.Connection, path: str | Path) -> Any:
 
 
 def read_map_info(path: str | Path, *, scan_map: bool = True) -> MapInfo:
-    """The map information of a place database (empty for a schema version 1 file).
+    """The map information of a place database (empty for a schema version 1 file), every value checked.
 
     ``scan_map``: read the scan map too (False: ``info.scan_map`` is None).
 
     Raises
     ------
     DatabaseError
-        When the file is not a readable place database or its map information is corrupt.
+        When the file is not a readable place database or a value of its map
+        information is of the wrong type or out of range (the message names
+        the table and field).
     """
     with _open(path) as con:
         meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
         if meta.get("schema_version") == "1":
             return MapInfo()
-        try:
-            info = MapInfo(
-                preset=json.loads(meta["preset"]) if "preset" in meta else None,
-                calibration=json.loads(meta["calibration"]) if "calibration" in meta else None,
-                runs=list(json.loads(meta["runs"])) if "runs" in meta else [],
-            )
-        except (TypeError, ValueError) as err:
-            raise DatabaseError(f"{path}: corrupt map information in the place database ({err})") from err
-        for lab, x, y in con.execute("SELECT label, x, y FROM place_positions ORDER BY idx"):
-            info.positions[str(lab)] = (float(x), float(y))
+        where = str(path)
+        info = MapInfo()
+        for key in ("preset", "calibration", "runs", "sensor"):
+            if key not in meta:
+                continue
+            try:
+                value = json.loads(meta[key])
+            except (TypeError, ValueError) as err:
+                raise DatabaseError(f"{where}: meta.{key} is not valid JSON ({err})") from None
+            if key == "preset":
+                info.preset = check_preset(value, where)
+            elif key == "calibration":
+                info.calibration = check_calibration(value, where)
+            elif key == "runs":
+                info.runs = check_runs(value, where)
+            elif isinstance(value, dict):
+                info.sensor = value
+            else:
+                raise DatabaseError(f"{where}: meta.sensor must be a JSON object, got {type(value).__name__}")
+        info.positions = check_positions(con.execute("SELECT label, idx, x, y FROM place_positions").fetchall(), where)
         hashes = set()
+        v3 = meta.get("schema_version") not in ("1", "2")
         for (h,) in con.execute("SELECT hash FROM content_hashes"):
-            if isinstance(h, bytes):  # schema version 3: the digest itself
-                h = h.hex()
-            elif not isinstance(h, str):
-                raise DatabaseError(f"{path}: corrupt content hash in the place database ({h!r})")
-            hashes.add(h)
+            if v3 and isinstance(h, bytes) and len(h) == 32:  # schema version 3: the digest itself
+                hashes.add(h.hex())
+            elif not v3 and isinstance(h, str) and len(h) == 64 and all(c in "0123456789abcdef" for c in h):
+                hashes.add(h)
+            else:
+                want = "a 32-byte SHA-256 digest" if v3 else "64 hexadecimal digits"
+                raise DatabaseError(f"{where}: content_hashes.hash must be {want}, got {h!r}")
         info.content_hashes = hashes
         if scan_map:
             info.scan_map = _read_scan_map(con, path)
+        _verify(con, path, (*_INFO_TABLES, "scan_map") if scan_map else _INFO_TABLES)
     return info
 
 
-_held: dict[str, int] = {}
-_held_guard = threading.RLock()
+def hold_lock(path: str | Path, *, timeout: float | None = None, notify: Any = None) -> None:
+    """Take the writer lock of ``path`` until the current :class:`~fingerloc.atomic.OutputGroup` ends.
 
-
-def _real(path: str | Path) -> Path:
-    """The file a database path names: symbolic links followed (the file need not exist)."""
-    return Path(os.path.realpath(path))
-
-
-@contextmanager
-def locked(path: str | Path) -> Iterator[None]:
-    """Hold the exclusive writer lock of a place database (``<db>.lock``), re-entrantly.
-
-    Wrap a read-modify-write (load, change, :func:`save_model`) in it so that
-    no other process writes the database in between; other processes wait.
+    For a command whose read-modify-write spans several functions (``track
+    --graph-from`` reads the database, runs the filter, then stores the
+    graph): the lock is held from this call to the group's last rename.
+    Outside a group, use ``with locked(path):`` around the read and the write.
 
     Raises
     ------
-    DatabaseError
-        When the lock file cannot be created (a missing or read-only directory).
+    InvalidParameterError
+        No output group is active.
+    DatabaseLockedError
+        Another process held the lock for ``timeout`` seconds.
     """
-    real = _real(path)
-    key = str(real)
-    with _held_guard:
-        if _held.get(key):
-            _held[key] += 1
-            reentrant = True
-        else:
-            reentrant = False
-    if reentrant:
-        try:
-            yield
-        finally:
-            with _held_guard:
-                _held[key] -= 1
-        return
-    directory = real.parent
-    if not directory.is_dir():
-        raise DatabaseError(f"{path}: directory {directory} does not exist")
-    lock_path = real.with_name(real.name + ".lock")
-    try:
-        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as err:
-        raise DatabaseError(f"{path}: cannot create the lock file {lock_path} ({err.strerror or err})") from err
-    try:
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - not POSIX: no inter-process lock
-            fcntl = None  # type: ignore[assignment]
-        if fcntl is not None:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        with _held_guard:
-            _held[key] = 1
-        try:
-            yield
-        finally:
-            with _held_guard:
-                _held.pop(key, None)
-    finally:
-        os.close(fd)  # closing releases the flock
+    from ..atomic import current_group
+    from ..errors import InvalidParameterError
+
+    group = current_group()
+    if group is None:
+        raise InvalidParameterError("hold_lock needs an active OutputGroup (or use 'with locked(path):')")
+    group.hold(locked(path, timeout=timeout, notify=notify))
 
 
 def _remove_stale(real: Path) -> None:
     """Remove temporary files of dead writers (call under :func:`locked`: no live writer has any)."""
-    for tmp in real.parent.glob(f"{real.name}.*.tmp"):
-        for f in (tmp, Path(str(tmp) + "-journal")):
-            try:
-                f.unlink(missing_ok=True)
-            except OSError:
-                pass
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+    for pattern in temporary_patterns(real):
+        for tmp in real.parent.glob(pattern):
+            for f in (tmp, Path(str(tmp) + "-journal")):
+                try:
+                    f.unlink(missing_ok=True)
+                except OSError:
+                    pass
 
 
 def _blob(a: np.ndarray) -> bytes:
@@ -507,12 +548,23 @@ def save_model(
         Transitions of the place graph to store with the places.
     info : MapInfo, optional
         Place positions, calibration, preset, content hashes (schema version
-        2), the scan map (schema version 4).
+        2), the scan map (schema version 4), the sensor summary (schema
+        version 5; computed from the model's views when ``info`` has none).
 
     Returns
     -------
     int
         Size of the written file in bytes.
+
+    Raises
+    ------
+    InvalidParameterError
+        The target is not a regular file (a directory, a device, a FIFO, a
+        symbolic link loop) or its folder is missing or read-only.
+    DatabaseError
+        The file cannot be written (a full disk, a file-size limit, a
+        read-only file system): one line, the old file untouched and no
+        temporary file left.
     """
     state = model.to_state()
     target = Path(path)
@@ -523,15 +575,22 @@ def save_model(
     params["terms"] = list(params["terms"])
     if params["weights"] is not None and not isinstance(params["weights"], str):
         params["weights"] = dict(params["weights"])
-    if target.is_dir():
-        raise DatabaseError(f"{target} is a directory, not a place database")
-    real = _real(target)
-    directory = real.parent
-    if not directory.is_dir():
-        raise DatabaseError(f"{target}: directory {directory} does not exist")
+    real = check_target(target, "place database")
+    if info is None:
+        info = MapInfo()
+    if info.sensor is None:
+        info = MapInfo(**{**{f: getattr(info, f) for f in MapInfo.__dataclass_fields__}, "sensor": sensor_summary(
+            o for group in state["observations"] for o in group)})  # fmt: skip
     with locked(target):
         _remove_stale(real)
-        return _save_locked(real, params, state, graph_edges, info)
+        try:
+            return _save_locked(real, params, state, graph_edges, info)
+        except sqlite3.Error as err:
+            why = write_fault(real.parent, str(err))
+            raise DatabaseError(f"{target}: cannot write the place database ({why}); it is unchanged") from None
+        except OSError as err:
+            why = write_fault(real.parent, err.strerror or str(err)) if err.errno in (errno.ENOSPC, errno.EFBIG, errno.EIO) else (err.strerror or str(err))
+            raise DatabaseError(f"{target}: cannot write the place database ({why}); it is unchanged") from None
 
 
 def _save_locked(
@@ -549,7 +608,7 @@ def _save_locked(
     lambdas = {n: t["lambda"] for n, t in terms.items() if "lambda" in t}
     unknown = {n: t["unknown_cost"] for n, t in terms.items() if t.get("unknown_cost") is not None}
     directory = target.parent
-    mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
+    mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~umask()
 
     def make_fp(obs: Any) -> Any:
         from ..fingerprint import make_fingerprint
@@ -561,8 +620,9 @@ def _save_locked(
             laser_letters=params["laser_letters"],
         )
 
+    prefix, suffix = temporary_name(target)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=directory)
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=directory)
     except OSError as err:
         raise DatabaseError(f"{target}: cannot write in {directory} ({err.strerror or err})") from err
     os.close(fd)
@@ -581,6 +641,10 @@ def _save_locked(
                     "unknown_costs": _meta_json(unknown),
                     "fitted_weights": _meta_json(state["weights"]),
                 }
+                if state.get("temper", 1.0) != 1.0:  # PlaceModel(temper=True)'s fitted factor
+                    meta["temper"] = _meta_json(float(state["temper"]))
+                if "K" in terms:  # the keypoint term's parameters and fitted model choice (JSON-ready)
+                    meta["term_params"] = _meta_json({"K": {k: v for k, v in terms["K"].items() if k not in ("lambda", "unknown_cost")}})
                 default_fov = _default_fov(state["observations"])
                 if default_fov is not None:
                     meta["default_fov"] = _meta_json([list(pair) for pair in default_fov])
@@ -619,14 +683,20 @@ def _save_locked(
                 for (src, dst), count in (graph_edges or {}).items():
                     con.execute("INSERT INTO graph_edges VALUES (?, ?, ?)", (src, dst, int(count)))
                 _write_map_info(con, info)
+                con.execute("INSERT INTO meta VALUES (?, ?)", (DIGEST_KEY, digest_value(con)))
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)
-        os.replace(tmp, target)
+        size = Path(tmp).stat().st_size
+        replace(tmp, target)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        for f in (Path(tmp), Path(tmp + "-journal")):
+            try:
+                f.unlink(missing_ok=True)
+            except OSError:
+                pass
         raise
-    return target.stat().st_size
+    return size
 
 
 @contextmanager
@@ -636,8 +706,9 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
         raise DatabaseError(f"{p} is a directory, not a place database")
     if not p.is_file():
         raise DatabaseError(f"{p}: no such place database")
-    if Path(str(_real(p)) + "-journal").exists():
-        _recover_hot_journal(p)
+    if Path(str(real_path(p)) + "-journal").exists():
+        with locked(p):  # SQLite rolls the journal back (fingerloc.map._lock.settle_journals)
+            pass
     try:
         con = sqlite3.connect(f"file:{_uri_path(p)}?mode=ro", uri=True)
     except sqlite3.Error as err:
@@ -646,39 +717,65 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
         try:
             ok = con.execute("PRAGMA quick_check").fetchone()
             if ok is None or ok[0] != "ok":
-                raise DatabaseError(f"{p}: corrupt place database ({ok[0] if ok else 'no answer'})")
+                why = " ".join(str(ok[0]).split()) if ok else "no answer"  # SQLite's report spans lines
+                raise DatabaseError(f"{p}: corrupt place database ({why})")
             tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
             if "meta" not in tables:
                 raise DatabaseError(f"{p}: not a fingerloc place database (no meta table)")
             meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
             if meta.get("format") != FORMAT:
                 raise DatabaseError(f"{p}: not a fingerloc place database (format {meta.get('format')!r})")
-            if meta.get("schema_version") not in READABLE_VERSIONS:
+            version = meta.get("schema_version")
+            if version not in READABLE_VERSIONS:
+                newer = isinstance(version, str) and version.isdigit() and int(version) > SCHEMA_VERSION
                 raise DatabaseError(
-                    f"{p}: place database schema version {meta.get('schema_version')!r} is not supported "
-                    f"(this fingerloc reads versions {', '.join(READABLE_VERSIONS)})"
+                    f"{p}: place database schema version {version!r} is not supported "
+                    f"(this fingerloc reads versions {', '.join(READABLE_VERSIONS)}"
+                    + ("; it was written by a newer fingerloc: upgrade fingerloc)" if newer else ")")
+                )
+            missing = missing_tables(str(version), tables)
+            if missing:
+                raise DatabaseError(
+                    f"{p}: schema version {version} promises the table(s) {', '.join(missing)}, which the file "
+                    "lacks (damaged or edited); restore a copy or make the database again"
                 )
             yield con
         except sqlite3.Error as err:
             raise DatabaseError(f"{p}: not a valid place database ({err})") from err
+        except UnicodeDecodeError as err:
+            raise DatabaseError(f"{p}: damaged place database (a text value is not UTF-8: {err.reason})") from err
     finally:
         con.close()
+
+
+_VERIFIED: dict[tuple[str, int, int, int, tuple[str, ...]], bool] = {}
+
+#: The tables each reader hands on (their digests are checked after the reader's own checks).
+_MODEL_TABLES = ("meta", "places", "observations", "fingerprints", "mixtures", "range_descriptors")
+_INFO_TABLES = ("meta", "place_positions", "content_hashes")
+
+
+def _verify(con: sqlite3.Connection, path: str | Path, tables: tuple[str, ...]) -> None:
+    """Check the digests of ``tables`` (schema version 5) once per file version (inode, size, modification time)."""
+    try:
+        st = os.stat(path)
+        key: tuple[str, int, int, int, tuple[str, ...]] | None = (
+            str(real_path(path)), st.st_ino, st.st_size, st.st_mtime_ns, tables)  # fmt: skip
+    except OSError:
+        key = None
+    if key is not None and key in _VERIFIED:
+        return
+    check_digest(con, dict(con.execute("SELECT key, value FROM meta").fetchall()), str(path), tables)
+    if key is not None:
+        if len(_VERIFIED) > 64:
+            _VERIFIED.clear()
+        _VERIFIED[key] = True
 
 
 def _uri_path(p: Path) -> str:
     from urllib.parse import quote
 
     return quote(str(p.absolute()))
-
-
-def _recover_hot_journal(p: Path) -> None:
-    """Let SQLite roll back a hot journal next to ``p`` (a write that died): open read-write once."""
-    with locked(p):
-        try:
-            with closing(sqlite3.connect(f"file:{_uri_path(p)}?mode=rw", uri=True)) as con:
-                con.execute("SELECT count(*) FROM sqlite_master").fetchone()
-        except sqlite3.Error as err:
-            raise DatabaseError(f"{p}: a rollback journal was left by a failed write and cannot be rolled back ({err})") from err
 
 
 def load_model(path: str | Path) -> PlaceModel:
@@ -695,11 +792,13 @@ def load_model(path: str | Path) -> PlaceModel:
     """
     with _open(path) as con:
         try:
-            return _load(con, path)
+            model = _load(con, path)
         except DatabaseError:
             raise
         except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError, FingerlocError) as err:
             raise DatabaseError(f"{path}: invalid place database ({type(err).__name__}: {err})") from err
+        _verify(con, path, _MODEL_TABLES)
+    return model
 
 
 def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
@@ -709,13 +808,27 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         if not isinstance(params, dict):
             raise TypeError(f"params must be a JSON object, got {type(params).__name__}")
         params["costs"] = _costs_from_json(params.get("costs"))
-        lambdas = _float_map(meta["lambdas"], "lambdas")
-        unknown = _float_map(meta["unknown_costs"], "unknown_costs")
-        weights = _float_map(meta.get("fitted_weights", "{}"), "fitted_weights")
+        where = str(path)
+        lambdas = check_number_map(json.loads(meta["lambdas"]), "lambdas", where, minimum=0.0)
+        unknown = check_number_map(json.loads(meta["unknown_costs"]), "unknown_costs", where, neg_inf=True)
+        weights = check_number_map(json.loads(meta.get("fitted_weights", "{}")), "fitted_weights", where, minimum=0.0)
+        temper = float(json.loads(meta.get("temper", "1.0")))
+        if not (math.isfinite(temper) and temper > 0):
+            raise ValueError(f"temper must be a positive number, got {temper!r}")
+        term_params = json.loads(meta.get("term_params", "{}"))
+        if not isinstance(term_params, dict) or not all(isinstance(v, dict) for v in term_params.values()):
+            raise TypeError("term_params must be a JSON object of objects")
         typed_labels = json.loads(meta["labels"]) if "labels" in meta else None
         default_fov = None
         if "default_fov" in meta:
             default_fov = tuple((float(a), float(b)) for a, b in json.loads(meta["default_fov"]))
+            if not default_fov or not all(math.isfinite(a) and 0 < b <= 2 * math.pi + 1e-9 for a, b in default_fov):
+                raise ValueError(f"default_fov: (start, width) pairs with 0 < width <= 2 pi, got {default_fov!r}")
+        k = params.get("n_components")
+        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= MAX_COMPONENTS:
+            raise ValueError(f"params.n_components must be an integer in [1, {MAX_COMPONENTS}], got {k!r}")
+    except DatabaseError:
+        raise
     except (KeyError, TypeError, ValueError, AttributeError, FingerlocError) as err:
         raise DatabaseError(f"{path}: invalid model parameters in the place database ({err})") from err
     labels: list[Any] = []
@@ -773,6 +886,11 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         arrays = (_array(w), _array(m), _array(sg))
         if not isinstance(term, str) or len({a.size for a in arrays}) != 1 or np.any(arrays[2] <= 0):
             raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: corrupt mixture of term {term!r}")
+        if np.any(arrays[0] < 0) or not abs(float(arrays[0].sum()) - 1.0) <= 1e-6:
+            raise DatabaseError(
+                f"{path}: mixtures.weights of place {labels[index[pid]]!r}, term {term!r}: weights must be >= 0 "
+                f"and sum to 1, got {arrays[0].tolist()!r}"
+            )
         mixtures.setdefault(term, [None] * len(labels))[index[pid]] = arrays
     descriptors: list[Any] | None = None
     counts: list[Any] | None = None
@@ -807,7 +925,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
         labels = typed_labels
     terms_state: dict[str, dict[str, Any]] = {name: {"mixtures": mx} for name, mx in mixtures.items()}
     for name in ("Fp", "R", "A", "AP", "K"):
-        terms_state[name] = {"lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
+        terms_state[name] = {**term_params.get(name, {}), "lambda": lambdas.get(name, 1.0), "unknown_cost": unknown.get(name)}
     terms_state["A"]["metric"] = "l1"  # the model's appearance term (fingerloc.terms.AppearanceTerm's default)
     if descriptors is not None:  # else (older databases) the range term describes the stored scans again
         terms_state["R"]["descriptors"] = descriptors
@@ -816,29 +934,26 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
     terms_state["Fp"].update(fingerprints=fingerprints, medoids=medoids, consensus=consensus)
     for name in ("VE", "CP", "Ex", "B"):
         terms_state.setdefault(name, {"mixtures": [None] * len(labels)})
-    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights}
+    state = {"params": params, "labels": labels, "observations": observations, "terms": terms_state, "weights": weights,
+             "temper": temper}  # fmt: skip
     try:
         return PlaceModel.from_state(state)
     except DatabaseError as err:
         raise DatabaseError(f"{path}: {err}") from err
 
 
-def _float_map(text: Any, what: str) -> dict[str, float]:
-    data = json.loads(text)
-    if not isinstance(data, dict):
-        raise TypeError(f"{what} must be a JSON object, got {type(data).__name__}")
-    out = {str(k): float(v) for k, v in data.items()}
-    if not all(math.isfinite(v) or v == -math.inf for v in out.values()):
-        raise ValueError(f"{what}: a value is NaN or +inf")
+def read_graph_edges(path: str | Path) -> dict[tuple[str, str], int]:
+    """The place-graph transitions stored in a place database: ``{(src, dst): count}``."""
+    with _open(path) as con:
+        out = _graph_edges(con, path)
+        _verify(con, path, ("graph_edges",))
     return out
 
 
-def read_graph_edges(path: str | Path) -> dict[tuple[str, str], int]:
-    """The place-graph transitions stored in a place database: ``{(src, dst): count}``."""
+def _graph_edges(con: sqlite3.Connection, path: str | Path) -> dict[tuple[str, str], int]:
     out: dict[tuple[str, str], int] = {}
-    with _open(path) as con:
-        for s, d, c in con.execute("SELECT src, dst, count FROM graph_edges"):
-            if not isinstance(s, str) or not isinstance(d, str) or isinstance(c, bool) or not isinstance(c, int) or c < 0:
-                raise DatabaseError(f"{path}: invalid place-graph edge ({s!r}, {d!r}, count {c!r})")
-            out[(s, d)] = c
+    for s, d, c in con.execute("SELECT src, dst, count FROM graph_edges"):
+        if not isinstance(s, str) or not isinstance(d, str) or isinstance(c, bool) or not isinstance(c, int) or c < 0:
+            raise DatabaseError(f"{path}: invalid place-graph edge ({s!r}, {d!r}, count {c!r})")
+        out[(s, d)] = c
     return out

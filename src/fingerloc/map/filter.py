@@ -27,6 +27,17 @@ travelled since the previous step), the number of place changes is modelled as
 a continuous-time Markov chain in distance: ``K(d) = expm(d / L (M - I))``,
 ``L`` the mean distance travelled per place change while mapping; a robot
 standing still then stays put and a long drive can cross several places.
+
+When the places' positions are known (a map made from a run with poses),
+the graph's chain can be replaced by a *metric* kernel
+(:meth:`TransitionModel.from_positions`): after travelling ``d`` metres the
+robot is at place ``j`` with a weight ``exp(-|c_i - c_j|^2 / (2 (s + d)^2))``
+(``s``: the map's place spacing, how far inside a place's cell the robot
+may already be). The graph's chain moves on at the mapping run's mean rate
+``d / L`` whatever the robot sees, so a belief made sure by a few repeated
+views lags a place behind at every place change; the kernel lets the views
+decide between neighbours (:func:`check_place_filter` measures both on
+the mapping part; docs/RESULTS.md).
 """
 
 from __future__ import annotations
@@ -48,7 +59,9 @@ from .graph import PlaceGraph
 __all__ = [
     "FilterResult",
     "MarkovFilter",
+    "PlaceFilterCheck",
     "TransitionModel",
+    "check_place_filter",
     "entropy_bits",
     "fit_likelihood_scale",
     "fit_outlier_weight",
@@ -98,12 +111,20 @@ class TransitionModel:
     metres_per_move : float or None
         ``L``, mean metres travelled per place change; used when a step comes
         with a travelled distance. ``None``: distances are ignored.
+    centres : ndarray, shape (P, 2), or None
+        Place positions (metres): with them the transitions are the metric
+        kernel of :meth:`from_positions` (``stay``, ``move`` and
+        ``metres_per_move`` are then not used by :meth:`matrix`).
+    spread_metres : float or None
+        ``s`` of the metric kernel (metres, > 0; with ``centres``).
     """
 
     stay: FArray
     move: FArray
     uniform_mix: float = 0.0
     metres_per_move: float | None = None
+    centres: FArray | None = None
+    spread_metres: float | None = None
 
     def __post_init__(self) -> None:
         stay = np.asarray(self.stay, dtype=np.float64).reshape(-1)
@@ -125,6 +146,22 @@ class TransitionModel:
             )
         object.__setattr__(self, "stay", _ro(stay))
         object.__setattr__(self, "move", _ro(move))
+        if (self.centres is None) != (self.spread_metres is None):
+            raise InvalidParameterError("centres and spread_metres go together (both or neither)")
+        if self.centres is not None:
+            c = np.asarray(self.centres, dtype=np.float64)
+            if c.shape != (p, 2) or not np.all(np.isfinite(c)):
+                raise InvalidParameterError(f"centres must be a finite array of shape ({p}, 2), got {c.shape}")
+            sp = self.spread_metres
+            if not (isinstance(sp, (int, float)) and math.isfinite(sp) and sp > 0):
+                raise InvalidParameterError(f"spread_metres must be a positive number of metres, got {sp!r}")
+            object.__setattr__(self, "centres", _ro(c))
+            object.__setattr__(self, "spread_metres", float(sp))
+
+    @property
+    def metric(self) -> bool:
+        """True when the transitions are the metric kernel of :meth:`from_positions`."""
+        return self.centres is not None
 
     @property
     def n_places(self) -> int:
@@ -204,6 +241,39 @@ class TransitionModel:
             uniform_mix = 1.0 / (float(c.sum()) + 2.0)
         return cls(stay=stay, move=move, uniform_mix=float(uniform_mix), metres_per_move=metres_per_move)
 
+    @classmethod
+    def from_positions(
+        cls, centres: Any, spread_metres: float, *, uniform_mix: float = 0.0
+    ) -> TransitionModel:
+        """The metric kernel over places at known positions (module docstring).
+
+        After a step of ``d`` metres (0 when the step has no distance) from
+        place ``i`` the robot is at place ``j`` with probability
+        proportional to ``exp(-|c_i - c_j|^2 / (2 (spread_metres + d)^2))``;
+        then ``uniform_mix`` of the uniform transition is mixed in, as for
+        :meth:`from_graph`.
+
+        Parameters
+        ----------
+        centres : array_like, shape (P, 2)
+            Place positions, metres.
+        spread_metres : float
+            ``s`` (> 0), e.g. the map's place spacing.
+        uniform_mix : float, default 0.0
+            ``eps``, e.g. ``1 / (N + 2)`` for ``N`` counted steps of mapping.
+        """
+        c = np.asarray(centres, dtype=np.float64)
+        if c.ndim != 2 or c.shape[1] != 2 or c.shape[0] < 1:
+            raise InvalidParameterError(f"centres must have shape (P >= 1, 2), got {c.shape}")
+        p = c.shape[0]
+        k = _metric_kernel(_squared_distances(c), float(spread_metres)) if math.isfinite(float(spread_metres)) and float(spread_metres) > 0 else np.eye(p)
+        stay = np.diag(k).copy()
+        off = k - np.diag(stay)
+        rows = off.sum(axis=1)
+        move = np.divide(off, rows[:, None], out=np.eye(p), where=rows[:, None] > 0)
+        return cls(stay=np.clip(stay, 0.0, 1.0), move=move, uniform_mix=float(uniform_mix), centres=c,
+                   spread_metres=spread_metres)  # fmt: skip
+
     # -- the matrix ----------------------------------------------------------------------------------
     def matrix(self, distance: float | None = None) -> FArray:
         """Transition matrix ``T[i, j] = P(x_t = j | x_{t-1} = i)``, shape (P, P), rows sum to 1.
@@ -216,7 +286,11 @@ class TransitionModel:
             otherwise ``K = diag(stay) + diag(1 - stay) move``.
         """
         p = self.n_places
-        if distance is not None and self.metres_per_move is not None:
+        if self.centres is not None:
+            d = 0.0 if distance is None else _check_distance(distance)
+            assert self.spread_metres is not None
+            k = _metric_kernel(_squared_distances(self.centres), self.spread_metres + d)
+        elif distance is not None and self.metres_per_move is not None:
             d = _check_distance(distance)
             rate = d / self.metres_per_move
             from scipy.linalg import expm  # imported when used: localize never needs it
@@ -228,6 +302,18 @@ class TransitionModel:
             k = np.diag(self.stay) + (1.0 - self.stay)[:, None] * self.move
         eps = self.uniform_mix
         return (1.0 - eps) * k + eps / p  # T = (1 - eps) K + eps / P
+
+
+def _squared_distances(centres: FArray) -> FArray:
+    """Squared distances between the rows of ``centres``, shape (P, P)."""
+    c = np.asarray(centres, dtype=np.float64)
+    return np.asarray(((c[:, None, :] - c[None, :, :]) ** 2).sum(axis=2), dtype=np.float64)
+
+
+def _metric_kernel(sq: FArray, scale: float) -> FArray:
+    """Rows ``exp(-sq / (2 scale^2))`` normalised to sum to 1."""
+    k = np.exp(-0.5 * sq / (scale * scale))
+    return np.asarray(k / k.sum(axis=1, keepdims=True), dtype=np.float64)
 
 
 def metres_per_move(positions: Any, places: Any) -> float:
@@ -384,6 +470,7 @@ class MarkovFilter:
         self.prior = prior
         self._fixed: FArray | None = None
         self._eig: tuple[Any, ...] | None = None
+        self._sq: FArray | None = None
         self.reset()
 
     def reset(self) -> MarkovFilter:
@@ -419,6 +506,18 @@ class MarkovFilter:
         :func:`scipy.linalg.expm` when it is not.
         """
         t = self.transition
+        if t.centres is not None:
+            assert t.spread_metres is not None
+            if self._sq is None:
+                self._sq = _squared_distances(t.centres)
+            d = 0.0 if distance is None else _check_distance(distance)
+            if d == 0.0 and self._fixed is not None:
+                return self._fixed
+            k = _metric_kernel(self._sq, t.spread_metres + d)
+            out = (1.0 - t.uniform_mix) * k + t.uniform_mix / t.n_places
+            if d == 0.0:
+                self._fixed = out
+            return out
         if distance is None or t.metres_per_move is None:
             if self._fixed is None:
                 self._fixed = t.matrix()
@@ -441,6 +540,7 @@ class MarkovFilter:
         tm = self.transition
         if (
             distance is not None
+            and tm.centres is None
             and tm.metres_per_move is not None
             and tm.n_places > EIG_VECTOR_MIN_PLACES
             and _check_distance(distance) >= 0
@@ -559,8 +659,16 @@ class SharedPlaceSteps:
             and self.transition.uniform_mix == transition.uniform_mix
             and self.transition.stay.tobytes() == np.asarray(transition.stay).tobytes()
             and self.transition.move.tobytes() == np.asarray(transition.move).tobytes()
+            and self.transition.spread_metres == transition.spread_metres
+            and _same_centres(self.transition.centres, transition.centres)
         )
         return _ReplayMarkovFilter(transition, self if same else None)
+
+
+def _same_centres(a: FArray | None, b: FArray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return a.tobytes() == np.asarray(b).tobytes()
 
 
 class _ReplayMarkovFilter(MarkovFilter):
@@ -646,3 +754,76 @@ def run_filter(
         row = None if (obs is not None and not obs[t]) else ll[t]
         out[t] = f.step(row, None if dist is None else float(dist[t]))
     return FilterResult.from_log_posterior(out)
+
+
+@dataclass(frozen=True, slots=True)
+class PlaceFilterCheck:
+    """The place filter against the single shot along a run whose true places are known (:func:`check_place_filter`).
+
+    Attributes
+    ----------
+    filter_top1, single_top1 : float
+        Fraction of the scored steps where the filter's best place (after
+        the step's observation), and the step's own best place, is the true one.
+    rows : int
+        Scored steps.
+    use_filter : bool
+        ``filter_top1 >= single_top1``: the filter earns its keep (ties: the filter).
+    """
+
+    filter_top1: float
+    single_top1: float
+    rows: int
+    use_filter: bool
+
+    def reason(self) -> str:
+        """One line: which answer and why."""
+        what = "filtering" if self.use_filter else "answering the single shot"
+        return (
+            f"the place filter is right at {self.filter_top1:.2f} of {self.rows} held-out mapping views, the single "
+            f"shot at {self.single_top1:.2f}: {what}"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """Every field."""
+        return {"filter_top1": self.filter_top1, "single_top1": self.single_top1, "rows": self.rows,
+                "use_filter": self.use_filter}  # fmt: skip
+
+
+def check_place_filter(
+    log_likelihood: Any, transition: TransitionModel, labels: Any, *, distances: Any = None
+) -> PlaceFilterCheck:
+    """Does the discrete filter beat the single shot along a run whose true places are known (the mapping part)?
+
+    Parameters
+    ----------
+    log_likelihood : array_like, shape (n_steps, P)
+        Each step's single-shot log-likelihood row (NaN row: no observation),
+        e.g. the mapping part's held-out rows (a model fit without each of
+        them) at their steps, NaN at the others.
+    transition : TransitionModel
+    labels : array_like of int, shape (n_steps,)
+        True place at the steps to score (``-1``: not scored; a scored step
+        must be observed).
+    distances : array_like, shape (n_steps,), optional
+        Metres travelled into each step (:func:`run_filter`).
+
+    Returns
+    -------
+    PlaceFilterCheck
+    """
+    ll = np.asarray(log_likelihood, dtype=np.float64)
+    y = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if ll.ndim != 2 or ll.shape[0] != y.size:
+        raise InvalidParameterError(f"log_likelihood must have shape (n_steps, P) with n_steps = {y.size}, got {ll.shape}")
+    scored = y >= 0
+    if np.any(np.all(np.isnan(ll[scored]), axis=1)):
+        raise InvalidParameterError("every scored step needs an observation (a row without NaN)")
+    n = int(scored.sum())
+    if n == 0:
+        return PlaceFilterCheck(0.0, 0.0, 0, False)
+    res = run_filter(ll, transition, distances=distances)
+    rows = np.where(np.isnan(ll[scored]), -np.inf, ll[scored])
+    single = float(np.mean(np.argmax(rows, axis=1) == y[scored]))
+    filt = float(np.mean(res.best[scored] == y[scored]))
+    return PlaceFilterCheck(filt, single, n, filt >= single)

@@ -162,6 +162,12 @@ class PoseFilter:
     lost_uniform : bool, default False
         A lost re-draw looks everywhere (uniform prior over the places)
         instead of at ``kidnap_prior`` (e.g. a place filter's belief).
+    lost_uniform_share : float, default 0.0
+        A lost re-draw's prior is ``(1 - share) kidnap_prior + share /
+        P``: the place filter run beside the particles was fed the same
+        views that misled them, so its belief may be as lost as theirs (a
+        re-draw taken from it alone lands where the particles already are);
+        in ``[0, 1]`` (``lost_uniform``: 1).
     random_state : int or Generator, optional
 
     Attributes
@@ -200,6 +206,7 @@ class PoseFilter:
         lost_after: int = 1,
         lost_statistic: str = "best",
         lost_uniform: bool = False,
+        lost_uniform_share: float = 0.0,
         random_state: int | np.random.Generator | None = 0,
     ) -> None:
         c = np.asarray(centres, dtype=np.float64)
@@ -250,6 +257,9 @@ class PoseFilter:
             raise InvalidParameterError(f"lost_statistic must be 'best' or 'mean', got {lost_statistic!r}")
         self.lost_statistic = lost_statistic
         self.lost_uniform = bool(lost_uniform)
+        self.lost_uniform_share = _finite("lost_uniform_share", lost_uniform_share)
+        if self.lost_uniform_share > 1:
+            raise InvalidParameterError(f"lost_uniform_share must be in [0, 1], got {lost_uniform_share!r}")
         self.scan_fit_ = math.nan
         self._place_poses: list[FArray] = [np.zeros((0, 3))] * c.shape[0]
         if place_poses is not None:
@@ -502,6 +512,10 @@ class PoseFilter:
             self.lost_steps_.append(self._updates - 1)
             if self.lost_uniform:  # the belief is lost: so may be the prior that followed it (a place filter's)
                 kidnap_prior = None
+            elif kidnap_prior is not None and self.lost_uniform_share > 0:
+                kp = np.asarray(kidnap_prior, dtype=np.float64).reshape(-1)
+                u = self.lost_uniform_share
+                kidnap_prior = np.logaddexp(math.log1p(-u) + kp - logsumexp(kp), math.log(u / P)) if u < 1 else None
         eps = -math.expm1(w_obs * math.log1p(-self.kidnap)) if kidnap is None else float(kidnap)
         # place posterior: tracked particles' mass plus the kidnapping component (exact: uniform prior x p_j)
         with np.errstate(divide="ignore"):

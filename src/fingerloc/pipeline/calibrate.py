@@ -59,6 +59,7 @@ __all__ = [
     "scan_folds",
     "scan_tuning_inputs",
     "tune_pose_filter",
+    "with_place_check",
 ]
 
 
@@ -231,7 +232,30 @@ def calibrate_map(
         )  # fmt: skip
     if scan_map is not None and cc.scan_gamma is not None:
         cal = replace(cal, scan_gamma=float(cc.scan_gamma))
+    if held is not None and observe and held.labels.size:
+        cal = with_place_check(cal, config, graph, m, held)
     return MapCalibration(cal, graph, scan_map, held, headings, tried)
+
+
+def with_place_check(calibration: Calibration, config: Config, graph: PlaceGraph, mapping: MappingPart, held: HeldOut) -> Calibration:
+    """The calibration with the place filter's and the single shot's top-1 on the mapping part's held-out views.
+
+    The filter over places (:func:`~fingerloc.pipeline.filters.place_transition_of`, the places' positions
+    known) runs along the mapping part with each held-out view (``beta`` times its held-out score) as an
+    observation at its step (:func:`~fingerloc.map.filter.check_place_filter`).
+    """
+    from ..map.filter import check_place_filter
+    from .filters import place_transition_of
+
+    m = mapping
+    rows = m.train_idx[held.index]
+    ll = np.full((m.poses.shape[0], m.n_places), np.nan)
+    ll[rows] = calibration.beta * np.where(np.isnan(held.scores), -np.inf, held.scores)
+    labels = np.full(m.poses.shape[0], -1, dtype=np.int64)
+    labels[rows] = held.labels
+    transition = place_transition_of(graph, calibration, config, m.centres)
+    chk = check_place_filter(ll, transition, labels, distances=step_distances(m.poses[:, :2]))
+    return replace(calibration, place_filter_top1=chk.filter_top1, place_single_top1=chk.single_top1)
 
 
 def scan_folds(train_idx: Any, labels: Any) -> IArray:

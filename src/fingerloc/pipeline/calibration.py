@@ -111,6 +111,11 @@ class Calibration:
         Pose filter: the scan fit below which the belief is taken for lost (None: off).
     lost_kidnap : float
         ... and the probability that such an observation re-draws from the sensor.
+    place_filter_top1, place_single_top1 : float or None
+        The place filter's and the single shot's top-1 over the mapping part's
+        held-out views (:func:`~fingerloc.map.filter.check_place_filter`; None:
+        not measured). When the filter is below the single shot, the place
+        filter answers the single shot at its observations (:meth:`place_filter_steps_aside`).
     """
 
     beta: float = 1.0
@@ -129,6 +134,8 @@ class Calibration:
     scan_gamma: float = 0.0
     lost_fit: float | None = None
     lost_kidnap: float = 0.0
+    place_filter_top1: float | None = None
+    place_single_top1: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("beta", "metres_per_move", "radius", "spacing", "temper_metres", "temper_radians"):
@@ -149,6 +156,23 @@ class Calibration:
             raise InvalidParameterError(f"calibration heading must be a HeadingModel or None, got {self.heading!r}")
         if self.lost_fit is not None and not (isinstance(self.lost_fit, (int, float)) and not math.isnan(self.lost_fit)):
             raise InvalidParameterError(f"calibration lost_fit must be a number or None, got {self.lost_fit!r}")
+        for name in ("place_filter_top1", "place_single_top1"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and 0 <= v <= 1):
+                raise InvalidParameterError(f"calibration {name} must be a fraction in [0, 1] or None, got {v!r}")
+
+    def place_filter_steps_aside(self) -> bool:
+        """True when the place filter was below the single shot on the mapping part's held-out views."""
+        f, s = self.place_filter_top1, self.place_single_top1
+        return f is not None and s is not None and f < s
+
+    def place_filter_reason(self) -> str:
+        """One line: whether the place filter beat the single shot on the mapping part (empty when not measured)."""
+        f, s = self.place_filter_top1, self.place_single_top1
+        if f is None or s is None:
+            return ""
+        what = "answering the single shot at observations" if f < s else "filtering"
+        return f"the place filter was right at {f:.2f} of the mapping part's held-out views, the single shot at {s:.2f}: {what}"
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready flat dict: every field, the heading model as ``heading_kappa`` ... ``heading_cap`` (0: none)."""

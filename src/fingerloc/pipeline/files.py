@@ -87,6 +87,37 @@ class FeatureOptions:
     max_pixels: int | None = None
     beacon_params: tuple[tuple[str, float], ...] = ()
 
+    def __post_init__(self) -> None:
+        import math
+
+        def finite(name: str, v: Any) -> None:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise InvalidParameterError(f"{name} must be a finite number, got {v!r}")
+
+        finite("bearing_offset (--bearing-offset-deg)", self.bearing_offset)
+        if self.center is not None:
+            for v in self.center:
+                finite("center (--center)", v)
+        if self.radii is not None:
+            r_in, r_out = self.radii
+            finite("radii (--radii)", r_in)
+            finite("radii (--radii)", r_out)
+            if not 0 <= r_in < r_out:
+                raise InvalidParameterError(f"radii (--radii) must satisfy 0 <= inner < outer, got {self.radii!r}")
+        if self.band is not None:
+            lo, hi = self.band
+            finite("band (--band)", lo)
+            finite("band (--band)", hi)
+            if not 0 <= lo < hi <= 1:
+                raise InvalidParameterError(f"band (--band) must satisfy 0 <= top < bottom <= 1, got {self.band!r}")
+        if isinstance(self.max_width, bool) or not isinstance(self.max_width, int) or self.max_width < 64:
+            raise InvalidParameterError(f"max_width must be an integer >= 64, got {self.max_width!r}")
+        if self.max_pixels is not None and (isinstance(self.max_pixels, bool) or not isinstance(self.max_pixels, int)
+                                            or self.max_pixels < 1):  # fmt: skip
+            raise InvalidParameterError(f"max_pixels (--max-pixels) must be a positive integer, got {self.max_pixels!r}")
+        if self.beacon_threshold is not None:
+            finite("beacon_threshold (--beacon-threshold)", self.beacon_threshold)
+
 
 Reader = Callable[[Path, FeatureOptions], Iterator[tuple[str, Observation]]]
 
@@ -126,12 +157,40 @@ def panorama_from_file(path: Path, opts: FeatureOptions) -> Panorama:
     band = opts.band
     if band is None and abs(w / h - 2.0) < 0.05:
         band = (0.25, 0.75)  # full equirectangular: elevations -45..+45 deg
+    meta: dict[str, object] = {"source": str(path), "equirectangular": abs(w / h - 2.0) < 0.05}
     if band is not None:
         lo, hi = round(band[0] * h), round(band[1] * h)
         img = img[lo:hi]
+        if img.shape[0] < 2:
+            raise DataFormatError(f"the band {band!r} of a {w}x{h} image holds {img.shape[0]} row(s)", path=path)
+        if meta["equirectangular"]:  # rows are elevations from +90 (top) to -90 deg (the keypoints' positions)
+            meta["elevation_deg"] = (90.0 - 180.0 * lo / h, 90.0 - 180.0 * hi / h)
+    _check_derived(path, img.shape[1], img.shape[0], opts)
     img = _shrink(img, opts.max_width)
-    meta: dict[str, object] = {"source": str(path), "equirectangular": abs(w / h - 2.0) < 0.05}
     return Panorama(img, bearing_offset=opts.bearing_offset, clockwise=not opts.counter_clockwise, meta=meta)
+
+
+#: Arrays the pipeline derives from an image at a fixed width (the keypoint band's float images, a few at once)
+#: must stay under this part of the pixel limit.
+DERIVED_SHARE = 4
+
+
+def _check_derived(path: Path, width: int, height: int, opts: FeatureOptions) -> None:
+    """Every array the panorama pipeline allocates must stay under the pixel limit, not only the decoded image.
+
+    The panorama is shrunk to ``max_width`` columns (never grown), and the
+    keypoint detector resamples the band to a fixed width (1440 columns):
+    a tall thin image (64 x 20000) would make that band 1440 x 450,000.
+    """
+    from ..features.keypoints import KeypointParams
+    from ..io.images import DEFAULT_MAX_PIXELS, check_pixels
+
+    limit = max(1, (DEFAULT_MAX_PIXELS if opts.max_pixels is None else opts.max_pixels) // DERIVED_SHARE)
+    k = KeypointParams().width
+    rows = max(8, round(height * k / max(width, 1)))
+    check_pixels(k, rows, limit, f"its keypoint band ({width}x{height} resampled to {k} columns)", path)
+    shrunk = (width, height) if width <= opts.max_width else (opts.max_width, max(2, round(height * opts.max_width / width)))
+    check_pixels(shrunk[0], shrunk[1], limit, "its panorama band", path)
 
 
 def _read_panorama(path: Path, opts: FeatureOptions) -> Iterator[tuple[str, Observation]]:

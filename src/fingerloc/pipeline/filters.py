@@ -19,7 +19,7 @@ from ..map.pose_filter import PoseFilter
 from ..map.scan_map import ScanMap
 from .calibration import Calibration
 
-__all__ = ["place_filter_of", "pose_filter_of", "pose_tracking", "strategy_of", "transition_of"]
+__all__ = ["place_filter_of", "place_transition_of", "pose_filter_of", "pose_tracking", "strategy_of", "transition_of"]
 
 
 def transition_of(graph: PlaceGraph, calibration: Calibration, config: Config, *, uniform_mix: float | None = None) -> TransitionModel:
@@ -33,6 +33,24 @@ def transition_of(graph: PlaceGraph, calibration: Calibration, config: Config, *
     return TransitionModel.from_graph(
         graph, alpha=config.pose_filter.alpha, uniform_mix=uniform_mix, metres_per_move=calibration.metres_per_move
     )
+
+
+def place_transition_of(
+    graph: PlaceGraph, calibration: Calibration, config: Config, centres: Any = None, *, uniform_mix: float | None = None
+) -> TransitionModel:
+    """The transitions of the filter over places (``filter="places"``): with the places' positions the metric
+    kernel (:meth:`~fingerloc.map.filter.TransitionModel.from_positions`, spread = the map's place spacing), else
+    the graph's chain (:func:`transition_of`).
+
+    The uniform mixing per step is the graph's (``1 / (counted steps + 2)``) unless given. The graph's chain
+    moves on at the mapping part's mean rate whatever the robot sees and lags a place behind at place changes;
+    the kernel lets the views decide between neighbours (docs/RESULTS.md).
+    """
+    if centres is None:
+        return transition_of(graph, calibration, config, uniform_mix=uniform_mix)
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    eps = 1.0 / (float(graph.count_matrix().sum()) + 2.0) if uniform_mix is None else float(uniform_mix)
+    return TransitionModel.from_positions(c, float(calibration.spacing), uniform_mix=eps)
 
 
 def place_filter_of(transition: TransitionModel, place_steps: SharedPlaceSteps | None = None) -> MarkovFilter:
@@ -73,6 +91,7 @@ def pose_filter_of(
         lost_after=pf.lost_after,
         lost_statistic=pf.lost_statistic,
         lost_uniform=pf.lost_uniform,
+        lost_uniform_share=pf.lost_uniform_share,
         random_state=seed if rng is None else rng,
     )
 

@@ -25,8 +25,9 @@ LOCALIZE_CHUNK = 256
 
 
 def shows_heading(model: Any) -> bool:
-    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP``."""
-    return bool(model.cyclic or "AP" in model.terms_)
+    """Whether ``localize`` gives a heading: a cyclic model, or one with the column-profile term ``AP`` or the
+    keypoint term ``K``."""
+    return bool(model.cyclic or "AP" in model.terms_ or "K" in model.terms_)
 
 
 def _finite(v: float, where: str, nulls: dict[str, str]) -> float | None:
@@ -102,10 +103,11 @@ def answer_chunk(
     rank_of_true = np.where(truth >= 0, rank_all, 0)
     headings = np.full(n, np.nan)
     refs = np.full(n, -1, dtype=np.int64)
+    sources: list[str | None] = [None] * n
     with_heading = shows_heading(model)
     if with_heading and n:
         # heading_deg: a feature at bearing b in the query is at b + heading_deg in the reference view
-        h, refs = model.headings_with_reference(obs, [model.classes_[j] for j in best_cols])
+        h, refs, sources = model.heading_sources(obs, [model.classes_[j] for j in best_cols])
         headings = np.mod(-h, 360.0)
     unknown = model.predict_unknown_proba(obs) if model.unknown_prior > 0 else None
     out = ChunkAnswers(n, rank_of_true=[int(r) for r in rank_of_true])
@@ -134,6 +136,8 @@ def answer_chunk(
                 "heading_deg": None if np.isnan(headings[i]) else _finite(float(headings[i]), "/heading_deg", nulls),
                 "heading_ref": None if ref is None else (ref.source or f"{best}#{int(refs[i])}"),
             }
+            if with_heading:  # where heading_deg comes from (keypoints, profile, fingerprint)
+                rec["heading_from"] = sources[i]
             if unknown is not None:
                 rec["unknown"] = _finite(float(unknown[i]), "/unknown", nulls)
             # what encode_record gives for this record (tests/test_localize_stream.py), without walking every number

@@ -35,6 +35,7 @@ from ..map.filter import FilterResult, TransitionModel
 from ..map.graph import PlaceGraph
 from ..metrics import rank_metrics, true_place_ranks
 from .calibration import Calibration, implied_headings, posterior_columns, read_calibration, stored_calibration
+from .filters import place_transition_of
 from .places import nearest_within
 from .presets import ResolvedPreset
 from .readers import Run
@@ -188,6 +189,21 @@ class PlaceMap:
         """True for a map made from poses: place positions and a calibration."""
         return self.positions is not None and self.calibration is not None
 
+    def default_filter(self, run: Run | None = None) -> tuple[str, str]:
+        """The best filter this map and ``run`` allow, and why: ``("pose", reason)`` or ``("places", reason)``.
+
+        The pose filter (it follows the odometry's direction and turn, and the
+        map's scan evidence) when the map has place positions and a
+        calibration and the run has a pose (odometry) at every step; the
+        filter over places otherwise (it needs only the travelled distance,
+        or nothing).
+        """
+        if not self.has_positions:
+            return "places", "filter: places (the map has no place positions: the pose filter needs a map made from poses)"
+        if run is not None and run.poses is None:
+            return "places", "filter: places (the run has no poses or odometry: the pose filter needs them)"
+        return "pose", "filter: pose (the map has place positions and the run has poses: the pose filter follows the odometry)"
+
     @property
     def position_dict(self) -> dict[str, tuple[float, float]]:
         """Place centres by label (empty without positions)."""
@@ -329,7 +345,9 @@ class PlaceMap:
                 "(or track JSON Lines with --graph-from)"
             )
         transition = None
-        if uniform_mix is not None and self.graph.graph.number_of_edges() > 0:
+        if uniform_mix is not None and filter == "places" and self.positions is not None:
+            transition = place_transition_of(self.graph, cal, cfg, self.positions, uniform_mix=uniform_mix)
+        elif uniform_mix is not None and self.graph.graph.number_of_edges() > 0:
             transition = TransitionModel.from_graph(
                 self.graph, alpha=cfg.pose_filter.alpha, uniform_mix=uniform_mix, metres_per_move=cal.metres_per_move
             )
@@ -553,7 +571,7 @@ def _track_summary(ll: FArray, truth: IArray, result: FilterResult, tracker: Tra
     observed = ~np.all(np.isnan(ll), axis=1)
     t = np.where(observed, truth, -1)
     cal = tracker.calibration
-    metres = tracker.transition.metres_per_move
+    metres = cal.metres_per_move if tracker.transition.metric else tracker.transition.metres_per_move
     return {
         "steps": int(ll.shape[0]),
         "observed_steps": int(observed.sum()),
@@ -563,6 +581,8 @@ def _track_summary(ll: FArray, truth: IArray, result: FilterResult, tracker: Tra
         "uniform_mix": tracker.transition.uniform_mix,
         "filter": filter,
         **({} if gamma is None else {"scan_gamma": gamma}),
+        **({"transitions": "metric" if tracker.transition.metric else "graph", "steps_aside": tracker.steps_aside,
+            "place_filter": cal.place_filter_reason() or None} if filter == "places" else {}),
         "filtered": _summary(result.log_posterior, t),
         "single_shot": _summary(single, t),
     }
@@ -597,6 +617,7 @@ def load_map(path: str | Path, *, scan: bool = True) -> PlaceMap:
 
 def store_graph(path: str | Path, edges: dict[tuple[str, str], int]) -> None:
     """Replace the place graph stored in a place database (everything else kept as it is)."""
-    from ..map.database import load_model, read_map_info, save_model
+    from ..map.database import load_model, locked, read_map_info, save_model
 
-    save_model(load_model(path), path, graph_edges=edges, info=read_map_info(path))
+    with locked(path):  # the read and the write as one: a concurrent writer's places are kept
+        save_model(load_model(path), path, graph_edges=edges, info=read_map_info(path))

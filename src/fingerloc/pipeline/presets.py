@@ -65,15 +65,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         "features": {},
     },
     "panorama": {
-        "description": "panoramic camera: the appearance term A + the local-feature term K, each calibrated "
-        "leave-one-out, weight 1 each (both heading-free); the aligned-profile term AP gives the heading and the "
-        "fingerprint string (matched over every rotation) its fallback, both with weight 0",
+        "description": "panoramic camera: the appearance term A + the local-feature term K (SIFT matches verified "
+        "by a relative pose), each calibrated leave-one-out, weight 1 each, their sum tempered on held-out training "
+        "views; K's verified rotation gives the heading, the aligned-profile term AP and the fingerprint string "
+        "(matched over every rotation) its fallbacks, both with weight 0",
         "model": {
             "terms": ["Fp", "A", "AP", "K"],
             "cyclic": True,
             "costs": "feature",
             "fp_likelihood": "exp",
             "weights": {"Fp": 0.0, "A": 1.0, "AP": 0.0, "K": 1.0},
+            "temper": True,
         },
         "features": {},
     },

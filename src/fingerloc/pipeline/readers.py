@@ -58,17 +58,17 @@ def load_log_scans(path: str | Path, *, skip_bad: bool = False) -> tuple[list[Sc
     """The front-laser scans of a CARMEN log in file order, and the number of skipped bad lines.
 
     ``FLASER`` lines when the log has any, else ``ROBOTLASER1``. Every scan
-    must carry a pose.
+    must carry a pose. The log is read once (a pipe or a FIFO works).
     """
-    from ..io.carmen import ReadStats, front_laser_messages, inspect_log, iter_scans, require_laser
+    from ..io.carmen import ReadStats, front_laser_messages, laser_scans, read_log, require_laser
 
-    info = inspect_log(path)
+    st = ReadStats()
+    info, records = read_log(path, skip_bad=skip_bad, stats=st)
     require_laser(path, info)
     messages = front_laser_messages(info)
     if not messages:
         raise EmptyInputError("no FLASER or ROBOTLASER1 line (no front-laser scan)", path=path)
-    st = ReadStats()
-    scans = list(iter_scans(path, skip_bad=skip_bad, messages=messages, stats=st))
+    scans = [scan for _, scan in laser_scans(path, records, info, messages, skip_bad=skip_bad, stats=st)]
     if not scans:
         raise EmptyInputError("no front-laser scan could be read", path=path)
     if any(s.pose is None for s in scans):
@@ -86,13 +86,33 @@ def iter_carmen_observations(
     ``features`` go to :func:`fingerloc.features.laser.observation_from_scan`.
     """
     from ..features.laser import observation_from_scan
-    from ..io.carmen import ReadStats, default_messages, inspect_log, iter_laser, require_laser
+    from ..io.carmen import (
+        ReadStats,
+        default_messages,
+        inspect_log,
+        is_regular,
+        iter_laser,
+        laser_scans,
+        read_log,
+        require_laser,
+    )
 
-    info = inspect_log(path)
-    require_laser(path, info)
     st = ReadStats()
-    for rec, scan in iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st):
+    if is_regular(path):  # two passes (thresholds, then scans): memory does not grow with the log
+        info = inspect_log(path)
+        require_laser(path, info)
+        pairs = iter_laser(path, skip_bad=skip_bad, messages=default_messages(info), stats=st, info=info)
+    else:  # a pipe or a FIFO: read once
+        info, records = read_log(path, skip_bad=skip_bad, stats=st)
+        require_laser(path, info)
+        pairs = laser_scans(path, records, info, default_messages(info), skip_bad=skip_bad, stats=st)
+    n = 0
+    for rec, scan in pairs:
+        n += 1
         yield f"{path.name}:{rec.line} {rec.message}", observation_from_scan(scan, label=place, **features)
+    if not n:
+        why = f"; {st.skipped} malformed line(s) skipped, first: {st.first_errors[0]}" if st.skipped else ""
+        raise EmptyInputError(f"no usable laser scan{why}", path=path)
     if st.skipped and notify is not None:
         notify(f"{path}: skipped {st.skipped} malformed line(s); first: {st.first_errors[0]}")
 
@@ -115,17 +135,19 @@ def iter_bag_observations(
     from ..io.rosbag import BagPlan, BagReadStats
 
     st = BagReadStats()
+    plans: list[BagPlan] = []  # said once every scan has been read: an error stays the only line
 
-    def report(plan: BagPlan) -> None:
-        if notify is not None:
-            notify(f"{path}: {plan.describe()}")
-
-    scans = _bag_scans(path, skip_bad=skip_bad, stats=st, on_plan=report, **dict(bag_options or {}))
+    scans = _bag_scans(path, skip_bad=skip_bad, stats=st, on_plan=plans.append, **dict(bag_options or {}))
+    k = 0
     for k, scan in enumerate(scans, start=1):
         t = "" if scan.timestamp is None else f" t={scan.timestamp:.3f}"
         yield f"{path.name}#{k}{t}", observation_from_scan(scan, label=place, **features)
+    if k == 0:
+        raise EmptyInputError(f"no usable laser scan ({_bag_losses(st) or 'the scan topic has no message'})", path=path)
     if notify is None:
         return
+    for plan in plans:
+        notify(f"{path}: {plan.describe()}")
     if st.skipped:
         notify(f"{path}: skipped {st.skipped} bad scan message(s); first: {st.first_errors[0]}")
     dropped = [
@@ -134,6 +156,18 @@ def iter_bag_observations(
     ]
     if any(dropped):
         notify(f"{path}: dropped {' and '.join(d for d in dropped if d)}")
+
+
+def _bag_losses(st: Any) -> str:
+    """What a bag reader dropped, in words (empty when nothing)."""
+    parts = []
+    if st.skipped:
+        parts.append(f"{st.skipped} bad scan message(s) skipped, first: {st.first_errors[0]}")
+    if getattr(st, "unpaired", 0):
+        parts.append(f"{st.unpaired} time step(s) without a scan on every topic")
+    if getattr(st, "unmounted", 0):
+        parts.append(f"{st.unmounted} scan(s) whose lidar mount was missing in /tf")
+    return "; ".join(parts)
 
 
 def _bag_scans(path: Path, **options: Any) -> Iterator[Scan]:
@@ -280,12 +314,13 @@ def read_run(
         names = [f"{p.name}#{i}" for i in range(len(scans))]
         return Run([p], k, names, scans=scans, key=_run_key(scans, _scan_bytes), skipped=skipped)
     if k == "bag":
-        from ..io.carmen import ReadStats
 
-        st = ReadStats()
+        from ..io.rosbag import BagReadStats
+
+        st = BagReadStats()
         scans = list(_bag_scans(p, skip_bad=skip_bad, stats=st, **dict(bag_options or {})))
         if not scans:
-            raise EmptyInputError("no laser scan could be read", path=p)
+            raise EmptyInputError(f"no laser scan could be read ({_bag_losses(st) or 'no scan message'})", path=p)
         names = [f"{p.name}#{i}" for i in range(len(scans))]
         return Run([p], k, names, scans=scans, key=_run_key(scans, _scan_bytes), skipped=st.skipped)
     from ..io.jsonl import read_observations

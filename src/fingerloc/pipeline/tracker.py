@@ -19,9 +19,13 @@ moves by the odometry since the previous step and updates.
 * ``filter="pose"``: the pose particle filter
   (:class:`~fingerloc.map.driver.PoseTracking`), which needs the place
   positions of a map made from poses (``fingerloc map``);
-* ``filter="places"``: the discrete filter over the place graph
+* ``filter="places"``: the discrete filter over the places
   (:class:`~fingerloc.map.filter.MarkovFilter`), which needs only the
-  travelled distance.
+  travelled distance: the metric kernel over the places' positions when the
+  map has them, else the place graph's chain
+  (:func:`~fingerloc.pipeline.filters.place_transition_of`); when it was below
+  the single shot on the mapping part's held-out views, it answers the
+  single shot at the observed steps (``steps_aside``).
 
 Offline tracking of a recorded run (:meth:`fingerloc.pipeline.placemap.PlaceMap.track`)
 is this loop over the run (the model's scores computed in one batch, which
@@ -47,7 +51,7 @@ from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
 from ..sensors import Scan
 from .calibration import Calibration, implied_headings, posterior_columns
-from .filters import pose_filter_of, pose_tracking, transition_of
+from .filters import place_transition_of, pose_filter_of, pose_tracking, transition_of
 
 if TYPE_CHECKING:
     from ..map.graph import PlaceGraph
@@ -198,7 +202,8 @@ class Tracker:
     heading : bool, default True
         Use the calibration's heading model (pose filter).
     transition : TransitionModel, optional
-        The place filter's transition model (default from the graph and calibration).
+        The place filter's transition model (default from the graph and
+        calibration; for ``filter="places"`` with ``centres``, the metric kernel).
     odometry_error : float, default 0
         Simulated wheel-odometry errors on the increments between the odometry
         poses given to :meth:`step`, times this factor (a replay of a log whose
@@ -233,7 +238,14 @@ class Tracker:
         self.features = dict(features or {})
         self.seed = int(seed)
         self.odometry = OdometrySimulator(odometry_error, self.seed + 1)
-        self.transition = transition_of(graph, calibration, config) if transition is None else transition
+        if transition is not None:
+            self.transition = transition
+        elif filter == "places":
+            self.transition = place_transition_of(graph, calibration, config, centres)
+        else:
+            self.transition = transition_of(graph, calibration, config)
+        #: The place filter answers the single shot at observed steps (it lost to it on the mapping part).
+        self.steps_aside = filter == "places" and calibration.place_filter_steps_aside()
         self.heading = bool(heading) and filter == "pose" and calibration.heading is not None
         self.scan_map = scan_map if filter == "pose" else None
         self._pose: PoseTracking | None = None
@@ -405,6 +417,10 @@ class Tracker:
         else:
             assert self._places is not None
             lp = self._places.step(row if observed else None, dist)
+            if observed and self.steps_aside:
+                assert row is not None
+                single = np.where(np.isnan(row), -np.inf, row)
+                lp = single - float(np.logaddexp.reduce(single))
             best = int(np.argmax(lp))
             prob = float(np.exp(lp[best]))
         order = np.argsort(-lp, kind="stable")[:TOP_ENTRIES]

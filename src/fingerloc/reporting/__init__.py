@@ -16,7 +16,11 @@ script can call them:
   true place's filtered and single-shot probability and the entropy over
   time, kidnappings and recoveries;
 - :func:`write_panorama_report`: a panorama with its vertical edges and colour
-  patches, and the heading estimate against a reference view.
+  patches, and the heading estimate against a reference view;
+- :func:`write_photo_answers`: the photos behind a panorama model's answers
+  (the query above the answered view, the verified keypoint matches, the
+  heading and where it comes from, the evidence of each weighted term); the
+  localize report links it for models with the keypoint term.
 
 matplotlib is imported only when a report is written.
 """
@@ -35,6 +39,7 @@ from .pages import (
     write_panorama_report,
     write_track_report,
 )
+from .photos import write_photo_answers
 from .views import FeatureView, draw_view_thumbnail
 
 __all__ = [
@@ -53,5 +58,6 @@ __all__ = [
     "write_map_report",
     "write_markdown_page",
     "write_panorama_report",
+    "write_photo_answers",
     "write_track_report",
 ]

@@ -11,6 +11,10 @@
 - :func:`make_office_sessions`: the same offices at a training and at a later
   test visit, changed as a :class:`SessionChange` says (chairs moved, doors
   closed, people in the room, other daylight; :data:`OFFICE_DAY`).
+- :class:`PerceptionNoise` and :func:`perceive`: what a real robot's extractors
+  get wrong beyond the rendered sensors (missed, moved and spurious features);
+  :data:`PAPER_ROBOT`, calibrated on the paper's Table III with the later
+  visit's heading (:data:`PAPER_VISIT`).
 - :func:`protocol_poses`: the paper's measurement poses (8 on a 40-70 cm
   circle around the office's anchor, 2 inside it).
 
@@ -27,8 +31,9 @@ from __future__ import annotations
 from .camera import CAMERA_HEIGHT, ELEVATION_DEG, OmniImage, render_omni, render_panorama
 from .laser import LASER_HEIGHT, simulate_scan
 from .offices import WORLDS, make_office, make_offices
+from .perception import PAPER_ROBOT, PerceptionNoise, perceive
 from .poses import protocol_poses
-from .sessions import OFFICE_DAY, SessionChange, make_office_sessions
+from .sessions import OFFICE_DAY, PAPER_VISIT, SessionChange, make_office_sessions
 from .truth import true_features, true_observation
 from .world import PARTS, Material, World, cast_rays
 
@@ -37,16 +42,20 @@ __all__ = [
     "ELEVATION_DEG",
     "LASER_HEIGHT",
     "OFFICE_DAY",
+    "PAPER_ROBOT",
+    "PAPER_VISIT",
     "PARTS",
     "WORLDS",
     "Material",
     "OmniImage",
+    "PerceptionNoise",
     "SessionChange",
     "World",
     "cast_rays",
     "make_office",
     "make_office_sessions",
     "make_offices",
+    "perceive",
     "protocol_poses",
     "render_omni",
     "render_panorama",

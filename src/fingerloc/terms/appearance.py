@@ -129,14 +129,15 @@ class AppearanceTerm(IndexedTerm[FArray]):
             )
         self.refs_ = np.stack(features) if features else np.zeros((0, 0))
 
-    def _loo_matrix(self, rows: IArray) -> FArray | None:
+    def _loo_matrix(self, rows: IArray, cols: IArray | None = None) -> FArray | None:
         """Distances between training views; views without a descriptor are never anyone's neighbour."""
         if self.refs_.shape[0] < 2:
             return None
         desc = np.zeros((self._has.size, self.refs_.shape[1]))
         desc[self._has] = self.refs_
-        d = self._pairwise(desc[rows], desc)
-        d[:, ~self._has] = np.inf
+        cc = np.arange(self._has.size) if cols is None else cols
+        d = self._pairwise(desc[rows], desc[cc])
+        d[:, ~self._has[cc]] = np.inf
         d[~self._has[rows]] = np.inf
         return d
 

@@ -70,6 +70,14 @@ class Term:
         """
         raise NotImplementedError
 
+    def log_likelihood_at(self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray) -> FArray:
+        """:meth:`log_likelihood` at the given places only (columns ``places``), shape ``(n, len(places))``.
+
+        The very values of ``log_likelihood(observations)[:, places]``; terms that can score some
+        places without scoring all of them override it (exact retrieval, :mod:`fingerloc.retrieval`).
+        """
+        return self.log_likelihood(observations)[:, np.asarray(places, dtype=np.int64)]
+
     def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
         """Log-likelihood of each observation under the "no learned place" hypothesis, shape ``(n,)``."""
         return np.zeros(len(observations))

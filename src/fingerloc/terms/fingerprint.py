@@ -93,6 +93,16 @@ class FingerprintTerm(DistanceTerm):
             obs, empty_step_deg=self.empty_step_deg, merge_tol_deg=self.merge_tol_deg, laser_letters=self.laser_letters
         )
 
+    def fingerprints(self, observations: Sequence[Observation]) -> list[Fingerprint]:
+        """:meth:`fingerprint` of each observation, computed as one batch (the same strings and bearings)."""
+        from .._fingerprints import make_fingerprints
+
+        if len(observations) < 4:  # the batch's set-up costs more than a few single ones
+            return [self.fingerprint(o) for o in observations]
+        return make_fingerprints(
+            observations, empty_step_deg=self.empty_step_deg, merge_tol_deg=self.merge_tol_deg, laser_letters=self.laser_letters
+        )
+
     # -- learning --------------------------------------------------------------
     def fit(self, groups: Sequence[Sequence[Observation]]) -> FingerprintTerm:
         self.fingerprints_: list[list[Fingerprint]] = []
@@ -107,24 +117,54 @@ class FingerprintTerm(DistanceTerm):
         return self
 
     def _refit(self, groups: Sequence[Sequence[Observation]], changed: Sequence[int] | range) -> None:
-        from ..align import alignment_costs
-
         n = len(groups)
         grow = n - len(self.fingerprints_)
         self.fingerprints_ += [[] for _ in range(grow)]
         self.medoids_ += [0] * grow
         self.consensus_ += [None] * grow
+        changed = list(changed)
+        fps = self.fingerprints([o for j in changed for o in groups[j]])
+        k = 0
         for j in changed:
-            fps = [self.fingerprint(o) for o in groups[j]]
-            self.fingerprints_[j] = fps
-            if len(fps) > 1:
-                d = alignment_costs(fps, fps, cyclic=self.cyclic, costs=self.costs)
-                self.medoids_[j] = int(np.argmin(d.sum(axis=1)))
-            else:
-                self.medoids_[j] = 0
-            if self.reference == "consensus":
+            self.fingerprints_[j] = fps[k : k + len(groups[j])]
+            k += len(groups[j])
+        self._medoids(changed)
+        if self.reference == "consensus":
+            for j in changed:
+                fps = self.fingerprints_[j]
                 self.consensus_[j] = consensus_fingerprint(fps, costs=self.costs, cyclic=self.cyclic) if fps else None
         self._index()
+
+    def _medoids(self, changed: Sequence[int] | range) -> None:
+        """``medoids_[j]`` of the places ``changed``: the view with the least summed cost to the place's others.
+
+        Every pair of views of every place in one call of
+        :func:`~fingerloc.align.paired_alignment_costs` (the pairs of one place are few); the
+        cost of ``(a, b)`` is that of ``(b, a)`` (the substitution costs are symmetric).
+        """
+        from ..align import paired_alignment_costs
+
+        left: list[Fingerprint] = []
+        right: list[Fingerprint] = []
+        spans: list[tuple[int, int, int]] = []  # place, first pair, views
+        for j in changed:
+            fps = self.fingerprints_[j]
+            self.medoids_[j] = 0
+            if len(fps) > 1:
+                spans.append((j, len(left), len(fps)))
+                for a in range(len(fps)):
+                    for b in range(a + 1, len(fps)):
+                        left.append(fps[a])
+                        right.append(fps[b])
+        if not spans:
+            return
+        pair = paired_alignment_costs(left, right, cyclic=self.cyclic, costs=self.costs)
+        for j, start, v in spans:
+            d = np.zeros((v, v))
+            upper = np.triu_indices(v, 1)
+            d[upper] = pair[start : start + v * (v - 1) // 2]
+            d.T[upper] = d[upper]
+            self.medoids_[j] = int(np.argmin(d.sum(axis=1)))
 
     def _index(self) -> None:
         """Flatten the references: ``_refs`` and the first column of each place (``_starts``)."""
@@ -146,11 +186,12 @@ class FingerprintTerm(DistanceTerm):
         self._crop_cache: dict[Any, Any] = {}
         self._recent: _Recent = ({}, None)  # the latest batch's queries and costs (distances)
 
-    def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
+    def _loo_matrix(self, rows: NDArray[np.int64], cols: NDArray[np.int64] | None = None) -> FArray | None:
         from ..align import alignment_costs
 
         fps = [fp for g in self.fingerprints_ for fp in g]
-        return alignment_costs([fps[i] for i in rows], fps, cyclic=self.cyclic, costs=self.costs)
+        refs = fps if cols is None else [fps[i] for i in cols]
+        return alignment_costs([fps[i] for i in rows], refs, cyclic=self.cyclic, costs=self.costs)
 
     # -- inference -------------------------------------------------------------
     def _references_for(self, fov: tuple[tuple[float, float], ...]) -> Any:
@@ -175,7 +216,7 @@ class FingerprintTerm(DistanceTerm):
         from ..align import alignment_costs
 
         obs = list(observations)
-        qfps = [self.fingerprint(o) for o in obs]
+        qfps = self.fingerprints(obs)
         out = np.full((len(obs), len(self.fingerprints_)), np.inf)
         groups: dict[Any, list[int]] = {}
         for i, o in enumerate(obs):
@@ -190,6 +231,56 @@ class FingerprintTerm(DistanceTerm):
         if not recent:
             self._recent = ({id(o): (o, f, -1) for o, f in zip(obs, qfps, strict=True)}, None)
         return out
+
+    def place_references(self, places: Sequence[int] | np.ndarray) -> NDArray[np.int64]:
+        """Indices into the references (``_refs``) of the given places, place after place."""
+        counts = np.diff(np.append(self._starts, len(self._refs)))
+        pl = np.asarray(places, dtype=np.int64)
+        if pl.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        first = self._starts[pl]
+        n = counts[pl]
+        return np.repeat(first - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+    def distances_at(
+        self,
+        observations: Sequence[Observation],
+        places: Sequence[int] | np.ndarray,
+        *,
+        fingerprints: Sequence[Fingerprint] | None = None,
+    ) -> FArray:
+        """:meth:`distances` at the given places only, shape ``(n, len(places))``: the same values.
+
+        ``fingerprints``: those of the observations, when already at hand.
+        """
+        from ..align import alignment_costs
+
+        obs = list(observations)
+        pl = np.asarray(places, dtype=np.int64)
+        out = np.full((len(obs), pl.size), np.inf)
+        refs_idx = self.place_references(pl)
+        counts = np.diff(np.append(self._starts, len(self._refs)))[pl]
+        has = counts > 0
+        if not obs or refs_idx.size == 0:
+            return out
+        starts = (np.cumsum(counts) - counts)[has]
+        qfps = self.fingerprints(obs) if fingerprints is None else list(fingerprints)
+        groups: dict[Any, list[int]] = {}
+        for i, o in enumerate(obs):
+            groups.setdefault(FULL_FOV if self.cyclic else o.fov, []).append(i)
+        for fov, idx in groups.items():
+            full = self.cyclic or any(width >= TWO_PI - 1e-12 for _, width in fov)
+            refs = [self._refs[int(r)] for r in refs_idx]
+            if not full:
+                refs = [crop_fingerprint(fp, fov) for fp in refs]
+            d = alignment_costs([qfps[i] for i in idx], refs, cyclic=self.cyclic, costs=self.costs)
+            sub = out[idx]
+            sub[:, has] = min_per_place_groups(d, starts)
+            out[idx] = sub
+        return out
+
+    def log_likelihood_at(self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray) -> FArray:
+        return self._likelihood_of(self.distances_at(observations, places))
 
     def remember(self, observations: Sequence[Observation]) -> None:
         """Align the observations against every training view in one batch, for the next :meth:`heading_at` calls.
@@ -208,7 +299,7 @@ class FingerprintTerm(DistanceTerm):
             return  # (with medoid or consensus references the batch does not hold every view)
         if d is not None and all((hit := recent.get(id(o))) is not None and hit[0] is o and hit[2] >= 0 for o in obs):
             return
-        qfps = [self.fingerprint(o) for o in obs]
+        qfps = self.fingerprints(obs)
         d = alignment_costs(qfps, self._references_for(FULL_FOV), cyclic=True, costs=self.costs)
         self._recent = ({id(o): (o, f, r) for r, (o, f) in enumerate(zip(obs, qfps, strict=True))}, d)
 
@@ -230,7 +321,7 @@ class FingerprintTerm(DistanceTerm):
         from ..align import alignment_costs, cyclic_alignment
 
         obs = list(observations)
-        qfps = [self.fingerprint(o) for o in obs]
+        qfps = self.fingerprints(obs)
         out = np.full((len(obs), len(self.fingerprints_)), np.nan)
         if not obs or not self._refs:
             return out
@@ -290,12 +381,12 @@ class FingerprintTerm(DistanceTerm):
             fps = state.get("fingerprints")
             if fps is None:  # recompute from the observations
                 fps = [[None] * len(g) for g in groups]
+            # a view without a stored fingerprint: from the observation (all such views in one batch)
+            missing = [o for fg, g in zip(fps, groups, strict=True) for f, o in zip(fg, g, strict=True) if f is None]
+            fresh = iter(self.fingerprints(missing))
             self.fingerprints_ = [
-                [
-                    self.fingerprint(o) if f is None else Fingerprint(f[0], np.asarray(f[1], dtype=np.float64))
-                    for f, o in zip(fg, g, strict=True)  # a view without a stored fingerprint: from the observation
-                ]
-                for fg, g in zip(fps, groups, strict=True)
+                [next(fresh) if f is None else Fingerprint(f[0], np.asarray(f[1], dtype=np.float64)) for f in fg]
+                for fg in fps
             ]
             self.medoids_ = [int(m) for m in state.get("medoids", [0] * len(groups))]
             cons = state.get("consensus") or [None] * len(groups)

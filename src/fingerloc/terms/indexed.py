@@ -131,7 +131,7 @@ class IndexedTerm(DistanceTerm, Generic[F]):
         if not hasattr(self, "owner_"):
             raise NotFittedError(f"this {type(self).__name__} is not fitted yet; call fit() first")
 
-    def _loo_matrix(self, rows: IArray) -> FArray | None:
+    def _loo_matrix(self, rows: IArray, cols: IArray | None = None) -> FArray | None:
         """Distances between training views; views without the feature are never anyone's neighbour."""
         if len(self._features) < 2:
             return None
@@ -141,7 +141,7 @@ class IndexedTerm(DistanceTerm, Generic[F]):
             if not self._has[r]:
                 continue
             d[k, self._has] = self._view_distances(self._features[int(pos[r])])
-        return d
+        return d if cols is None else d[:, cols]
 
     # -- inference ---------------------------------------------------------------
     def _per_place(self, d: FArray) -> FArray:

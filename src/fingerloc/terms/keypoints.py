@@ -1,156 +1,282 @@
-"""The local-feature term ``K``: how many distinctive patches the view shares with a place's views.
+"""The local-feature term ``K``: how many of the view's keypoints one relative pose explains, per place.
 
 Each observation may carry keypoints (``Observation.keypoints``, from
-:func:`fingerloc.features.keypoints.extract_keypoints`: positions and upright
-gradient-histogram descriptors). Two panoramas of one room from different
-spots share many local patches (furniture, pictures, windows) that a global
-histogram blurs. The term counts the query's keypoints matched in each
-training view and keeps the place's best view:
+:func:`fingerloc.features.keypoints.extract_keypoints`: SIFT descriptors and
+positions on the sphere). Two panoramas of one room from different spots
+share many local patches (furniture, pictures, windows); chance look-alikes
+(ceiling tiles, shelves, the same poster in two corridors) match too, but
+they do not agree with one motion of the camera. The term keeps, for each
+training view, the matches that one relative pose explains:
 
-    m(o, v)           = matches between o and v: mutual nearest neighbours of the root-normalised
-                        descriptors, nearest distance below ``ratio`` x the second nearest, and
-                        elevations (fractions of the band) at most ``max_elevation`` apart; the
-                        ratio test is made from o's side and from v's, and m is the larger count
-                        (so m(o, v) = m(v, o))
-    d(o, v)           = -log((m + 1) / (sqrt(n_o n_v) + 1))          (n: keypoints of each view)
+    matches(o, v)     = mutual nearest RootSIFT neighbours passing the ratio test ``ratio`` from both sides
+    inliers(o, v)     = matches within ``threshold_deg`` of the epipolar planes of the best relative pose
+                        (:func:`fingerloc.features.sphere.ransac_pose`, model ``model_``)
+    d(o, v)           = -log((inliers + 1) / (sqrt(n_o n_v) + 1))      (n: keypoints of each view)
     d(o, place)       = min over the place's training views v of d(o, v)
     log P(K | place)  = -lambda * d(o, place)          (up to a constant shared by the places)
 
-It is heading-free (the descriptors are upright and the matching ignores
-bearings: between two spots of one room the bearings of the shared patches
-differ by parallax, not by one rotation). ``lambda`` and ``unknown_cost_``
-are calibrated leave-one-out on the training views, as for ``A``
-(:mod:`.distance`). Observations without keypoints get a zero row (the term
-says nothing); a training view without keypoints is never a nearest view.
+``lambda`` and ``unknown_cost_`` are calibrated leave-one-out on the training
+views, as for ``A`` (:mod:`.distance`). Observations without keypoints get a
+zero row (the term says nothing); a training view without keypoints is never
+a nearest view.
 
-Match counts are memoised per pair of views (keyed by a digest of both views'
-keypoints, up to ``CACHE_SIZE`` pairs), so that refitting a model on the same
-views (leave-one-out experiments, ``weights="fit"``) does not match them again.
+**The relative-pose model** (``model="auto"``, fitted ``model_``): the
+``"upright"`` model (level cameras, horizontal motion) is faster and stricter,
+the ``"general"`` one fits any tilt. At fitting, pairs of training views of
+one place are verified with the general model and the median tilt of their
+relative rotations (``tilt_deg_``) decides: above ``max_tilt_deg`` the
+panoramas are not levelled and the general model is used.
+
+**Retrieval** (``shortlist``): verifying a view against every stored view
+costs a descriptor match and a RANSAC each; with more than ``shortlist``
+stored views, a bag of visual words (a vocabulary of the training
+descriptors, :class:`Vocabulary`) ranks the stored views first and only the
+``shortlist`` best are verified (the others count as 0 inliers).
+
+**Headings**: the verified rotation between the query and the best view of a
+place gives the heading (:meth:`KeypointTerm.heading_at`) when at least
+``min_inliers`` matches support it.
+
+Verified pairs are memoised (keyed by a digest of both views' keypoints and
+the parameters, up to ``CACHE_SIZE`` pairs), so that refitting a model on the
+same views (leave-one-out experiments) does not verify them again.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 from collections import OrderedDict
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Self
 
 import numpy as np
+from numpy.typing import NDArray
 
-from .._types import IArray
+from .._types import FArray, IArray
 from ..errors import InvalidParameterError
-from ..features.keypoints import Keypoints
+from ..features.keypoints import Keypoints, match_descriptors
+from ..features.sphere import MODELS, SAMPLE_SIZE, ransac_pose
 from ..observation import Observation
-from .base import FArray
 from .indexed import IndexedTerm
 
-__all__ = ["CACHE_SIZE", "KeypointTerm", "keypoint_distance", "match_counts"]
+__all__ = [
+    "CACHE_SIZE",
+    "KeypointTerm",
+    "PairCheck",
+    "Vocabulary",
+    "check_pair",
+    "choose_model",
+    "keypoint_distance",
+]
 
-#: Pairs of views whose match counts are memoised (process-wide).
-CACHE_SIZE = 2_000_000
-_CACHE: OrderedDict[tuple[bytes, bytes, float, float], int] = OrderedDict()
-#: Reference views matched per block (bounds the similarity array: n_query x block x n_ref float32).
-_BLOCK = 32
-_NONE = -4.0  # below any similarity of unit vectors with non-negative entries
+#: Pairs of views whose verification is memoised (process-wide).
+CACHE_SIZE = 400_000
+_CACHE: OrderedDict[tuple[Any, ...], PairCheck] = OrderedDict()
+#: Seed of every RANSAC (the same pair gives the same answer).
+_SEED = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PairCheck:
+    """The verification of two views' keypoints.
+
+    Attributes
+    ----------
+    matches : int
+        Descriptor matches (mutual, ratio test from both sides).
+    inliers : int
+        Matches the relative pose explains (0 with fewer matches than a minimal sample; a minimal sample always
+        fits: with few matches this count is close to ``matches``).
+    heading : float
+        Radians: a far feature at bearing ``x`` in the first view is at
+        ``x + heading`` in the second; NaN without a pose.
+    tilt : float
+        Radians: tilt of the relative rotation; NaN without a pose.
+    """
+
+    matches: int
+    inliers: int
+    heading: float
+    tilt: float
+
+    def swapped(self) -> PairCheck:
+        """The same check seen from the second view (heading negated)."""
+        return PairCheck(self.matches, self.inliers, -self.heading, self.tilt)
+
+
+_NONE = PairCheck(0, 0, math.nan, math.nan)
+
+
+def check_pair(
+    unit_a: NDArray[np.float32],
+    vec_a: FArray,
+    unit_b: NDArray[np.float32],
+    vec_b: FArray,
+    *,
+    ratio: float = 0.8,
+    model: str = "upright",
+    threshold_deg: float = 0.6,
+    max_iter: int | None = None,
+) -> PairCheck:
+    """Match two views' RootSIFT descriptors and verify the matches by one relative pose.
+
+    Parameters
+    ----------
+    unit_a, unit_b : ndarray of float32, shapes (n_a, d), (n_b, d)
+        Unit descriptors (:meth:`Keypoints.unit_descriptors`).
+    vec_a, vec_b : ndarray, shapes (n_a, 3), (n_b, 3)
+        Unit bearing vectors (:meth:`Keypoints.vectors`).
+    ratio : float
+        Ratio test of :func:`fingerloc.features.keypoints.match_descriptors`.
+    model : {"upright", "general"}
+    threshold_deg : float
+        Largest epipolar error of an inlier, degrees.
+    max_iter : int, optional
+        RANSAC hypotheses (default 300 upright, 1000 general).
+    """
+    m = match_descriptors(unit_a, unit_b, ratio=ratio)
+    k = SAMPLE_SIZE[model]
+    if len(m) < k:
+        return PairCheck(len(m), 0, math.nan, math.nan)
+    it = max_iter if max_iter is not None else (300 if model == "upright" else 1000)
+    fit = ransac_pose(
+        vec_a[m[:, 0]],
+        vec_b[m[:, 1]],
+        model=model,  # type: ignore[arg-type]
+        threshold=math.radians(threshold_deg),
+        max_iter=it,
+        seed=_SEED,
+    )
+    if fit is None:
+        return PairCheck(len(m), 0, math.nan, math.nan)
+    return PairCheck(len(m), fit.n_inliers, fit.heading, fit.tilt)
+
+
+def keypoint_distance(inliers: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
+    """``-log((inliers + 1) / (sqrt(n_query n_ref) + 1))``; ``inf`` where a view has no keypoint."""
+    norm = np.sqrt(float(n_query) * np.asarray(n_ref, dtype=np.float64))
+    with np.errstate(divide="ignore"):
+        d = -np.log((np.asarray(inliers, dtype=np.float64) + 1.0) / (norm + 1.0))
+    return np.where(norm > 0, d, np.inf)
 
 
 def _digest(k: Keypoints) -> bytes:
     h = hashlib.blake2b(digest_size=16)
     h.update(np.ascontiguousarray(k.desc).tobytes())
+    h.update(np.ascontiguousarray(k.bearing).tobytes())
     h.update(np.ascontiguousarray(k.elevation).tobytes())
     return h.digest()
 
 
-class _Refs:
-    """Training keypoints stacked for block matching: padded unit descriptors and elevations."""
-
-    def __init__(self, kps: Sequence[Keypoints]) -> None:
-        self.n = len(kps)
-        self.sizes = np.array([len(k) for k in kps], dtype=np.int64)
-        width = int(self.sizes.max(initial=0))
-        dims = {k.dim for k in kps if len(k)}
-        if len(dims) > 1:
-            raise InvalidParameterError(f"keypoints: every descriptor must have the same length, got {sorted(dims)}")
-        self.dim = dims.pop() if dims else 0
-        self.unit = np.zeros((self.n, max(width, 1), max(self.dim, 1)), dtype=np.float32)
-        self.elev = np.full((self.n, max(width, 1)), np.inf, dtype=np.float32)
-        self.valid = np.zeros((self.n, max(width, 1)), dtype=bool)
-        for v, k in enumerate(kps):
-            m = len(k)
-            if m:
-                self.unit[v, :m] = k.unit_descriptors()
-                self.elev[v, :m] = k.elevation
-                self.valid[v, :m] = True
-
-    def subset(self, views: Sequence[int]) -> _Refs:
-        """The references ``views`` only (same padding)."""
-        out = object.__new__(_Refs)
-        idx = np.asarray(views, dtype=np.int64)
-        out.n, out.dim = int(idx.size), self.dim
-        out.sizes, out.unit, out.elev, out.valid = self.sizes[idx], self.unit[idx], self.elev[idx], self.valid[idx]
-        return out
+# ---------------------------------------------------------------------------
+# retrieval: a bag of visual words
 
 
-def match_counts(
-    query: Keypoints, refs: Sequence[Keypoints] | _Refs, *, ratio: float = 0.8, max_elevation: float = 0.1
-) -> IArray:
-    """Number of matches (module docstring) between ``query`` and each reference view, shape ``(n_refs,)``.
+class Vocabulary:
+    """A bag of visual words over RootSIFT descriptors, to rank stored views before verifying them.
 
-    ``max(len(match_keypoints(query, ref)), len(match_keypoints(ref, query)))`` for each reference.
+    Words: k-means centres (``words`` of them, Lloyd's iterations on at most
+    ``sample`` descriptors drawn with a fixed seed) of the training views'
+    unit descriptors. A view is the L2-normalised tf-idf histogram of its
+    descriptors' nearest words; views are ranked by the dot product of their
+    histograms (cosine).
+
+    Parameters
+    ----------
+    descriptors : sequence of ndarray of float32, each (n_i, d)
+        The unit descriptors of each stored view.
+    words : int
+    sample : int
+    iterations : int
     """
-    r = refs if isinstance(refs, _Refs) else _Refs(refs)
-    out = np.zeros(r.n, dtype=np.int64)
-    nq = len(query)
-    if nq == 0 or r.n == 0 or r.dim == 0:
+
+    def __init__(
+        self, descriptors: Sequence[NDArray[np.float32]], *, words: int = 256, sample: int = 20000, iterations: int = 6
+    ) -> None:
+        allx = np.concatenate([d for d in descriptors if len(d)]) if any(len(d) for d in descriptors) else None
+        if allx is None or len(allx) < 2:
+            raise InvalidParameterError("a vocabulary needs descriptors")
+        rng = np.random.default_rng(0)
+        x = allx[rng.choice(len(allx), min(sample, len(allx)), replace=False)] if len(allx) > sample else allx
+        k = min(words, len(x))
+        c = x[rng.choice(len(x), k, replace=False)].copy()
+        for _ in range(iterations):
+            lab = np.argmax(x @ c.T, axis=1)
+            sums = np.zeros_like(c)
+            np.add.at(sums, lab, x)
+            cnt = np.bincount(lab, minlength=k)
+            live = cnt > 0
+            c[live] = sums[live] / cnt[live, None]
+            c /= np.maximum(np.linalg.norm(c, axis=1, keepdims=True), 1e-12)
+        self.words_ = c.astype(np.float32)
+        counts = np.stack([self._counts(d) for d in descriptors])
+        df = np.count_nonzero(counts, axis=0)
+        self.idf_ = (np.log((len(descriptors) + 1.0) / (df + 1.0)) + 1.0).astype(np.float32)  # smoothed: never 0
+        self.views_ = np.stack([self._vector(c_) for c_ in counts])
+
+    def _counts(self, d: NDArray[np.float32]) -> NDArray[np.float32]:
+        if len(d) == 0:
+            return np.zeros(len(self.words_), dtype=np.float32)
+        return np.bincount(np.argmax(d @ self.words_.T, axis=1), minlength=len(self.words_)).astype(np.float32)
+
+    def _vector(self, counts: NDArray[np.float32]) -> NDArray[np.float32]:
+        v = counts * self.idf_
+        n = float(np.linalg.norm(v))
+        return (v / n if n > 0 else v).astype(np.float32)
+
+    def histogram(self, d: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The L2-normalised tf-idf histogram of one view's unit descriptors ``d``, shape ``(words,)``."""
+        return self._vector(self._counts(d))
+
+    def scores(self, d: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Cosine of the query's histogram (its unit descriptors ``d``) with each stored view's, shape ``(m,)``."""
+        out: NDArray[np.float32] = self.views_ @ self.histogram(d)
         return out
-    if query.dim != r.dim:
-        raise InvalidParameterError(f"keypoints: the query's descriptors have length {query.dim}, the references' {r.dim}")
-    qu = query.unit_descriptors()
-    qe = query.elevation.astype(np.float32)
-    width = r.unit.shape[1]
-    rows = np.arange(nq)
-    for b0 in range(0, r.n, _BLOCK):
-        b1 = min(r.n, b0 + _BLOCK)
-        nb = b1 - b0
-        s = (qu @ r.unit[b0:b1].reshape(nb * width, r.dim).T).reshape(nq, nb, width)
-        s[:, ~r.valid[b0:b1]] = np.float32(_NONE)
-        j = np.argmax(s, axis=2)  # (nq, nb): nearest reference keypoint
-        best = np.take_along_axis(s, j[:, :, None], axis=2)[:, :, 0]
-        np.put_along_axis(s, j[:, :, None], np.float32(_NONE), axis=2)
-        second = s.max(axis=2)
-        np.put_along_axis(s, j[:, :, None], best[:, :, None], axis=2)
-        back = np.argmax(s, axis=0)  # (nb, width): nearest query keypoint of each reference keypoint
-        mutual = back[np.arange(nb)[None, :], j] == rows[:, None]
-        elev = np.take_along_axis(np.broadcast_to(r.elev[None, b0:b1], s.shape), j[:, :, None], axis=2)[:, :, 0]
-        ok = mutual & (best > _NONE) & _ratio_ok(best, second, ratio) & (np.abs(qe[:, None] - elev) <= max_elevation)
-        # the other way: each reference keypoint against the query's (its own ratio test)
-        best_r = np.take_along_axis(s, back[None], axis=0)[0]  # (nb, width)
-        np.put_along_axis(s, back[None], np.float32(_NONE), axis=0)
-        second_r = s.max(axis=0) if nq > 1 else np.full_like(best_r, _NONE)
-        mutual_r = j[back, np.arange(nb)[:, None]] == np.arange(width)[None, :]
-        ok_r = (
-            mutual_r
-            & (best_r > _NONE)
-            & _ratio_ok(best_r, second_r, ratio)
-            & (np.abs(qe[back] - r.elev[b0:b1]) <= max_elevation)
-        )
-        out[b0:b1] = np.maximum(ok.sum(axis=0), ok_r.sum(axis=1))
-    return out
 
 
-def _ratio_ok(best: Any, second: Any, ratio: float) -> Any:
-    """Nearest distance below ``ratio`` x the second nearest (any distance when there is no second)."""
-    d1 = np.sqrt(np.maximum(2.0 - 2.0 * best, 0.0))
-    d2 = np.where(second > _NONE, np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0)), np.inf)
-    return d1 < ratio * d2
+# ---------------------------------------------------------------------------
+# the model choice
 
 
-def keypoint_distance(m: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
-    """``-log((m + 1) / (sqrt(n_query n_ref) + 1))``; ``inf`` where a view has no keypoint."""
-    norm = np.sqrt(float(n_query) * np.asarray(n_ref, dtype=np.float64))
-    with np.errstate(divide="ignore"):
-        d = -np.log((np.asarray(m, dtype=np.float64) + 1.0) / (norm + 1.0))
-    return np.where(norm > 0, d, np.inf)
+def choose_model(
+    groups: Sequence[Sequence[Keypoints]],
+    *,
+    ratio: float = 0.8,
+    threshold_deg: float = 0.6,
+    max_tilt_deg: float = 1.0,
+    max_pairs: int = 40,
+    min_inliers: int = 30,
+) -> tuple[str, float | None]:
+    """The relative-pose model for these training views, and the median tilt (degrees) it was chosen by.
+
+    Pairs of consecutive views of one place (at most ``max_pairs``, spread
+    over the places) are verified with the general model; the tilts of the
+    pairs with at least ``min_inliers`` inliers give the median. Above
+    ``max_tilt_deg``: ``"general"``; else, or with fewer than three such
+    pairs (the tilt is then None), ``"upright"``.
+    """
+    pairs = [(g[i], g[i + 1]) for g in groups for i in range(len(g) - 1)]
+    if len(pairs) > max_pairs:
+        pick = np.linspace(0, len(pairs) - 1, max_pairs).round().astype(int)
+        pairs = [pairs[i] for i in pick]
+    tilts = []
+    for a, b in pairs:
+        if len(a) == 0 or len(b) == 0:
+            continue
+        c = check_pair(a.unit_descriptors(), a.vectors(), b.unit_descriptors(), b.vectors(),
+                       ratio=ratio, model="general", threshold_deg=threshold_deg)  # fmt: skip
+        if c.inliers >= min_inliers:
+            tilts.append(math.degrees(c.tilt))
+    if len(tilts) < 3:
+        return "upright", None
+    tilt = float(np.median(tilts))
+    return ("general" if tilt > max_tilt_deg else "upright"), tilt
+
+
+# ---------------------------------------------------------------------------
+# the term
 
 
 class KeypointTerm(IndexedTerm[Keypoints]):
@@ -159,20 +285,30 @@ class KeypointTerm(IndexedTerm[Keypoints]):
     Parameters
     ----------
     ratio : float, default 0.8
-        Ratio test on descriptor distances (nearest / second nearest).
-    max_elevation : float, default 0.1
-        Largest difference of elevation between matched keypoints, as a
-        fraction of the band's height (0.1: 9 deg of a -45..+45 deg band).
-    max_queries : int, default 300
+        Ratio test on descriptor distances (nearest / second nearest), from both sides.
+    threshold_deg : float, default 0.6
+        Largest epipolar error of a verified match, degrees.
+    model : {"auto", "upright", "general"}, default "auto"
+        The relative-pose model; ``"auto"`` chooses it on the training views.
+    max_tilt_deg : float, default 1.0
+        ``"auto"``: the median tilt above which the general model is used.
+    shortlist : int, default 40
+        With more stored views than this, only the ``shortlist`` best-ranked
+        by the bag of words are verified (0: verify every view).
+    min_inliers : int, default 15
+        Fewest inliers for a heading from the verified rotation.
+    max_queries : int, default 200
         At most this many training views (a seeded sample) serve as
-        leave-one-out queries when fitting ``lambda_`` (each is matched
-        against every training view, about 2.4 ms of CPU a pair of views of
-        500 keypoints: 300 queries against 1000 views take about 12 min).
+        leave-one-out queries when fitting ``lambda_``.
 
     Attributes
     ----------
     lambda_ : float
     unknown_cost_ : float or None
+    model_ : str
+        The relative-pose model used.
+    tilt_deg_ : float or None
+        Median tilt of the training pairs (``model="auto"``).
     n_places_ : int
     """
 
@@ -180,22 +316,48 @@ class KeypointTerm(IndexedTerm[Keypoints]):
     heading_free = True
     likelihood = "exp"
     _label = "keypoint"
+    model_: str
+    tilt_deg_: float | None
 
-    def __init__(self, *, ratio: float = 0.8, max_elevation: float = 0.1, max_queries: int = 300) -> None:
+    def __init__(
+        self,
+        *,
+        ratio: float = 0.8,
+        threshold_deg: float = 0.6,
+        model: str = "auto",
+        max_tilt_deg: float = 1.0,
+        shortlist: int = 40,
+        min_inliers: int = 15,
+        max_queries: int = 200,
+    ) -> None:
         self.ratio = ratio
-        self.max_elevation = max_elevation
+        self.threshold_deg = threshold_deg
+        self.model = model
+        self.max_tilt_deg = max_tilt_deg
+        self.shortlist = shortlist
+        self.min_inliers = min_inliers
         self.max_queries = max_queries
 
     def __repr__(self) -> str:
-        return f"KeypointTerm(ratio={self.ratio!r}, max_elevation={self.max_elevation!r}, max_queries={self.max_queries!r})"
+        return (
+            f"KeypointTerm(ratio={self.ratio!r}, threshold_deg={self.threshold_deg!r}, model={self.model!r}, "
+            f"shortlist={self.shortlist!r})"
+        )
 
     def _validate(self) -> None:
         r = self.ratio
-        if isinstance(r, bool) or not isinstance(r, (int, float, np.floating)) or not (0 < r <= 1.5):
-            raise InvalidParameterError(f"ratio must be a number in (0, 1.5], got {r!r}")
-        e = self.max_elevation
-        if isinstance(e, bool) or not isinstance(e, (int, float, np.floating)) or not (0 < e <= 1):
-            raise InvalidParameterError(f"max_elevation must be a number in (0, 1], got {e!r}")
+        if isinstance(r, bool) or not isinstance(r, (int, float, np.floating)) or not (0 < r <= 1):
+            raise InvalidParameterError(f"ratio must be a number in (0, 1], got {r!r}")
+        for name in ("threshold_deg", "max_tilt_deg"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not (0 < v < 90):
+                raise InvalidParameterError(f"{name} must be a number of degrees in (0, 90), got {v!r}")
+        if self.model not in ("auto", *MODELS):
+            raise InvalidParameterError(f"model must be one of auto, {', '.join(MODELS)}, got {self.model!r}")
+        for name in ("shortlist", "min_inliers"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise InvalidParameterError(f"{name} must be an integer >= 0, got {v!r}")
         super()._validate()
 
     # -- fitting -----------------------------------------------------------------
@@ -203,34 +365,169 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         return o.keypoints if o.keypoints is not None and len(o.keypoints) > 0 else None
 
     def _store(self, features: list[Keypoints]) -> None:
-        self.refs_ = _Refs(features)
+        dims = {k.dim for k in features}
+        if len(dims) > 1:
+            raise InvalidParameterError(f"keypoints: every descriptor must have the same length, got {sorted(dims)}")
+        self.dim_ = dims.pop() if dims else 0
+        self.sizes_ = np.array([len(k) for k in features], dtype=np.int64)
+        self._units = [k.unit_descriptors() for k in features]
+        self._vecs = [k.vectors() for k in features]
         self._digests = [_digest(k) for k in features]
+        self._vocab: Vocabulary | None = None
 
-    def _counts(self, query: Keypoints) -> IArray:
-        """Match counts of ``query`` against every training view (memoised per pair)."""
+    def fit(self, groups: Sequence[Sequence[Observation]]) -> Self:
+        """Store the keypoints, choose the relative-pose model, calibrate ``lambda_`` / ``unknown_cost_``."""
+        self._validate()
+        self._index(groups)
+        self._choose(groups)
+        self.calibrate(groups)
+        return self
+
+    def store(self, groups: Sequence[Sequence[Observation]], model: str) -> Self:
+        """Store the training views' keypoints with a given relative-pose model, without calibrating.
+
+        For experiments that verify pairs themselves (:meth:`checks`);
+        ``lambda_`` stays 1 and ``unknown_cost_`` None.
+        """
+        if model not in MODELS:
+            raise InvalidParameterError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+        self._validate()
+        self._index(groups)
+        self.model_ = model
+        self.tilt_deg_ = None
+        self._reset_calibration()
+        return self
+
+    def _choose(self, groups: Sequence[Sequence[Observation]]) -> None:
+        self.tilt_deg_ = None
+        if self.model != "auto":
+            self.model_ = str(self.model)
+            return
+        kps = [[f for o in g if (f := self._feature(o)) is not None] for g in groups]
+        self.model_, self.tilt_deg_ = choose_model(
+            kps, ratio=float(self.ratio), threshold_deg=float(self.threshold_deg), max_tilt_deg=float(self.max_tilt_deg)
+        )
+
+    def _vocabulary(self) -> Vocabulary | None:
+        if not self.shortlist or len(self._units) <= self.shortlist:
+            return None
+        if self._vocab is None:
+            self._vocab = Vocabulary(self._units)
+        return self._vocab
+
+    def candidates(self, query: Keypoints) -> IArray:
+        """Indices of the stored views to verify for ``query`` (every view, or the retrieval's shortlist)."""
+        self._check_fitted()
+        n = len(self._units)
+        vocab = self._vocabulary()
+        if vocab is None:
+            return np.arange(n, dtype=np.int64)
+        s = vocab.scores(query.unit_descriptors())
+        # one more than the shortlist: a stored copy of the query itself takes a place
+        k = min(n, int(self.shortlist) + 1)
+        return np.sort(np.argpartition(-s, k - 1)[:k]).astype(np.int64)
+
+    def checks(self, query: Keypoints, views: IArray | None = None) -> list[PairCheck]:
+        """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised)."""
+        self._check_fitted()
+        if query.dim != self.dim_ and len(query) and len(self._units):
+            raise InvalidParameterError(
+                f"keypoints: the query's descriptors have length {query.dim}, the references' {self.dim_}"
+            )
+        idx = np.arange(len(self._units)) if views is None else np.asarray(views, dtype=np.int64)
         dq = _digest(query)
-        key = (float(self.ratio), float(self.max_elevation))
-        keys = [(dq, dr, *key) for dr in self._digests]
-        got = [_CACHE.get(k) for k in keys]
-        missing = [i for i, g in enumerate(got) if g is None]
-        counts = np.asarray([-1 if g is None else g for g in got], dtype=np.int64)
-        if missing:
-            refs = self.refs_ if len(missing) == len(keys) else self.refs_.subset(missing)
-            new = match_counts(query, refs, ratio=float(self.ratio), max_elevation=float(self.max_elevation))
-            counts[missing] = new
-            for i, c in zip(missing, new, strict=True):
-                _CACHE[keys[i]] = int(c)
-            while len(_CACHE) > CACHE_SIZE:
-                _CACHE.popitem(last=False)
-        return counts
+        params = (float(self.ratio), self.model_, float(self.threshold_deg))
+        uq = vq = None
+        out: list[PairCheck] = []
+        for v in idx:
+            dr = self._digests[int(v)]
+            key = (dq, dr, *params) if dq <= dr else (dr, dq, *params)
+            got = _CACHE.get(key)
+            if got is None:
+                if uq is None:
+                    uq, vq = query.unit_descriptors(), query.vectors()
+                assert vq is not None
+                got = check_pair(uq, vq, self._units[int(v)], self._vecs[int(v)], ratio=float(self.ratio),
+                                 model=self.model_, threshold_deg=float(self.threshold_deg))  # fmt: skip
+                _CACHE[key] = got if dq <= dr else got.swapped()
+                while len(_CACHE) > CACHE_SIZE:
+                    _CACHE.popitem(last=False)
+            elif dq > dr:
+                got = got.swapped()
+            out.append(got)
+        return out
+
+    def inliers(self, query: Keypoints) -> IArray:
+        """Verified inliers of ``query`` against every stored view, shape ``(m,)`` (0 outside the shortlist)."""
+        cand = self.candidates(query)
+        out = np.zeros(len(self._units), dtype=np.int64)
+        out[cand] = [c.inliers for c in self.checks(query, cand)]
+        return out
 
     def _view_distances(self, query: Keypoints) -> FArray:
-        return keypoint_distance(self._counts(query), len(query), self.refs_.sizes)
+        return keypoint_distance(self.inliers(query), len(query), self.sizes_)
+
+    # -- headings ----------------------------------------------------------------
+    def heading_at(self, observation: Observation, place: int) -> tuple[float | None, int, int]:
+        """Heading of ``observation`` against the best-verified training view of place index ``place``.
+
+        Returns ``(heading_deg, view, inliers)``: a feature at bearing ``b``
+        in the observation is at bearing ``b + heading_deg`` in that view
+        (degrees, ``[0, 360)``, from the verified relative rotation), ``view``
+        its index among the place's training observations, and the inliers
+        that support it; ``(None, view, inliers)`` with fewer than
+        ``min_inliers`` inliers, ``(None, -1, 0)`` without keypoints.
+        """
+        self._check_fitted()
+        f = self._feature(observation)
+        sel = np.flatnonzero(self.owner_ == place)
+        if f is None or sel.size == 0:
+            return None, -1, 0
+        checks = self.checks(f, sel)
+        k = int(np.argmax([c.inliers for c in checks]))
+        best = checks[k]
+        view = int(self.view_[sel[k]])
+        if best.inliers < max(1, int(self.min_inliers)) or not math.isfinite(best.heading):
+            return None, view, best.inliers
+        return float(np.mod(math.degrees(best.heading), 360.0)), view, best.inliers
 
     # -- state -------------------------------------------------------------------
     def _params_state(self) -> dict[str, Any]:
-        """``{"ratio", "max_elevation"}``, before ``"lambda"`` and ``"unknown_cost"`` in :meth:`to_state`."""
-        return {"ratio": float(self.ratio), "max_elevation": float(self.max_elevation)}
+        """The parameters and the fitted model choice, before ``"lambda"`` and ``"unknown_cost"`` in :meth:`to_state`."""
+        return {
+            "ratio": float(self.ratio),
+            "threshold_deg": float(self.threshold_deg),
+            "model": str(self.model),
+            "max_tilt_deg": float(self.max_tilt_deg),
+            "shortlist": int(self.shortlist),
+            "min_inliers": int(self.min_inliers),
+            "fitted_model": self.model_,
+            "tilt_deg": self.tilt_deg_,
+        }
 
     def _params_from_state(self, state: dict[str, Any]) -> dict[str, Any]:
-        return {"ratio": float(state.get("ratio", 0.8)), "max_elevation": float(state.get("max_elevation", 0.1))}
+        out: dict[str, Any] = {}
+        for key, cast in (("ratio", float), ("threshold_deg", float), ("model", str), ("max_tilt_deg", float),
+                          ("shortlist", int), ("min_inliers", int)):  # fmt: skip
+            if key in state:
+                out[key] = cast(state[key])
+        fitted = state.get("fitted_model")
+        if fitted is not None and fitted not in MODELS:
+            raise ValueError(f"fitted_model {fitted!r}")
+        tilt = state.get("tilt_deg")
+        out["_fitted"] = (fitted, None if tilt is None else float(tilt))
+        return out
+
+    def set_state(self, state: dict[str, Any], groups: Sequence[Sequence[Observation]]) -> Self:
+        """Restore from :meth:`to_state` and the places' stored observations (``groups``).
+
+        A state without the fitted model choice (a database that did not
+        store it) chooses again on the stored views.
+        """
+        super().set_state(state, groups)
+        fitted, tilt = self.__dict__.pop("_fitted", (None, None))
+        if fitted is None:
+            self._choose(groups)
+        else:
+            self.model_, self.tilt_deg_ = fitted, tilt
+        return self

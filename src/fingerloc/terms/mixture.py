@@ -179,6 +179,27 @@ class MixtureTerm(Term):
                 ll[rows[ks]] = sums[ks] - sizes[ks, None] * mass[None, :]
         return ll
 
+    def log_likelihood_at(self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray) -> FArray:
+        """:meth:`log_likelihood` (no rotations) at the given places only, shape ``(n, len(places))``: the same values."""
+        from ..mog import mixture_log_density
+
+        obs = list(observations)
+        pl = np.asarray(places, dtype=np.int64)
+        ll = np.zeros((len(obs), pl.size))
+        w, m, s, has = self._stack
+        for i, o in enumerate(obs):
+            x = o.bearings(self.name)
+            if x.size == 0 or pl.size == 0:
+                continue
+            dens = np.full((pl.size, x.size), LOG_UNIFORM)
+            sel = has[pl]
+            if sel.any():
+                dens[sel] = mixture_log_density(x, w[pl[sel]], m[pl[sel]], s[pl[sel]])
+            dens = self._with_outliers(dens)
+            sums = np.add.reduceat(dens, np.zeros(1, dtype=np.int64), axis=1)[:, 0]
+            ll[i] = sums - x.size * self.fov_log_mass(o.fov)[pl]
+        return ll
+
     def _rotated(self, o: Observation, x: FArray, rot: FArray) -> FArray:
         """Per place ``j``: the log-likelihood of ``x`` turned by ``rot[j]`` (its field of view too)."""
         out = np.empty(rot.size)

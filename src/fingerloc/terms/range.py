@@ -22,7 +22,14 @@ from ..observation import Observation
 from .base import FArray
 from .distance import DistanceTerm
 
-__all__ = ["RangeTerm", "cumulative_range_histogram", "descriptors_from_counts", "range_counts", "range_descriptor"]
+__all__ = [
+    "RangeTerm",
+    "cumulative_range_histogram",
+    "descriptors_from_counts",
+    "range_counts",
+    "range_counts_many",
+    "range_descriptor",
+]
 
 
 class RangeTerm(DistanceTerm):
@@ -69,8 +76,17 @@ class RangeTerm(DistanceTerm):
         rows = [range_counts(o.ranges, self.bins()) for o in group if o.ranges is not None]
         return np.stack(rows) if rows else np.zeros((0, width), dtype=np.int64)
 
+    def _counts_by_place(self, groups: Sequence[Sequence[Observation]]) -> list[NDArray[np.int64]]:
+        """:meth:`_counts` of each group, the beams of every view binned in one call."""
+        bins = self.bins()
+        views = [o for g in groups for o in g if o.ranges is not None]
+        per = [sum(1 for o in g if o.ranges is not None) for g in groups]
+        counts = range_counts_many([o.ranges for o in views], bins)  # type: ignore[misc]
+        starts = np.concatenate([[0], np.cumsum(per)]).astype(np.int64)
+        return [counts[starts[j] : starts[j + 1]] for j in range(len(groups))]
+
     def fit(self, groups: Sequence[Sequence[Observation]]) -> RangeTerm:
-        self.counts_: list[NDArray[np.int64] | None] = [self._counts(g) for g in groups]
+        self.counts_: list[NDArray[np.int64] | None] = list(self._counts_by_place(groups))
         self.descriptors_ = [descriptors_from_counts(c) for c in self.counts_ if c is not None]
         self._n_seen = [len(g) for g in groups]
         self._index()
@@ -98,11 +114,13 @@ class RangeTerm(DistanceTerm):
         return self
 
     def _index(self) -> None:
+        self._starts: NDArray[np.int64] | None = None
+        self._described: bool | None = None
         width = self.bins().size + 1
         self._refs = np.vstack(self.descriptors_) if self.descriptors_ else np.zeros((0, width))
         self._owner = np.repeat(np.arange(len(self.descriptors_)), [d.shape[0] for d in self.descriptors_])
 
-    def _loo_matrix(self, rows: NDArray[np.int64]) -> FArray | None:
+    def _loo_matrix(self, rows: NDArray[np.int64], cols: NDArray[np.int64] | None = None) -> FArray | None:
         """Distances between training views; the views without ranges are never anyone's neighbour."""
         from scipy.spatial.distance import cdist
 
@@ -112,8 +130,12 @@ class RangeTerm(DistanceTerm):
         has = self._has_ranges
         desc = np.zeros((has.size, self._refs.shape[1]))
         desc[has] = self._refs
-        d = cdist(desc[rows], desc, metric="cityblock")
-        d[:, ~has] = np.inf
+        if cols is None:
+            d = cdist(desc[rows], desc, metric="cityblock")
+            d[:, ~has] = np.inf
+        else:
+            d = cdist(desc[rows], desc[cols], metric="cityblock")
+            d[:, ~has[cols]] = np.inf
         d[~has[rows]] = np.inf
         return d
 
@@ -144,6 +166,45 @@ class RangeTerm(DistanceTerm):
         worst = np.max(np.where(np.isfinite(per), per, -np.inf), axis=1, keepdims=True)
         out[idx] = np.where(np.isfinite(per), per, worst)
         return out
+
+    def every_place_described(self) -> bool:
+        """Whether every place has a training view with ranges (else a place's distance depends on the others')."""
+        known = self.__dict__.get("_described")
+        if known is None:
+            known = self._described = bool(self.descriptors_) and all(d.shape[0] > 0 for d in self.descriptors_)
+        return bool(known)
+
+    def distances_at(
+        self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray, *, descriptors: FArray | None = None
+    ) -> FArray:
+        """:meth:`distances` at the given places only, shape ``(n, len(places))``: the same values.
+
+        A place without any training ranges gets the row's largest distance over *every* place in
+        :meth:`distances`; when there is one, all places are scored. ``descriptors``: those of the
+        observations that have ranges, when already at hand.
+        """
+        from scipy.spatial.distance import cdist
+
+        pl = np.asarray(places, dtype=np.int64)
+        if not self.every_place_described():
+            return self.distances(observations)[:, pl]
+        obs = list(observations)
+        out = np.zeros((len(obs), pl.size))
+        idx = [i for i, o in enumerate(obs) if o.ranges is not None]
+        if not idx or pl.size == 0:
+            return out
+        q = np.stack([self.descriptor(obs[i]) for i in idx]) if descriptors is None else descriptors
+        starts = self.__dict__.get("_starts")
+        if starts is None or starts.size != len(self.descriptors_) + 1:
+            starts = self._starts = np.append(np.searchsorted(self._owner, np.arange(len(self.descriptors_))), self._owner.size)
+        counts = starts[pl + 1] - starts[pl]
+        rows = self._refs[np.repeat(starts[pl] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))]
+        d = cdist(q, rows, metric="cityblock")
+        out[idx] = np.minimum.reduceat(d, np.cumsum(counts) - counts, axis=1)
+        return out
+
+    def log_likelihood_at(self, observations: Sequence[Observation], places: Sequence[int] | np.ndarray) -> FArray:
+        return self._likelihood_of(self.distances_at(observations, places))
 
     def unknown_log_likelihood(self, observations: Sequence[Observation]) -> FArray:
         """The likelihood at ``unknown_cost_`` for views with ranges, 0 (no evidence) for the others."""
@@ -211,6 +272,21 @@ def range_counts(ranges: FArray, bins: FArray) -> NDArray[np.int64]:
     r = np.asarray(ranges, dtype=np.float64)
     idx = np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right")
     return np.bincount(np.minimum(idx, bins.size), minlength=bins.size + 1)
+
+
+def range_counts_many(ranges: Sequence[FArray], bins: FArray) -> NDArray[np.int64]:
+    """:func:`range_counts` of many range profiles at once, shape ``(len(ranges), len(bins) + 1)``."""
+    width = bins.size + 1
+    out = np.zeros((len(ranges), width), dtype=np.int64)
+    step = 4096  # profiles a call: bounded temporary memory (a map's views at once would take gigabytes)
+    for a in range(0, len(ranges), step):
+        part = ranges[a : a + step]
+        sizes = np.fromiter((r.size for r in part), dtype=np.int64, count=len(part))
+        r = np.concatenate([np.asarray(x, dtype=np.float64) for x in part])
+        idx = np.minimum(np.searchsorted(bins, np.where(np.isfinite(r), r, np.inf), side="right"), bins.size)
+        view = np.repeat(np.arange(len(part)), sizes)
+        out[a : a + len(part)] = np.bincount(view * width + idx, minlength=len(part) * width).reshape(len(part), width)
+    return out
 
 
 def descriptors_from_counts(counts: NDArray[np.int64]) -> FArray:

@@ -1,0 +1,336 @@
+"""Upper bounds on each term's log-likelihood, for groups of places and for single places.
+
+Exact retrieval (:mod:`fingerloc.retrieval`) scores a place in full only when
+a cheap upper bound on its joint log-likelihood could still change the
+answer. Each term gives two levels of bound per place, over a
+:class:`PlaceLayout` (places in groups of look-alikes, one group = one block
+of the bound kernels):
+
+================  ============================================  ==========================================
+term              coarse: every place, a few operations a view  fine: the places of chosen groups
+================  ============================================  ==========================================
+``Fp``            letter counts (below): a letter the query     cyclic, integer costs: the semi-global
+                  has more (or fewer) of than a view must be    bound of :mod:`fingerloc.align._bounds`
+                  substituted or left out                       (the view against any substring of the
+                                                                query written twice, about 86 % of the
+                                                                cyclic cost, 7 % of its work); otherwise
+                                                                the exact cost
+``R``             the L1 distance to each view, its descriptor  (none finer)
+                  rounded to 1/65535 (less 41/131070 + 1e-9)
+mixtures, others  the exact log-likelihood of every place       (none finer)
+================  ============================================  ==========================================
+
+A group whose places' coarse bounds cannot change the answer is skipped as
+a whole: its fine bounds (the costly level) are never computed.
+
+The letter-count bound: let ``e_a(x) = max(0, n_a(x) - n_b(x))`` be the letters
+``x`` of ``a`` that no equal letter of ``b`` can match (``e_b`` likewise). In any
+alignment each of them is left out (cost ``g(x)``) or paired with another
+letter (cost ``s(x, y)``), so with ``c(x) = min(g(x), min_{y != x} s(x, y))``
+the cost is at least ``sum_x c(x) e_a(x)`` and ``sum_x c(x) e_b(x)``, and,
+splitting a pair's cost between its two letters, ``sum_x h(x) |n_a(x) - n_b(x)|``
+with ``h(x) = min(g(x), min_{y != x} s(x, y) / 2)``. Counts do not depend on the
+rotation, so the bound holds for the cyclic cost too; against a box of
+counts each difference is the distance to the box.
+
+Every bound is a float at most the term's own value, rounding included (the
+count and semi-global bounds are exact sums of the costs' dyadic fractions;
+the range bound, summed in float32 in another order, is lowered by 1e-4,
+far more than its rounding); the likelihood forms ``-lambda d`` and
+``-log(1 + d)`` are monotone in floating point too, so a lower bound on
+``d`` is an upper bound on the log-likelihood.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from .._types import FArray, IArray
+from ..observation import Observation
+from .base import Term
+from .fingerprint import FingerprintTerm
+from .range import RangeTerm
+
+__all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for"]
+
+#: Steps of a range descriptor entry (in [0, 1]) in the coarse bound.
+_RANGE_STEPS = 65535
+
+
+@dataclass(frozen=True, slots=True)
+class PlaceLayout:
+    """Places in groups: group ``g`` holds the places ``order[starts[g]:starts[g + 1]]``.
+
+    Attributes
+    ----------
+    order : ndarray of int, shape (P,)
+        Every place once, group after group.
+    starts : ndarray of int, shape (G + 1,)
+        Start of each group in ``order``.
+    """
+
+    order: IArray
+    starts: IArray
+
+    @property
+    def n_groups(self) -> int:
+        return int(self.starts.size - 1)
+
+    def places_of(self, groups: IArray) -> IArray:
+        """The places of ``groups``, group after group (each in layout order)."""
+        g = np.asarray(groups, dtype=np.int64)
+        return self.order[_ranges(self.starts[g], self.starts[g + 1])]
+
+    def sizes(self) -> IArray:
+        """Places of each group, shape ``(G,)``."""
+        return np.diff(self.starts)
+
+
+def _ranges(lo: IArray, hi: IArray) -> IArray:
+    """``concatenate([arange(a, b) for a, b in zip(lo, hi)])``."""
+    n = hi - lo
+    return np.repeat(lo - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+
+
+class TermBound:
+    """Bounds of one term over a layout: :meth:`prepare` once a query, then :meth:`coarse`, :meth:`fine`, :meth:`exact`."""
+
+    def __init__(self, term: Term, layout: PlaceLayout) -> None:
+        self.term = term
+        self.layout = layout
+
+    def prepare(self, obs: Observation) -> Any:
+        """What the bounds need of one query (its fingerprint, its descriptor...)."""
+        return obs
+
+    def coarse(self, query: Any) -> FArray:
+        """An upper bound of the term's log-likelihood at every place, shape ``(P,)`` (columns of the model)."""
+        raise NotImplementedError
+
+    def fine(self, query: Any, groups: IArray) -> FArray | None:
+        """A tighter bound at the places of ``groups`` (order of :meth:`PlaceLayout.places_of`); None: none finer."""
+        return None
+
+    def exact(self, query: Any, places: IArray) -> FArray:
+        """The term's log-likelihood at ``places``: ``term.log_likelihood_at``'s values."""
+        raise NotImplementedError
+
+
+class DenseBound(TermBound):
+    """Any term: its exact log-likelihood at every place (no saving; the bound is the value)."""
+
+    def prepare(self, obs: Observation) -> FArray:
+        return np.asarray(self.term.log_likelihood([obs])[0], dtype=np.float64)
+
+    def coarse(self, query: FArray) -> FArray:
+        return query
+
+    def exact(self, query: FArray, places: IArray) -> FArray:
+        return query[places]
+
+
+class _Views:
+    """A term's views in layout order: where each place's views start, and the least over them."""
+
+    def __init__(self, layout: PlaceLayout, per_place: IArray) -> None:
+        self.layout = layout
+        self.per_place = per_place
+        n = per_place[layout.order]
+        first = np.cumsum(per_place) - per_place
+        #: views (index in place order) in layout order
+        self.order = _ranges(first[layout.order], first[layout.order] + n)
+        pos = np.cumsum(n) - n
+        self.place_start = np.empty_like(per_place)
+        self.place_start[layout.order] = pos
+        #: start of each group's views, (G + 1,)
+        self.group_start = np.append(pos, int(n.sum()))[layout.starts]
+        self.has = per_place[layout.order] > 0
+
+    def least(self, per_view: FArray) -> FArray:
+        """Each place's least value over its views (``per_view`` in layout order), shape ``(P,)``; inf without views."""
+        return _segment_min(np.asarray(per_view, dtype=np.float64), self.place_start, self.per_place)
+
+    def least_in(self, per_view: FArray, groups: IArray) -> FArray:
+        """The same for the places of ``groups`` (``per_view``: their views, group after group)."""
+        g = np.asarray(groups, dtype=np.int64)
+        places = self.layout.places_of(g)
+        n_views = self.group_start[g + 1] - self.group_start[g]
+        offs = np.cumsum(n_views) - n_views
+        pstart = self.place_start[places] - np.repeat(self.group_start[g] - offs, self.layout.sizes()[g])
+        return _segment_min(np.asarray(per_view, dtype=np.float64), pstart, self.per_place[places])
+
+
+class FingerprintBound(TermBound):
+    """Bounds of :class:`~fingerloc.terms.FingerprintTerm` (module docstring)."""
+
+    def __init__(self, term: FingerprintTerm, layout: PlaceLayout) -> None:
+        from ..align import CostModel
+        from ..align._bounds import GROUP_LANES, pack_groups
+        from ..align._costs import N_LETTERS
+        from ..align._cyclic_int import integer_costs
+        from ..align._encode import encode_many
+
+        super().__init__(term, layout)
+        cm = term.costs if term.costs is not None else CostModel()
+        per_place = np.diff(np.append(term._starts, len(term._refs))).astype(np.int64)
+        self.views = views = _Views(layout, per_place)
+        codes, off = encode_many([term._refs[int(r)].letters for r in views.order])
+        n_views = off.size - 1
+        counts = np.zeros((n_views, N_LETTERS), dtype=np.int64)
+        np.add.at(counts, (np.repeat(np.arange(n_views), np.diff(off)), codes.astype(np.int64)), 1)
+        other = np.where(np.eye(N_LETTERS, dtype=bool), np.inf, cm.substitution).min(axis=1)
+        c_weight = np.minimum(cm.indel, other)
+        h_weight = np.minimum(cm.indel, other / 2.0)
+        self.used = counts.max(axis=0, initial=0) > 0
+        self.partial_fov_exact = not term.cyclic  # cropped references: no count bound for a partial field of view
+        ints = integer_costs(cm.substitution, cm.indel)
+        self.counts_t = None
+        if ints is not None and counts.max(initial=0) < np.iinfo(np.int16).max:
+            sc = ints[2]
+            h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
+            if np.array_equal(h2, np.round(h2)) and np.array_equal(c2, np.round(c2)):
+                self.counts_t = np.ascontiguousarray(counts.T.astype(np.int16))
+                self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
+        # the semi-global bound: cyclic matching with integer costs, one block (or more) a group
+        self.gp = None
+        self.codes, self.off = codes, off
+        if term.cyclic and ints is not None and n_views:
+            sub8, indel8, scale = ints
+            self.ints = ints
+            cuts: list[int] = []
+            block_group: list[int] = []
+            gs = views.group_start
+            for g in range(layout.n_groups):
+                for c in range(int(gs[g]), int(gs[g + 1]), GROUP_LANES):
+                    cuts.append(c)
+                    block_group.append(g)
+            self.block_start = np.array([*cuts, n_views], dtype=np.int64)
+            self.gp = pack_groups(codes, off, self.block_start, sub8, indel8)
+            self.scale = scale
+            self.group_blocks = np.searchsorted(np.asarray(block_group, dtype=np.int64), np.arange(layout.n_groups + 1))
+
+    def prepare(self, obs: Observation) -> Any:
+        from ..align._costs import N_LETTERS
+        from ..align._encode import encode
+
+        fp = self.term.fingerprints([obs])[0]  # type: ignore[attr-defined]
+        codes = encode(fp.letters)
+        q = np.bincount(codes, minlength=N_LETTERS).astype(np.int32)
+        partial = self.partial_fov_exact and not any(w >= 2 * np.pi - 1e-12 for _, w in obs.fov)
+        return obs, codes, q, partial, fp
+
+    def _likelihood(self, d: FArray) -> FArray:
+        return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
+
+    def exact(self, query: Any, places: IArray) -> FArray:
+        from ..align._bounds import cyclic_costs_one
+
+        term: FingerprintTerm = self.term  # type: ignore[assignment]
+        if self.gp is None:
+            return self._likelihood(term.distances_at([query[0]], places, fingerprints=[query[4]])[0])
+        # cyclic, integer costs: the same exact integers as the term's batch kernel, for these views only
+        v = self.views
+        n = v.per_place[places]
+        views = _ranges(v.place_start[places], v.place_start[places] + n)
+        lens = self.off[views + 1] - self.off[views]
+        codes = self.codes[_ranges(self.off[views], self.off[views + 1])]
+        off = np.zeros(views.size + 1, dtype=np.int64)
+        np.cumsum(lens, out=off[1:])
+        sub8, indel8, scale = self.ints
+        cost = cyclic_costs_one(query[1], codes, off, sub8, indel8).astype(np.float64) / scale
+        return self._likelihood(_segment_min(cost, np.cumsum(n) - n, n))
+
+    def coarse(self, query: Any) -> FArray:
+        from ..align._bounds import count_bounds
+
+        _, _, q, partial, _ = query
+        n = self.views.per_place.size
+        if partial or self.counts_t is None:  # -lambda * 0 and -log(1 + 0): the largest there is
+            return self._likelihood(np.where(self.views.per_place > 0, 0.0, np.inf))
+        h2, c2, unit = self.weights2
+        letters = np.flatnonzero((q > 0) | self.used)
+        lb2 = count_bounds(q, self.counts_t, letters, h2, c2)
+        out = self.views.least(lb2 / unit)
+        return self._likelihood(out) if n else out
+
+    def fine(self, query: Any, groups: IArray) -> FArray | None:
+        from ..align._bounds import semiglobal_bounds
+
+        _, codes, _, partial, _ = query
+        if self.gp is None or partial:
+            return self.exact(query, self.layout.places_of(groups))
+        g = np.asarray(groups, dtype=np.int64)
+        blocks = _ranges(self.group_blocks[g], self.group_blocks[g + 1])
+        lanes = semiglobal_bounds(codes, self.gp, blocks)
+        used = np.arange(lanes.shape[1])[None, :] < (self.block_start[blocks + 1] - self.block_start[blocks])[:, None]
+        return self._likelihood(self.views.least_in(lanes[used] / self.scale, g))
+
+
+class RangeBound(TermBound):
+    """Bounds of :class:`~fingerloc.terms.RangeTerm` (module docstring)."""
+
+    def __init__(self, term: RangeTerm, layout: PlaceLayout) -> None:
+        super().__init__(term, layout)
+        per_place = np.array([d.shape[0] for d in term.descriptors_], dtype=np.int64)
+        self.views = _Views(layout, per_place)
+        desc = np.vstack(term.descriptors_)[self.views.order]
+        # each entry rounded to 1/65535: an L1 distance moves by at most half a step a bin
+        self.desc_t = np.ascontiguousarray(np.round(np.clip(desc, 0.0, 1.0).T * _RANGE_STEPS).astype(np.uint16))
+        self.slack = desc.shape[1] * 0.5 / _RANGE_STEPS + 1e-9
+
+    def prepare(self, obs: Observation) -> tuple[Observation, FArray | None]:
+        return obs, (None if obs.ranges is None else self.term.descriptor(obs))  # type: ignore[attr-defined]
+
+    def exact(self, query: tuple[Observation, FArray | None], places: IArray) -> FArray:
+        term: RangeTerm = self.term  # type: ignore[assignment]
+        obs, q = query
+        d = term.distances_at([obs], places, descriptors=None if q is None else q[None, :])[0]
+        return np.asarray(term._likelihood_of(d))
+
+    def coarse(self, query: tuple[Observation, FArray | None]) -> FArray:
+        q = query[1]
+        if q is None:
+            return np.zeros(self.views.per_place.size)
+        q16 = np.round(np.clip(q, 0.0, 1.0) * _RANGE_STEPS).astype(np.uint16)
+        d = _l1_columns(self.desc_t, q16).astype(np.float64) / _RANGE_STEPS
+        d = np.maximum(d - 2.0 * self.slack, 0.0)  # both the view's and the query's rounding
+        return np.asarray(self.term._likelihood_of(self.views.least(d)), dtype=np.float64)  # type: ignore[attr-defined]
+
+
+@njit(cache=True)
+def _segment_min(values: FArray, starts: IArray, counts: IArray) -> FArray:  # pragma: no cover - compiled
+    """``min(values[starts[i] : starts[i] + counts[i]])`` for each ``i`` (inf for an empty segment)."""
+    out = np.empty(starts.size)
+    for i in range(starts.size):
+        m = np.inf
+        a = starts[i]
+        for j in range(a, a + counts[i]):
+            m = min(m, values[j])
+        out[i] = m
+    return out
+
+
+@njit(cache=True)
+def _l1_columns(desc_t: NDArray[np.uint16], q: NDArray[np.uint16]) -> NDArray[np.int32]:  # pragma: no cover - compiled
+    """``sum_b |desc_t[b, v] - q[b]|`` for every column ``v``, in steps."""
+    out = np.zeros(desc_t.shape[1], dtype=np.int32)
+    for b in range(desc_t.shape[0]):
+        row = desc_t[b]
+        qb = np.int32(q[b])
+        for v in range(out.size):
+            out[v] += abs(np.int32(row[v]) - qb)
+    return out
+
+
+def bound_for(term: Term, layout: PlaceLayout) -> TermBound:
+    """The best bound this module has for ``term``: its own, or :class:`DenseBound`."""
+    if isinstance(term, FingerprintTerm) and term.reference == "all" and len(term._refs):
+        return FingerprintBound(term, layout)
+    if isinstance(term, RangeTerm) and term.every_place_described():
+        return RangeBound(term, layout)
+    return DenseBound(term, layout)
