@@ -279,6 +279,15 @@ def test_map_from_fingerprints_writes_all_its_outputs_or_none(tmp_path, rooms_lo
     assert f"poses to {tum}" in err
 
 
+def test_map_from_fingerprints_of_a_short_run_warns_of_its_single_place(tmp_path, capsys):
+    from ._logs import write_log
+
+    log = write_log(tmp_path / "short.log", [(3.0, 3.0, 1.5, 1.5, 0.0)] * 4)  # four views of one room
+    code, _, err = run_cli(capsys, "map", log, "--places", "fingerprints", "--db", tmp_path / "s.sqlite")
+    assert code == 0, err
+    assert "1 place(s) from fingerprints" in err and "warning: the map has 1 place" in err
+
+
 def test_map_from_fingerprints_refuses_tum_without_poses_before_any_work(tmp_path, capsys):
     bag = _bag_without_odometry(tmp_path / "noodom.bag")
     db = tmp_path / "n.sqlite"

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from ._io import warn
 from .app import err_console
 
 __all__ = ["map_fingerprints"]
@@ -28,6 +29,7 @@ def map_fingerprints(
     ``--tum``: the run's poses (a run with poses only, checked before any work)."""
     from ..config import Config
     from ..errors import InvalidParameterError
+    from ..pipeline.compat import check_map
     from ..pipeline.presets import empty_terms
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
 
@@ -44,7 +46,9 @@ def map_fingerprints(
         err_console.print(f"warning: no view has {', '.join(empty)} bearings: those terms cannot tell places apart "
                           "(see --preset / --terms)", markup=False)  # fmt: skip
     config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
-    size = fm.place_map(config).save(db)
+    place_map = fm.place_map(config)
+    warn(check_map(place_map))  # one place, views without features
+    size = place_map.save(db)
     poses = run.poses
     figures: dict[str, Any] = {}
     score = ""
