@@ -347,4 +347,4 @@ def test_panoramas_in_order_give_one_place_per_room_and_the_place_filter_follows
     right = [
         int(a.place) in set(fm.assignment[half == room[fm.n_mapping + t]].tolist()) for t, a in enumerate(res.answers)
     ]
-    assert sum(right) >= len(right) - 1  # the second round through the offices: the first round's places
+    assert sum(right) >= len(right) - 1  # the second pass through the offices: the first pass's places
