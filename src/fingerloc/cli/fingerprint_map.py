@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +22,16 @@ def map_fingerprints(
     json_out: Path | None,
     report: Path | None,
     data: Path,
+    doubts: Sequence[str] = (),
 ) -> None:
-    """Make the map, save it to ``db``, print one summary line; ``--json``: the labelled keyframes; ``--report``."""
+    """Make the map, save it to ``db``, print one summary line; ``--json``: the labelled keyframes; ``--report``.
+
+    ``doubts``: warnings about the run (:func:`fingerloc.pipeline.compat.check_run_for_map`), said with the
+    map's own (one place, empty fingerprints) once the map is made.
+    """
     from ..config import Config
+    from ..pipeline.compat import check_map
+    from ._io import warn
     from ..pipeline.presets import empty_terms
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
 
@@ -39,7 +46,9 @@ def map_fingerprints(
         err_console.print(f"warning: no view has {', '.join(empty)} bearings: those terms cannot tell places apart "
                           "(see --preset / --terms)", markup=False)  # fmt: skip
     config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
-    size = fm.place_map(config).save(db)
+    pm = fm.place_map(config)
+    warn([*doubts, *check_map(pm)])  # a stationary run, one place, views without features
+    size = pm.save(db)
     poses = run.poses
     figures: dict[str, Any] = {}
     score = ""
