@@ -155,7 +155,7 @@ def track_cmd(
     check_output(json_out, "--json")
     check_output(tum, "--tum")
     check_output(kitti, "--kitti")
-    if (tum is not None or kitti is not None) and filter_kind != "pose":
+    if (tum is not None or kitti is not None) and filter_kind == "places":
         raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)")
     if str(data) == "-" or follow:
         from .track_follow import track_follow
@@ -184,6 +184,8 @@ def track_cmd(
     why = None
     if filter_kind == "auto":
         filter_kind, why = pm.default_filter(run)
+        if filter_kind != "pose" and (tum is not None or kitti is not None):  # before the work, not after
+            raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter, and {why.partition('(')[2].rstrip(')')}")
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,

@@ -55,7 +55,7 @@ def track_follow(
     if max_range is not None and not max_range > 0:
         raise InvalidParameterError(f"--max-range must be a positive number of metres, got {max_range!r}")
     filter_kind = tracker_options["filter"]
-    if (tum is not None or kitti is not None) and filter_kind != "pose":
+    if (tum is not None or kitti is not None) and filter_kind == "places":
         raise InvalidParameterError(
             f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)"
         )
@@ -81,6 +81,8 @@ def track_follow(
                 if filter_kind == "pose" and item.pose is None and item.odometry is None:
                     filter_kind, why = "places", "filter: places (the stream's first line has no pose or odometry)"
                 options["filter"] = filter_kind
+                if filter_kind != "pose" and (tum is not None or kitti is not None):
+                    raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter, and {why.partition('(')[2].rstrip(')')}")
                 note(why)
             factor = odometry_error
             if factor is None:
