@@ -906,7 +906,7 @@ def _surfaces(b: Battery, d: Path, log: Path, laser: Path) -> None:
     tum = s / "t.tum"
     tum.write_text("old tum\n")
     b.expect_error("track --json --tum under a file-size limit keeps both", "track", log, "--db", laser, "--filter",
-                   "pose", "-q", "--json", old, "--tum", tum, fsize=2000, keep=(old, tum, laser))  # fmt: skip
+                   "pose", "-q", "--json", old, "--tum", tum, fsize=2000, keep=(old, tum, laser), notes=2)  # fmt: skip
     if os.geteuid() != 0:
         ro = s / "ro"
         ro.mkdir()

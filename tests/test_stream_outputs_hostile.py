@@ -50,7 +50,7 @@ def _no_tmp(folder: Path) -> None:
 
 def test_a_closed_standard_input_is_one_error(monkeypatch):
     monkeypatch.setattr(sys, "stdin", None)  # as after `<&-`
-    with pytest.raises(InvalidParameterError, match="standard input .* is closed"):
+    with pytest.raises(InvalidParameterError, match=r"standard input .* is closed"):
         stream.open_lines("-")
 
 

@@ -31,9 +31,9 @@ def map_fingerprints(
     """
     from ..config import Config
     from ..pipeline.compat import check_map
-    from ._io import warn
     from ..pipeline.presets import empty_terms
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
+    from ._io import warn
 
     with err_console.status("mapping from fingerprints...") as status:
         fm = places_from_fingerprints(
@@ -47,7 +47,6 @@ def map_fingerprints(
                           "(see --preset / --terms)", markup=False)  # fmt: skip
     config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
     pm = fm.place_map(config)
-    warn([*doubts, *check_map(pm)])  # a stationary run, one place, views without features
     size = pm.save(db)
     poses = run.poses
     figures: dict[str, Any] = {}
@@ -81,3 +80,4 @@ def map_fingerprints(
             notes=[f"fingerloc map {data} --places fingerprints --db {db}"], figures=figures,
         )  # fmt: skip
         err_console.print(f"wrote {page} (open it in a browser)", soft_wrap=True, markup=False)
+    warn([*doubts, *check_map(pm)])  # stationary, one place, no features: said once every output is written

@@ -139,11 +139,11 @@ def map_cmd(
         pm = make_map(run, config, preset=preset, overrides=overrides, on_step=lambda s: status.update(s))
     assert pm.preset is not None and pm.calibration is not None and pm.split is not None and pm.training is not None
     err_console.print(pm.preset.reason, markup=False)
-    warn(doubts + check_map(pm))  # one place, beta at a bound, empty training views
+    late = doubts + check_map(pm)  # one place, beta at a bound, empty views: said once every output is written
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
-        err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
-                          "places apart (see --preset / --terms)", markup=False)  # fmt: skip
+        late.append(f"no training scan has {', '.join(empty)} bearings: those terms cannot tell places apart (see "
+                    "--preset / --terms)")  # fmt: skip
     size = pm.save(db)
     sp, cal = pm.split, pm.calibration
     sm = pm.scan_map
@@ -172,3 +172,4 @@ def map_cmd(
     if report is not None:
         map_report(report, model=pm.model, centres=pm.positions, radius=radius, edges=pm.graph.edges(),
                    trajectory=run.poses, scans=run.scans, data=runs[0], db=db)  # fmt: skip
+    warn(late)

@@ -207,7 +207,6 @@ def track_cmd(
                 markup=False,
             )
     _print_summary(tr)
-    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
     write_trajectories(tr.answers, tum=tum, kitti=kitti, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
@@ -215,6 +214,7 @@ def track_cmd(
         track_report(report, result=tr.result, log_likelihood=beta * tr.log_likelihood, truth=tr.truth,
                      classes=tr.places, names=[a.name for a in tr.answers],
                      geo={"poses": tr.poses, "centres": tr.centres}, data=data, db=db)  # fmt: skip
+    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # once every output is written
 
 
 def _check_options(
