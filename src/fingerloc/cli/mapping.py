@@ -119,16 +119,11 @@ def map_cmd(
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
     doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     if places == "fingerprints":
-        from ._follow import write_reference
         from .fingerprint_map import map_fingerprints
 
-        if tum is not None and run.poses is None:
-            raise InvalidParameterError("--tum: the run has no pose on every scan")
         map_fingerprints(run, db, preset=preset, overrides=overrides, until=until,
                          mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
-                         report=report, data=runs[0], doubts=doubts)  # fmt: skip
-        if tum is not None:
-            write_reference(tum, run.timestamps, run.poses, warn=lambda s: err_console.print(s, markup=False))
+                         report=report, data=runs[0], tum=tum, doubts=doubts)  # fmt: skip
         return
     config = Config().with_(
         places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,
