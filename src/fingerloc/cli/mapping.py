@@ -1,4 +1,4 @@
-"""``fingerloc map``: places from a recorded run's poses, learned with the sensor's preset (issue 12).
+"""``fingerloc map``: places from a recorded run's poses, learned with the sensor's preset.
 
 """
 
