@@ -313,7 +313,7 @@ def test_heading_on_periodic_strings_picks_the_consistent_rotation():
 
 
 def test_unit_costs_with_repeated_references_equal_each_pair():
-    """Equal references are aligned once and copied (issue 17): every column still equals its own alignment."""
+    """Equal references are aligned once and copied: every column still equals its own alignment."""
     from fingerloc.align import alignment_costs, global_alignment
     from fingerloc.fingerprint import parse_fingerprint
 

@@ -1,4 +1,4 @@
-"""The alignment kernels from several Python threads at once (issue 16, item 6).
+"""The alignment kernels from several Python threads at once.
 
 numba's "workqueue" threading layer aborts the process when two threads enter
 parallel regions at once; every parallel kernel takes one lock

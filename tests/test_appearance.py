@@ -103,8 +103,8 @@ def test_cool_cast_on_walls_at_the_grey_threshold_known_limit():
     """Known limit: this scene's beige walls sit on the grey / colour saturation edge (0.15); under a cool
     cast the grey-world balance picks other reference pixels and part of the walls changes bins. The
     scene stays nearer to itself than to another room, but not by a factor 5 (0.66 of the way). Repeating
-    the balance until it settles cured this scene but lost on real photos (docs/RESULTS.md, issue 14,
-    second pass of the appearance term), so it is not done."""
+    the balance until it settles cured this scene but lost on real photos (docs/RESULTS.md, the
+    appearance term), so it is not done."""
     a = _pano()
     cool = Panorama(np.clip(a.image * np.array([0.88, 1.0, 1.12], dtype=np.float32), 0.0, 1.0))
     da, dc, do = (appearance_descriptor(p) for p in (a, cool, _other_scene()))

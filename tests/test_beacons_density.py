@@ -1,4 +1,4 @@
-"""Issue 16, item 5: beacons at any beam density (windows in metres and degrees, not beams)."""
+"""Beacons at any beam density (windows in metres and degrees, not beams)."""
 
 from __future__ import annotations
 

@@ -272,7 +272,7 @@ def test_speed_section_quick():
 
 
 def test_benchmark_on_two_dask_workers_matches_the_serial_run(tmp_path):
-    """One task per log on a 2-worker thread cluster gives the serial run's figures (issue 17)."""
+    """One task per log on a 2-worker thread cluster gives the serial run's figures."""
     pytest.importorskip("distributed")
     from fingerloc.experiments.carmen import run_benchmark
 

@@ -1,11 +1,11 @@
-"""``bench carmen`` shares features, fits and scores between its methods (issue 17): the same figures.
+"""``bench carmen`` shares features, fits and scores between its methods: the same figures.
 
 Each log's methods run inside :func:`fingerloc.experiments.shared.shared_results`;
 here the default methods run once that way (``run_benchmark``) and once
 without any sharing (``run_log`` outside the context, every method fitting
-and scoring on its own, as before issue 17), and every query's rank and
+and scoring on its own, as a plain run does), and every query's rank and
 answer must agree. ``fingerloc bench compare`` does the same for two
-``--json`` files (e.g. the main branch's and this one's on the shared logs).
+``--json`` files (e.g. two versions' runs on the shared logs).
 """
 
 import json
@@ -44,7 +44,7 @@ def _walk(loop: int):
 
 
 def _write(path):
-    lines = ["# synthetic, issue 17", "PARAM robot_front_laser_max 30 nohost 0"]
+    lines = ["# synthetic log", "PARAM robot_front_laser_max 30 nohost 0"]
     for k, (j, w, h, x, y, th) in enumerate(_walk(0) + _walk(1)):
         s = box_scan(w, h, x, y, th, n=181, noise=0.02, rng=np.random.default_rng(k))
         r = " ".join(f"{v:.3f}" for v in np.minimum(s.ranges, 30.0))

@@ -1,4 +1,4 @@
-"""Issue 16: every failure of the command line is one line ``error: ...`` and exit code 2."""
+"""Every failure of the command line is one line ``error: ...`` and exit code 2."""
 
 from __future__ import annotations
 

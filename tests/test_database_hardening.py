@@ -1,4 +1,4 @@
-"""Issue 16: the place database never loses anything, and crafted files are refused on load."""
+"""The place database never loses anything, and crafted files are refused on load."""
 
 from __future__ import annotations
 

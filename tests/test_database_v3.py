@@ -1,4 +1,4 @@
-"""Place database schema version 3 (issue 17): compact binary records, the same model back, old files still read.
+"""Place database schema version 3: compact binary records, the same model back, old files still read.
 
 ``tests/data/v2_laser.sqlite`` (``fingerloc map`` of the rooms log of
 ``tests/_logs.py``) and ``tests/data/v2_paper.sqlite`` (``PlaceModel(3,

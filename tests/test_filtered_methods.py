@@ -125,7 +125,7 @@ def test_cli_bench_kidnap(rooms_log, tmp_path, capsys):
     js = json.loads(out.read_text())
     assert "rooms" in js["logs"] and "pooled" in js and js["params"]["stretch"] == 3
     assert "pooled" in text
-    # the floor and ground-truth fields beside the old ones (issue 15); the discrete filter has no floor
+    # the floor and ground-truth fields beside the old ones; the discrete filter has no floor
     assert {"floor_within_10", "floor_observed_within_10", "truth_within_10", "reference_truth_within_10",
             "cell_within_10", "kidnapped_top1"} <= set(js["pooled"])  # fmt: skip
     assert all(t["floor_recover_steps"] == 0 for t in js["logs"]["rooms"]["trials"])

@@ -1,4 +1,4 @@
-"""Issue 16, item 4: property and fuzz tests of every reader of user input.
+"""Property and fuzz tests of every reader of user input.
 
 Each reader either succeeds or raises the library's error for bad input
 (``DataFormatError``, ``DatabaseError``); the command line either succeeds

@@ -117,7 +117,7 @@ def test_bad_wall_and_scan(tmp_path, line, match):
         read_observations(_write(tmp_path, [line]))
 
 
-# -- the fast path of observation_from_record (issue 17): the same observations bit for bit -----------------
+# -- the fast path of observation_from_record: the same observations bit for bit -----------------
 
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402

@@ -1,4 +1,4 @@
-"""What ``bench kidnap`` measures: recovery against a never-kidnapped run, its floor, and the ground truth (issue 15).
+"""What ``bench kidnap`` measures: recovery against a never-kidnapped run, its floor, and the ground truth.
 
 Scripted filters whose answers are known step by step, so that every figure
 of a trial can be written down by hand.

@@ -1,4 +1,4 @@
-"""The ``localize`` section of ``fingerloc bench speed`` (issue 17): its synthetic case, and a quick run (slow)."""
+"""The ``localize`` section of ``fingerloc bench speed``: its synthetic case, and a quick run (slow)."""
 
 from __future__ import annotations
 

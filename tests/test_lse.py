@@ -1,4 +1,4 @@
-"""fingerloc._lse.logsumexp equals scipy.special.logsumexp bit for bit (issue 17: the filters' hot call)."""
+"""fingerloc._lse.logsumexp equals scipy.special.logsumexp bit for bit (the filters' hot call)."""
 
 import numpy as np
 import pytest

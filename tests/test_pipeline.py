@@ -286,7 +286,7 @@ def test_bag_flags():
 
 
 def test_map_and_pose_track_on_a_bag_with_two_lidars_back_to_back(tmp_path, capsys):
-    """Issue 12: front lidar + upside-down back lidar merged into one 360 deg observation per step."""
+    """Front lidar + upside-down back lidar merged into one 360 deg observation per step."""
     from fingerloc.map.database import load_model
 
     from ._bags import bag_path, write_robot_bag

@@ -1,4 +1,4 @@
-"""The pose filter's compiled nearest centre and fast logsumexp change no result (issue 17)."""
+"""The pose filter's compiled nearest centre and fast logsumexp change no result."""
 
 import math
 
@@ -64,7 +64,7 @@ def test_pose_filter_run_is_the_same_with_the_tree_and_scipy(monkeypatch):
     monkeypatch.setattr(pf.PoseFilter, "_nearest", _tree_nearest)
     from scipy.special import logsumexp
 
-    monkeypatch.setattr(pf, "logsumexp", logsumexp)  # SciPy's own, as before issue 17
+    monkeypatch.setattr(pf, "logsumexp", logsumexp)  # SciPy's own, the reference
     slow = _run(12)
     assert fast.tobytes() == slow.tobytes()
     assert np.all(np.isfinite(fast[~np.all(np.isnan(fast), axis=1)]).any(axis=1))

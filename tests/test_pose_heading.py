@@ -1,4 +1,4 @@
-"""The observation's heading in the pose filter (issue 15, third session): HeadingModel, its fit, the filter's use of it."""
+"""The observation's heading in the pose filter: HeadingModel, its fit, the filter's use of it."""
 
 import math
 

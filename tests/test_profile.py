@@ -1,4 +1,4 @@
-"""Column profiles, headings between views and the aligned-profile term ``AP`` (issue 14), on images made here."""
+"""Column profiles, headings between views and the aligned-profile term ``AP``, on images made here."""
 
 from __future__ import annotations
 
@@ -232,6 +232,6 @@ def test_old_72_sector_profiles_against_new_36_sector_query_say_so():
     ]
     term = ProfileTerm().fit(old)
     query = Observation(profile=column_profile(Panorama(_room(0, 40, seed=5))))
-    with pytest.raises(InvalidParameterError, match="72 sectors before issue 14's second pass, 36 since"):
+    with pytest.raises(InvalidParameterError, match="72 sectors in older versions, 36 now"):
         term.log_likelihood([query])
     assert term.log_likelihood([old[0][0]]).shape == (1, 2)  # old queries still work with old places

@@ -429,7 +429,7 @@ def test_localize_report_without_labels_shows_the_least_confident(tmp_path):
 
 
 def test_map_report_from_the_command(rooms_log, tmp_path, capsys):
-    """``fingerloc map LOG --db DB --report DIR`` writes the map report (issue 19) and checks DIR first."""
+    """``fingerloc map LOG --db DB --report DIR`` writes the map report and checks DIR first."""
     out, db = tmp_path / "r1", tmp_path / "m.sqlite"
     code, _, err = run_cli(capsys, "map", rooms_log, "--db", db, "--no-calibration", "--report", out)
     assert code == 0, err
@@ -443,7 +443,7 @@ def test_map_report_from_the_command(rooms_log, tmp_path, capsys):
 
 
 def test_track_report_on_a_map_database(rooms_log, tmp_path, capsys):
-    """``fingerloc track LOG --db MAP --report DIR`` (issue 19's done-when): trajectory with the map's places."""
+    """``fingerloc track LOG --db MAP --report DIR``: trajectory with the map's places."""
     db, out = tmp_path / "m.sqlite", tmp_path / "r2"
     assert run_cli(capsys, "map", rooms_log, "--db", db, "--no-calibration")[0] == 0
     code, _, err = run_cli(capsys, "track", rooms_log, "--db", db, "--filter", "pose", "-q", "--report", out)

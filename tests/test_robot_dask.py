@@ -1,4 +1,4 @@
-"""``reproduce robot`` on Dask: one task per trial, the serial run's JSON (issue 17)."""
+"""``reproduce robot`` on Dask: one task per trial, the serial run's JSON."""
 
 import json
 

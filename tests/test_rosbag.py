@@ -206,7 +206,7 @@ def test_features_command_on_a_bag(tmp_path, capsys, ros1):
     assert code == 0 and len(text.strip().splitlines()) == 1
 
 
-# ---- two lidars back to back, one upside down: mounts, poses, merging (issue 12) ----------------
+# ---- two lidars back to back, one upside down: mounts, poses, merging ----------------
 
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])

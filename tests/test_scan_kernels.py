@@ -1,5 +1,5 @@
 """The likelihood field's compiled kernel (fingerloc.map._scan_kernels) and ScanMap.log_likelihood equal the kernel's
-definition as a plain loop bit for bit (issue 17: the faster kernel changes no figure)."""
+definition as a plain loop bit for bit (the faster kernel changes no figure)."""
 
 from __future__ import annotations
 

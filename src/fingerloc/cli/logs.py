@@ -1,4 +1,4 @@
-"""Real laser logs on the command line (issue 7).
+"""Real laser logs on the command line.
 
 * ``fingerloc bench carmen``: the real-log place-recognition benchmark;
 * :func:`format_scan_line`, how ``fingerloc features`` prints a laser scan's
@@ -123,7 +123,7 @@ def carmen_cmd(
     ),
     reverse: bool = typer.Option(False, "--reverse", help="Run the query pass backwards."),
 ) -> None:
-    """Place recognition on CARMEN logs with the fixed protocol of issue 7.
+    """Place recognition on CARMEN logs with the fixed protocol of `bench carmen`.
 
     First half of each log (scan index < n // 2) maps, the rest queries; a place
     every 2 m (strictly) of the mapping pass, training and query scans within

@@ -1,6 +1,6 @@
-"""Beacon detection at any beam density: a retro-reflective cylinder in simulated scans (issue 16).
+"""Beacon detection at any beam density: a retro-reflective cylinder in simulated scans.
 
-The case of the issue: a Hokuyo-like scanner (0.25 deg a beam over 270 deg,
+The case measured: a Hokuyo-like scanner (0.25 deg a beam over 270 deg,
 1,081 beams) sees a retro-reflective cylinder 9 cm across at 1.05 m, of
 intensity about 6,000 against walls of about 1,100. Each simulated scan puts
 the robot at a random spot of a random rectangular room (walls 1.5 to 4 m

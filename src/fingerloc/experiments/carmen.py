@@ -1,6 +1,6 @@
 """The real-log benchmark: place recognition on CARMEN logs (``fingerloc bench carmen``).
 
-Protocol (issue 7; other tools compare against its counts, so it is fixed):
+Protocol (other tools compare against its counts, so it is fixed):
 
 1. The front-laser scans of a log, in file order (timestamps in these logs are
    unreliable). Scans ``0 .. n//2 - 1`` are the *mapping pass*, the rest the
@@ -584,7 +584,7 @@ def harden_scans(scans: Sequence[Scan], hardening: Hardening) -> tuple[list[Scan
 
 @dataclass(slots=True)
 class BenchmarkRun:
-    """All logs of one run; :meth:`to_json` gives the issue's JSON layout."""
+    """All logs of one run; :meth:`to_json` gives the benchmark's JSON layout (kept stable: other tools read it)."""
 
     logs: list[LogRun]
     method_names: list[str]

@@ -195,7 +195,7 @@ class KidnapResult:
         the true place at a query step; ``None`` if never) and the same for
         the never-kidnapped filter (``reference_first_right_steps``).
 
-        What is recovery and what is noise (added fields, issue 15):
+        What is recovery and what is noise (added fields):
 
         * ``floor_recover_steps`` / ``floor_recover_observed_steps``: the
           criteria of ``recover_steps`` / ``recover_observed_steps`` applied

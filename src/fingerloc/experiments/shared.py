@@ -1,4 +1,4 @@
-"""Results shared between the methods of one benchmark run (``fingerloc bench carmen``, issue 17).
+"""Results shared between the methods of one benchmark run (``fingerloc bench carmen``).
 
 Several methods of the real-log benchmark repeat the same work on a log:
 ``fingerprint``, ``fingerprint-filtered``, ``fingerprint-odometry`` and

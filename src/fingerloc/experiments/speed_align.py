@@ -1,4 +1,4 @@
-"""Speed section ``align`` of ``fingerloc bench speed`` (issue 4, "Must show").
+"""Speed section ``align`` of ``fingerloc bench speed``.
 
 One run on the same random fingerprints (letters drawn uniformly from the
 paper's 21 letters with a fixed seed; 20 queries and 10,000 references of 40 letters;

@@ -1,4 +1,4 @@
-"""Speed section ``laser`` of ``fingerloc bench speed`` (issue 17, item 2): the ``laser2d`` preset at 1,000 places.
+"""Speed section ``laser`` of ``fingerloc bench speed``: the ``laser2d`` preset at 1,000 places.
 
 The data are simulated, so anyone can run it: ``n_places`` offices of
 :func:`fingerloc.sim.make_offices` (seed 20040426), one place each;
@@ -21,7 +21,7 @@ threads; steadier on a loaded machine), best of ``repeat`` rounds:
 - ``localize_ms``: what ``fingerloc localize`` computes for one observation
   (:func:`localize_answers`: the terms once, the posterior, the ranks and the
   heading at the best place), and ``localize_with_extraction_ms`` with the
-  extraction (the issue's target: <= 5 ms);
+  extraction (target: <= 5 ms);
 - ``*_batched_ms``: the same per query when ``chunk`` queries come at once,
   as ``localize`` reads a log (its chunks of 256).
 

@@ -1,6 +1,6 @@
-"""Speed section ``localize`` of ``fingerloc bench speed``: streaming ``localize`` end to end (issue 17, item 5).
+"""Speed section ``localize`` of ``fingerloc bench speed``: streaming ``localize`` end to end.
 
-Builds, in a temporary folder, the synthetic case of the issue: 1,000 places
+Builds, in a temporary folder, a synthetic case: 1,000 places
 of 8 views each (vertical edges ``VE``, extremities ``Ex`` and corners ``c``
 around six random bearings per place, 3 deg noise) and labelled queries
 drawn the same way; learns them with ``fingerloc learn --preset paper

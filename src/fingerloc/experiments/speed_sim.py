@@ -1,4 +1,4 @@
-"""Speed section ``sim`` of ``fingerloc bench speed`` (issue 6: the simulator).
+"""Speed section ``sim`` of ``fingerloc bench speed`` (the simulator).
 
 Times, on the first of ten offices generated with seed 20040426 (robot at the
 office's anchor, heading 0.3 rad):

@@ -36,8 +36,8 @@ __all__ = [
 
 
 #: Version of :func:`appearance_descriptor`'s layout with its default parameters, by descriptor length.
-#: 1: one colour / grey block over the band + layout spectrum (94 numbers; fingerloc up to issue 14's
-#: second pass); 2: colour / grey and gradient histograms per elevation strip (222 numbers).
+#: 1: one colour / grey block over the band + layout spectrum (94 numbers; fingerloc's first panorama
+#: descriptor); 2: colour / grey and gradient histograms per elevation strip (222 numbers).
 APPEARANCE_VERSIONS: dict[int, int] = {94: 1, 222: 2}
 
 #: Images wider than this are block-averaged to about this many columns before the appearance

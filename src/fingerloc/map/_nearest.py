@@ -1,4 +1,4 @@
-"""Nearest place centre of many points, compiled (private; the pose filter's hot loop, issue 17).
+"""Nearest place centre of many points, compiled (private; the pose filter's hot loop).
 
 :func:`nearest_centres` gives what ``scipy.spatial.cKDTree(centres).query(points)``
 gives (the distance to the nearest centre, bit for bit: ``sqrt(dx * dx + dy * dy)``,

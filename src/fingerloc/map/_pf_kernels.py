@@ -1,4 +1,4 @@
-"""The pose filter's per-step array work, compiled (private; issue 17).
+"""The pose filter's per-step array work, compiled (private).
 
 Each kernel does, in one loop, what a short sequence of NumPy operations of
 :class:`fingerloc.map.pose_filter.PoseFilter` did, with the same floating

@@ -1,6 +1,6 @@
 """The likelihood field's per-particle sum, compiled (private; :mod:`fingerloc.map.scan_map`).
 
-Speed (issue 17; 2.5 times the first kernel, the same figures bit for bit):
+Speed (2.5 times the first kernel, the same figures bit for bit):
 each particle's end points are put in cells first (a loop the compiler
 vectorises; the bounds test on the floored coordinates as floats, which is
 the integer test of the floored values), then the table is read; two

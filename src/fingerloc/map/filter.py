@@ -633,7 +633,7 @@ class FilterResult:
 
 
 class SharedPlaceSteps:
-    """The beliefs of a :class:`MarkovFilter` along one run, recorded once and replayed (private; issue 17).
+    """The beliefs of a :class:`MarkovFilter` along one run, recorded once and replayed (private).
 
     Several pose-filter runs that differ only in the pose filter's settings
     (:func:`fingerloc.pipeline.tracker.tune_pose_filter`'s grid) run the same

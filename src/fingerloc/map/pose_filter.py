@@ -309,7 +309,7 @@ class PoseFilter:
         if self.centres.shape[0] > 256:  # many places: the tree
             d, j = self._tree.query(xy)
             return np.asarray(d, dtype=np.float64), np.asarray(j, dtype=np.int64)
-        from ._nearest import nearest_centres  # the tree's answer, compiled brute force (issue 17)
+        from ._nearest import nearest_centres  # the tree's answer, compiled brute force
 
         return nearest_centres(xy, self.centres)
 

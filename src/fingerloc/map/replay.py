@@ -10,7 +10,7 @@ __all__ = ["SharedDraws"]
 
 
 class SharedDraws:
-    """The random draws of one seed, recorded by a first run and replayed by the next (private; issue 17).
+    """The random draws of one seed, recorded by a first run and replayed by the next (private).
 
     Runs of the filter that differ only in settings which do not change the
     *sequence* of draws (the tuning grid of

@@ -1,4 +1,4 @@
-"""Places from a trajectory: the real-log protocol as a library function (issue 12).
+"""Places from a trajectory: the real-log protocol as a library function.
 
 A recorded run is a sequence of scans (or observations) with poses. Its first
 part maps, the rest may be queried:

@@ -1,4 +1,4 @@
-"""Named configurations of the place model, one per kind of sensor (issue 12).
+"""Named configurations of the place model, one per kind of sensor.
 
 A *preset* is a plain dictionary of :class:`~fingerloc.model.PlaceModel`
 arguments in JSON form (alignment costs by name: ``"unit"`` or

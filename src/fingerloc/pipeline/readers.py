@@ -1,4 +1,4 @@
-"""Raw files -> observations: CARMEN logs, ROS bags and JSON Lines as one kind of *run* (issue 12).
+"""Raw files -> observations: CARMEN logs, ROS bags and JSON Lines as one kind of *run*.
 
 A :class:`Run` is a recorded sequence in order: per item a name, an optional
 pose and timestamp, and (for laser logs) the raw scan from which an

@@ -92,7 +92,7 @@ class ProfileTerm(IndexedTerm[FArray]):
             hint = ""
             if self.shape_ is not None and {query.shape[0], self.shape_[0]} == {36, 72} and query.shape[1:] == self.shape_[1:]:
                 hint = (
-                    " (fingerloc's panorama profiles had 72 sectors before issue 14's second pass, 36 since: "
+                    " (fingerloc's panorama profiles had 72 sectors in older versions, 36 now: "
                     "extract the references and the queries again with one version and learn again)"
                 )
             raise InvalidParameterError(
