@@ -261,8 +261,39 @@ def test_the_same_bench_from_a_labels_csv(tour, tmp_path, capsys):
     pre = json.loads(out.read_text())["preset"]["area"]
     assert pre["n_queries"] == 6 and pre["top1"] == 1.0 and pre["calibration"]["wrong"] == 0
     assert "preset panorama by area: top-1 1.000" in stdout
+    # the same models give the single terms and the sum without its tempering factor
+    var = pre["variants"]
+    assert var["preset"]["top1"] == pre["top1"] and {"A", "K"} <= set(var) and "AP" not in var and "Fp" not in var
+    assert pre["temper"]["median"] == 1.0 and "untempered" not in var  # the preset does not temper
+    assert "same models, A: top-1" in stdout
     code, _, err = run_cli(capsys, "bench", "panorama", photos, "--labels", csv, "--areas", blocks)
     assert code == 2 and "one of them" in err
+
+
+def test_preset_only_with_other_weights_and_a_tempered_model(tour, tmp_path, capsys):
+    photos, _ = tour
+    csv = tmp_path / "labels.csv"
+    csv.write_text("file,place\n" + "".join(f"{r}/{r}{k}.png,room-{r}\n" for r in "ab" for k in range(3)))
+    out = tmp_path / "res.json"
+    # only the PlaceModel answers, with the preset's weights replaced
+    code, stdout, err = run_cli(capsys, "bench", "panorama", photos, "--labels", csv, "--width", 360, "--preset",
+                                "panorama", "--preset-only", "--weights", "Fp=0,A=1,AP=1,K=1", "--json", out)  # fmt: skip
+    assert code == 0, err
+    res = json.loads(out.read_text())
+    assert res["places"] == {} and res["photos"] == 6
+    assert res["preset"]["area"]["options"]["weights"] == {"Fp": 0.0, "A": 1.0, "AP": 1.0, "K": 1.0}
+    assert "AP" in res["preset"]["area"]["variants"] and "leave-one-out top-1" not in stdout
+    code, _, err = run_cli(capsys, "bench", "panorama", photos, "--labels", csv, "--weights", "A=1")
+    assert code == 2 and "go with --preset" in err
+    # tempered models: the same answers with and without the factor
+    from fingerloc.experiments.panorama import extract_features, load_labels_csv
+    from fingerloc.experiments.panorama_model import run_preset_loo
+
+    rows = load_labels_csv(csv)
+    obs = [f.observation for f in extract_features(photos, rows, width=360)]
+    tempered = run_preset_loo(obs, [r.area for r in rows], overrides={"temper": True})
+    assert tempered["options"]["temper"] is True and tempered["temper"]["median"] != 1.0
+    assert tempered["variants"]["untempered"]["top1"] == tempered["top1"]
 
 
 def test_calibration_against_a_hand_count():
@@ -276,6 +307,10 @@ def test_calibration_against_a_hand_count():
     assert cal["ece"] == pytest.approx(0.5 * 0.4 + 0.5 * 0.4)
     assert cal["accuracy"] == 0.75 and cal["wrong"] == 1 and cal["wrong_above_0.9"] == 0.0
     assert cal["mean_confidence"] == pytest.approx(0.75)
+    assert cal["wrong_above_0.99"] == 0.0
+    # a fifth query answered wrong at 0.995: one of the two wrong answers above 0.9 and above 0.99
+    loud = calibration(np.log(np.vstack([p, [0.005, 0.995]])), np.append(truth, 0))
+    assert loud["wrong"] == 2 and loud["wrong_above_0.9"] == 0.5 and loud["wrong_above_0.99"] == 0.5
 
 
 def test_tempering_fit_on_the_other_queries_softens_an_overconfident_sum():

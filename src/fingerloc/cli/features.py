@@ -300,6 +300,15 @@ def bench_panorama_cmd(
         help="Also answer each query with a PlaceModel of this preset fit on the other photos (slow).",
         show_default=False,
     ),
+    weights: str | None = typer.Option(
+        None,
+        "--weights",
+        help="With --preset: its term weights replaced, 'fit' or TERM=W,... as for learn (terms left out weigh 1).",
+        show_default=False,
+    ),
+    preset_only: bool = typer.Option(
+        False, "--preset-only", help="With --preset: only the PlaceModel answers (skip the single terms and fusions)."
+    ),
     unknown_prior: float = typer.Option(
         0.1, "--unknown-prior", min=0.0, max=0.99, help="With --preset: prior of the unknown place it reports."
     ),
@@ -327,11 +336,16 @@ def bench_panorama_cmd(
         raise InvalidParameterError(f"--width must be >= 64 columns, got {width}")
     if (areas is None) == (labels is None):
         raise InvalidParameterError("give --areas (a tour's area definitions) or --labels (a labels CSV), one of them")
+    overrides: dict[str, Any] = {}
     if preset is not None:
         from ..pipeline.presets import PRESETS
+        from .options import model_overrides
 
         if preset not in PRESETS:
             raise InvalidParameterError(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        overrides = model_overrides(weights=weights)
+    elif weights is not None or preset_only:
+        raise InvalidParameterError("--weights and --preset-only go with --preset")
     with Progress(console=real_console(err_console), transient=True) as progress:
         tasks: dict[str, object] = {}
 
@@ -340,20 +354,23 @@ def bench_panorama_cmd(
                 tasks[name] = progress.add_task(name, total=total)
             progress.update(tasks[name], completed=done, total=total)  # type: ignore[arg-type]
 
-        res = run_panorama_bench(
-            photo_dir,
-            areas,
-            labels=labels,
-            minimap=minimap,
-            cache=cache,
-            spacing=spacing,
-            n_components=components,
-            width=width,
-            shortlist=shortlist,
-            on_step=step,
-        )
+        if preset_only:
+            res: dict[str, Any] = {"photos": None, "places": {}}
+        else:
+            res = run_panorama_bench(
+                photo_dir,
+                areas,
+                labels=labels,
+                minimap=minimap,
+                cache=cache,
+                spacing=spacing,
+                n_components=components,
+                width=width,
+                shortlist=shortlist,
+                on_step=step,
+            )
         if preset is not None or speed_photos:
-            _bench_panorama_model(res, photo_dir, areas, labels, minimap, cache, width, spacing, preset,
+            _bench_panorama_model(res, photo_dir, areas, labels, minimap, cache, width, spacing, preset, overrides,
                                   unknown_prior, max_queries, speed_photos, step)  # fmt: skip
     _print_panorama(res, PANORAMA_METHODS, Table)
     write_json(json_out, res)
@@ -369,6 +386,7 @@ def _bench_panorama_model(
     width: int,
     spacing: float,
     preset: str | None,
+    overrides: dict[str, Any],
     unknown_prior: float,
     max_queries: int | None,
     speed_photos: int,
@@ -386,6 +404,7 @@ def _bench_panorama_model(
 
     photos = load_tour_layout(areas, minimap) if areas is not None else load_labels_csv(labels)  # type: ignore[arg-type]
     feats = extract_features(photo_dir, photos, cache=cache, width=width)
+    res["photos"] = sum(f is not None for f in feats)
     if preset is not None:
         res["preset"] = {}
         for name, labs in (("area", places_by_area(photos)), ("position", places_by_position(photos, spacing=spacing))):
@@ -396,6 +415,7 @@ def _bench_panorama_model(
                 [feats[i].observation for i in idx],  # type: ignore[union-attr]
                 [str(labs[i]) for i in idx],
                 preset=preset,
+                overrides=overrides,
                 unknown_prior=unknown_prior,
                 max_queries=max_queries,
                 on_step=_stepper(step, f"{preset} by {name}"),
@@ -419,6 +439,12 @@ def _stepper(step: Any, name: str) -> Any:
 
 
 def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: Any) -> None:
+    if res["places"]:
+        _print_methods(res, methods, table_cls)
+    _print_extras(res)
+
+
+def _print_methods(res: dict[str, Any], methods: tuple[str, ...], table_cls: Any) -> None:
     table = table_cls(title=f"leave-one-out top-1 / mean rank / calibration error on {res['photos']} photos")
     table.add_column("method")
     for name, r in res["places"].items():
@@ -433,6 +459,9 @@ def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: An
             )
         table.add_row(m, *cells)
     console.print(table)
+
+
+def _print_extras(res: dict[str, Any]) -> None:
     kp = res.get("keypoints", {})
     if kp:
         tilt = "-" if kp.get("tilt_deg") is None else f"{kp['tilt_deg']:.2f} deg"
@@ -458,11 +487,19 @@ def _print_panorama(res: dict[str, Any], methods: tuple[str, ...], table_cls: An
         unk = p["unknown"]
         console.print(
             f"preset {p['preset']} by {name}: top-1 {_fmt(p['top1'])} of {p['n_queries']}; ECE {_fmt(cal.get('ece'))}, "
-            f"mean confidence {_fmt(cal.get('mean_confidence'))}, wrong answers above 0.9: "
-            f"{_fmt(cal.get('wrong_above_0.9'))} of {cal.get('wrong', 0)}; P(unknown) known places "
+            f"mean confidence {_fmt(cal.get('mean_confidence'))}, wrong answers above 0.9 / 0.99: "
+            f"{_fmt(cal.get('wrong_above_0.9'))} / {_fmt(cal.get('wrong_above_0.99'))} of {cal.get('wrong', 0)}; "
+            f"P(unknown) known places "
             f"{_fmt(unk['known']['mean'])}, unknown places {_fmt(unk['unknown']['mean'])}; "
             f"headings of right answers {p['heading_from']}"
         )
+        for v, f in p.get("variants", {}).items():
+            if v != "preset":
+                c = f["calibration"]
+                console.print(
+                    f"  same models, {v}: top-1 {f['top1']:.3f}; ECE {c['ece']:.2f}, wrong answers above 0.9 / 0.99: "
+                    f"{_fmt(c['wrong_above_0.9'])} / {_fmt(c['wrong_above_0.99'])} of {c['wrong']}"
+                )
     sp = res.get("speed")
     if sp:
         console.print(

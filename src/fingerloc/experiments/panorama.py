@@ -425,7 +425,8 @@ def calibration(log_post: FArray, truth: NDArray[np.int64], *, bins: int = 10) -
     over ``bins`` equal-width confidence bins of ``|accuracy - mean
     confidence|``, weighted by the bin's share of queries), ``accuracy``,
     ``mean_confidence``, ``wrong_above_0.9`` (share of the wrong answers whose
-    posterior exceeds 0.9) and ``wrong`` (their number).
+    posterior exceeds 0.9), ``wrong_above_0.99`` (the same above 0.99:
+    confidently wrong answers) and ``wrong`` (their number).
     """
     p = np.exp(log_post - log_post.max(axis=1, keepdims=True))
     p /= p.sum(axis=1, keepdims=True)
@@ -446,6 +447,7 @@ def calibration(log_post: FArray, truth: NDArray[np.int64], *, bins: int = 10) -
         "mean_confidence": float(conf.mean()) if conf.size else None,
         "wrong": int(wrong.sum()),
         "wrong_above_0.9": float(np.mean(conf[wrong] > 0.9)) if wrong.any() else None,
+        "wrong_above_0.99": float(np.mean(conf[wrong] > 0.99)) if wrong.any() else None,
     }
 
 

@@ -58,7 +58,11 @@ def run_preset_loo(
     Returns
     -------
     dict
-        ``top1``, ``n_queries``, ``calibration``, ``unknown`` (mean
+        ``top1``, ``n_queries``, ``calibration``, ``temper`` (median, least
+        and largest tempering factor of the models), ``variants`` (name ->
+        ``top1`` and ``calibration`` of the same models' posterior: ``preset``,
+        ``untempered`` (the weighted sum without the factor, with
+        ``temper=True``) and each term of positive weight alone), ``unknown`` (mean
         probability of the unknown place for known and unknown queries, and
         the share above 0.5 of each), ``heading_from`` (counts of the heading
         sources of the right answers), ``options`` (the model's options).
@@ -79,8 +83,9 @@ def run_preset_loo(
             unknown = sorted(rng.choice(unknown, max_queries, replace=False).tolist())
     given = {**(overrides or {}), "unknown_prior": unknown_prior}
     resolved = resolve_preset(preset, list(obs), given)
-    rows: list[np.ndarray] = []
+    rows: dict[str, list[np.ndarray]] = {}
     truth: list[int] = []
+    tempers: list[float] = []
     p_unknown: dict[str, list[float]] = {"known": [], "unknown": []}
     sources: dict[str, int] = {}
     hits = 0
@@ -89,15 +94,17 @@ def run_preset_loo(
         train = [o.with_label(labels[i]) for i, o in enumerate(obs) if i != k]
         model = resolved.model().fit(train)
         q = [obs[k]]
-        logp = model.predict_log_proba(q)[0]
+        terms = model.term_log_likelihoods(q)
+        joint = model.combine(terms)
         p_unknown[kind].append(float(model.predict_unknown_proba(q)[0]))
         if kind == "known":
+            tau = float(model.__dict__.get("temper_", 1.0))
+            tempers.append(tau)
+            for name, row in _variant_rows(model, terms, joint[0], tau).items():
+                rows.setdefault(name, []).append(row)
             col = model.column_of(labels[k])
-            full = np.full(len(model.classes_), -np.inf)
-            full[:] = logp
-            rows.append(full)
             truth.append(col)
-            best = int(np.argmax(logp))
+            best = int(np.argmax(joint[0]))
             if best == col:
                 hits += 1
                 _, _, src = model.heading_sources(q, [model.classes_[best]])
@@ -105,14 +112,20 @@ def run_preset_loo(
         if on_step is not None:
             on_step(step + 1, len(todo))
     # every known query's model has the same places (its place keeps another photo): one calibration
-    cal = calibration(np.stack(rows), np.asarray(truth, dtype=np.int64)) if rows else None
+    y = np.asarray(truth, dtype=np.int64)
+    variants = {}
+    for name, r in rows.items():
+        m = np.stack(r)
+        variants[name] = {"top1": float(np.mean(np.argmax(m, axis=1) == y)), "calibration": calibration(m, y)}
     return {
         "preset": resolved.name,
         "options": {k: v for k, v in resolved.options.items() if k in ("terms", "weights", "temper")},
         "n_queries": len(known),
         "n_unknown_queries": len(unknown),
         "top1": hits / len(known) if known else None,
-        "calibration": cal,
+        "calibration": variants["preset"]["calibration"] if rows else None,
+        "temper": {"median": float(np.median(tempers)), "min": min(tempers), "max": max(tempers)} if tempers else None,
+        "variants": variants,
         "unknown": {
             kind: {
                 "mean": float(np.mean(v)) if v else None,
@@ -122,6 +135,24 @@ def run_preset_loo(
         },
         "heading_from": sources,
     }
+
+
+def _variant_rows(model: Any, terms: dict[str, np.ndarray], joint: np.ndarray, tau: float) -> dict[str, np.ndarray]:
+    """One query's log-posterior rows ``(P,)``: the model's, its sum without tempering, each weighted term alone.
+
+    The variants come from the same fitted model (each term is calibrated on
+    its own, so a term alone is the model with only that term's weight).
+    """
+    from ..model import normalise_log
+
+    out = {"preset": normalise_log(joint[None, :])[0]}
+    if tau != 1.0:
+        out["untempered"] = normalise_log(joint[None, :] / tau)[0]
+    weights = model.weights_ if model.weights == "fit" else (model.weights or {})
+    for name, ll in terms.items():
+        if float(weights.get(name, 1.0)) > 0.0:
+            out[name] = normalise_log(np.asarray(ll, dtype=np.float64)[:1])[0]
+    return out
 
 
 def speed(

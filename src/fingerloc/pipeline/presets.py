@@ -66,8 +66,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     },
     "panorama": {
         "description": "panoramic camera: the appearance term A + the local-feature term K (SIFT matches verified "
-        "by a relative pose), each calibrated leave-one-out, weight 1 each, their sum tempered on held-out training "
-        "views; K's verified rotation gives the heading, the aligned-profile term AP and the fingerprint string "
+        "by a relative pose), each calibrated leave-one-out, weight 1 each; K's verified rotation gives the heading, the aligned-profile term AP and the fingerprint string "
         "(matched over every rotation) its fallbacks, both with weight 0",
         "model": {
             "terms": ["Fp", "A", "AP", "K"],
@@ -75,7 +74,6 @@ PRESETS: dict[str, dict[str, Any]] = {
             "costs": "feature",
             "fp_likelihood": "exp",
             "weights": {"Fp": 0.0, "A": 1.0, "AP": 0.0, "K": 1.0},
-            "temper": True,
         },
         "features": {},
     },
