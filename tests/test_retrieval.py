@@ -155,3 +155,33 @@ def test_index_gives_the_linear_scans_best_places_on_a_real_log(name):
     res = check_same_as_linear(model, index, queries, k=5)
     check_same_as_linear(model, index, queries[:10], k=5, tol=1e-9)
     assert res.scored.mean() < len(model.classes_)
+
+
+def test_localize_answers_through_the_index_are_those_of_the_full_scan(campus, monkeypatch):
+    """answer_chunk (the localize command's table and summary) gives the same rows, ranks and headings either way."""
+    from fingerloc import retrieval
+    from fingerloc.pipeline.localize import answer_chunk
+
+    model, queries = campus
+    q = queries[:12] + [queries[12].with_label(None)]
+    names = [f"q{i}" for i in range(len(q))]
+    monkeypatch.setattr(retrieval, "INDEX_MIN_PLACES", 10**9)
+    assert retrieval.index_for(model) is None
+    full = answer_chunk(model, q, names, 5, 4, table=True, records=False)
+    monkeypatch.setattr(retrieval, "INDEX_MIN_PLACES", 2)
+    assert retrieval.index_for(model) is not None
+    fast = answer_chunk(model, q, names, 5, 4, table=True, records=False)
+    assert fast.rows == full.rows
+    assert fast.rank_of_true == full.rank_of_true
+    assert fast.pairs == full.pairs
+
+
+def test_index_for_leaves_small_and_unbounded_models_to_the_full_scan(campus):
+    from fingerloc.retrieval import index_for
+
+    model, _ = campus
+    assert index_for(model) is None  # 60 places: below the threshold
+    assert index_for(model, min_places=2) is index_for(model, min_places=2)  # built once
+    train, _ = campus_observations(12, camera=True, random_heading=False, seed=3)
+    paper = resolve_preset("paper").model().fit(train)
+    assert index_for(paper, min_places=2) is None  # mixture terms have no bounds

@@ -41,6 +41,7 @@ scored in full.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -50,11 +51,11 @@ import numpy as np
 from ._types import FArray, IArray
 from .errors import InvalidParameterError
 from .observation import Observation
-from .terms.bounds import PlaceLayout, TermBound, bound_for
+from .terms.bounds import DenseBound, PlaceLayout, TermBound, bound_for, has_bound
 from .terms.fingerprint import FingerprintTerm
 from .terms.range import RangeTerm
 
-__all__ = ["PlaceIndex", "SearchResult", "place_layout"]
+__all__ = ["INDEX_MIN_PLACES", "POSTERIOR_TOL", "PlaceIndex", "SearchResult", "index_for", "place_layout"]
 
 #: Most views of a group (one block of the bound kernels, :data:`fingerloc.align._bounds.GROUP_LANES`).
 GROUP_VIEWS = 64
@@ -241,7 +242,7 @@ class PlaceIndex:
             those scored: every probability then within ``tol`` of the linear scan's.
         truth : sequence of labels, optional
             The true place of each observation: its exact rank is computed too (scoring every place
-            that might rank above it).
+            that might rank above it). An entry that is None or no learned place gets rank 0.
         """
         obs = list(observations)
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
@@ -263,11 +264,24 @@ class PlaceIndex:
         for i, o in enumerate(obs):
             if not isinstance(o, Observation):
                 raise InvalidParameterError(f"observations[{i}] must be an Observation, got {type(o).__name__}")
-            true_col = None if truth is None else self.model.column_of(truth[i])
+            true_col = None if truth is None else self._column(truth[i])
             places, joint, lp, mass, scored, rank = self._one(o, kk, tol, true_col)
             res.places[i], res.joint[i], res.log_posterior[i] = places, joint, lp
             res.mass_bound[i], res.scored[i], res.rank_of_truth[i] = mass, scored, rank
         return res
+
+    def _column(self, label: Hashable | None) -> int | None:
+        if label is None:
+            return None
+        try:
+            return self.model.column_of(label)
+        except InvalidParameterError:
+            return None
+
+    @property
+    def bounded(self) -> bool:
+        """True when every term of non-zero weight has bounds of its own (none is scored in full for every query)."""
+        return not self.dense and bool(self.bounds) and not any(isinstance(b, DenseBound) for b in self.bounds.values())
 
     def _one(self, o: Observation, k: int, tol: float | None, true_col: int | None) -> tuple[IArray, FArray, FArray, float, int, int]:
         if self.dense or not self.bounds:
@@ -378,6 +392,44 @@ class _Search:
             self.refine(self.ix.group_of[coarse])
         else:
             self.score(top[:64])
+
+
+#: Places from which :func:`index_for` gives an index (below, the linear scan is at least as fast).
+INDEX_MIN_PLACES = 5000
+#: The posterior tolerance ``localize`` asks of the index: every probability within this of the linear scan's.
+POSTERIOR_TOL = 1e-9
+
+_CACHE: weakref.WeakKeyDictionary[Any, tuple[tuple[Any, ...], PlaceIndex]] = weakref.WeakKeyDictionary()
+
+
+def _model_key(model: Any) -> tuple[Any, ...]:
+    """What an index depends on: the model's places, their views, its terms and their weights."""
+    views = sum(len(p.observations) for p in model.places_.values())
+    return (len(model.classes_), views, id(model.terms_), tuple(id(t) for t in model.terms_.values()), tuple(sorted(model.weights_.items())))
+
+
+def index_for(model: Any, *, min_places: int | None = None) -> PlaceIndex | None:
+    """The exact index of a fitted model when it pays, else None (score every place).
+
+    An index is given when the model has at least ``min_places`` places (default
+    :data:`INDEX_MIN_PLACES`) and every term of non-zero
+    weight has bounds of its own (:attr:`PlaceIndex.bounded`: the ``laser2d`` preset's fingerprint
+    and range terms; mixture and appearance terms are not bounded, so the ``paper`` and
+    ``panorama`` presets are scored in full). It is built once a model and kept while the model's
+    places, views, terms and weights stay the same (``add_places`` builds a new one).
+    """
+    model._check_fitted()
+    if len(model.classes_) < (INDEX_MIN_PLACES if min_places is None else min_places) or model.rotate_mixtures:
+        return None
+    if not all(has_bound(t) for name, t in model.terms_.items() if model._weight(name) != 0.0):
+        return None
+    key = _model_key(model)
+    hit = _CACHE.get(model)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    index = PlaceIndex(model)
+    _CACHE[model] = (key, index)
+    return index
 
 
 def _weighted(weights: dict[str, float], per_term: dict[str, FArray]) -> FArray:
