@@ -163,7 +163,7 @@ def test_localize_answers_through_the_index_are_those_of_the_full_scan(campus, m
     from fingerloc.pipeline.localize import answer_chunk
 
     model, queries = campus
-    q = queries[:12] + [queries[12].with_label(None)]
+    q = [*queries[:12], queries[12].with_label(None)]
     names = [f"q{i}" for i in range(len(q))]
     monkeypatch.setattr(retrieval, "INDEX_MIN_PLACES", 10**9)
     assert retrieval.index_for(model) is None

@@ -28,8 +28,12 @@ posterior given (normalised over the scored places) is at most a factor
 below ``mass_bound``. With ``tol``, refining goes on until ``mass_bound <=
 tol``: the posterior of every place is then within ``tol`` of the linear
 scan's (absolute), whatever the place. Where the posterior is broad (many
-places within a few nats, as on a campus of similar rooms) that means
-scoring most places; the best places alone never do.
+places within a few tens of nats, as on a campus of similar rooms) that means
+scoring most places; the best places alone never do. When more than
+:data:`_FULL_FRACTION` of the places would have to be scored, the query is
+scored against every place at once instead (the linear scan: its answer is
+the linear scan's by construction, and one call is cheaper than scoring
+most places in pieces).
 
 Terms without bounds of their own (the mixtures, the appearance terms) are
 scored in full for every query and bound by their exact value; terms of
@@ -137,7 +141,7 @@ def place_layout(features: FArray, views: IArray, *, group_views: int = GROUP_VI
 
 def _features(model: Any) -> tuple[FArray, IArray]:
     """Each place's mean range descriptor and mean letter counts, scaled to nats; and its views."""
-    from .align._costs import CODE, N_LETTERS
+    from .align._costs import N_LETTERS
 
     n_places = len(model.classes_)
     cols: list[FArray] = []
@@ -147,12 +151,13 @@ def _features(model: Any) -> tuple[FArray, IArray]:
         if isinstance(t, RangeTerm) and t.every_place_described():
             cols.append(np.stack([d.mean(axis=0) for d in t.descriptors_]) * (w * t.lambda_))
         elif isinstance(t, FingerprintTerm):
-            counts = np.zeros((n_places, N_LETTERS))
+            from .align._encode import encode_many
+
             per = np.diff(np.append(t._starts, len(t._refs)))
-            for j, fps in enumerate(t.fingerprints_):
-                for fp in fps:
-                    for ch in set(fp.letters):
-                        counts[j, CODE[ch]] += fp.letters.count(ch)
+            codes, off = encode_many([fp.letters for fp in t._refs])
+            owner = np.repeat(np.repeat(np.arange(n_places), per), np.diff(off))  # the place of each letter
+            counts = np.zeros((n_places, N_LETTERS))
+            np.add.at(counts, (owner, codes.astype(np.int64)), 1.0)
             counts /= np.maximum(per, 1)[:, None]
             scale = w * (t.lambda_ if t.likelihood == "exp" else 0.1)
             cols.append(counts * 0.5 * scale)
@@ -295,6 +300,7 @@ class _Search:
 
     def __init__(self, index: PlaceIndex, o: Observation, k: int, tol: float | None, true_col: int | None) -> None:
         self.ix = index
+        self.o = o
         self.k, self.tol, self.true_col = k, tol, true_col
         self.prep = {name: b.prepare(o) for name, b in index.bounds.items()}
         self.coarse = {name: b.coarse(self.prep[name]) for name, b in index.bounds.items()}
@@ -365,7 +371,9 @@ class _Search:
             if cand.size == 0:
                 if self.tol is None or self._mass() <= self.tol:
                     break
-                self._refine_mass()
+                if self._refine_mass():  # most places would be scored: the linear scan, at once
+                    joint = np.asarray(self.ix.model.joint_log_likelihood([self.o])[0], dtype=np.float64)
+                    return _finish(np.arange(ix.n_places), joint, k, 0.0, self.true_col)
                 cand = np.flatnonzero(self.level < 3)
                 continue
             coarse = cand[self.level[cand] == 1]
@@ -383,15 +391,34 @@ class _Search:
     def _mass(self) -> float:
         return _mass(self.joint, self.ub[self.level < 3])
 
-    def _refine_mass(self) -> None:
-        """Refine the places that hold the most unscored posterior mass (``tol``)."""
+    def _refine_mass(self) -> bool:
+        """Refine or score, at once, the fewest places whose bounds hold more unscored posterior mass than ``tol``.
+
+        True when that would leave at most :data:`_FULL_FRACTION` of the places unscored: score every
+        place instead (the linear scan, in one call, is cheaper than scoring most places in pieces).
+        """
         unscored = np.flatnonzero(self.level < 3)
-        top = unscored[np.argsort(-self.ub[unscored], kind="stable")[:256]]
-        coarse = top[self.level[top] == 1]
+        top = float(np.max(self.joint)) if self.joint.size else -math.inf
+        if not math.isfinite(top):
+            return True
+        ub = self.ub[unscored]
+        order = np.argsort(-ub, kind="stable")
+        z = float(np.exp(self.joint - top).sum())
+        tail = np.cumsum(np.exp(ub[order] - top)[::-1])[::-1]  # tail[i]: bound on the mass of order[i:]
+        need = max(1, int(np.searchsorted(-tail, -float(self.tol or 0.0) * z, side="left")))
+        if self.joint.size + need > _FULL_FRACTION * self.ix.n_places:
+            return True
+        chosen = unscored[order[:need]]
+        coarse = chosen[self.level[chosen] == 1]
         if coarse.size:
             self.refine(self.ix.group_of[coarse])
         else:
-            self.score(top[:64])
+            self.score(chosen)
+        return False
+
+
+#: Places to score for ``tol`` beyond which the linear scan is run instead (a fraction of all places).
+_FULL_FRACTION = 0.4
 
 
 #: Places from which :func:`index_for` gives an index (below, the linear scan is at least as fast).
