@@ -64,11 +64,11 @@ def indexes(campus):
     which=st.lists(st.integers(0, 59), min_size=1, max_size=4),
     k=st.integers(1, 12),
     group=st.sampled_from([3, 8, 64]),
-    exact_posterior=st.booleans(),
+    tol=st.sampled_from([None, 1e-9, 1e-3, 0.1]),
 )
-def test_index_gives_the_linear_scans_best_places_on_a_campus(campus, indexes, which, k, group, exact_posterior):
+def test_index_gives_the_linear_scans_best_places_on_a_campus(campus, indexes, which, k, group, tol):
     model, queries = campus
-    check_same_as_linear(model, indexes[group], [queries[i] for i in which], k=k, tol=1e-9 if exact_posterior else None)
+    check_same_as_linear(model, indexes[group], [queries[i] for i in which], k=k, tol=tol)
 
 
 def _random_view(rng, label=None):

@@ -361,6 +361,8 @@ class _Search:
         top = np.argpartition(-self.ub, m - 1)[:m]
         self.refine(ix.group_of[top])
         self.score(top[np.argsort(-self.ub[top], kind="stable")][: max(2 * k, 16)])
+        if self.tol is not None and self._needs_most():  # the posterior to tol would score most places anyway
+            return self._full()
         # 2. the fine bounds of every group holding a place the coarse bounds keep (whole groups skipped)
         cand = np.flatnonzero((self.level < 3) & (self.ub >= self.cut()))
         self.refine(ix.group_of[cand[self.level[cand] == 1]])
@@ -372,8 +374,7 @@ class _Search:
                 if self.tol is None or self._mass() <= self.tol:
                     break
                 if self._refine_mass():  # most places would be scored: the linear scan, at once
-                    joint = np.asarray(self.ix.model.joint_log_likelihood([self.o])[0], dtype=np.float64)
-                    return _finish(np.arange(ix.n_places), joint, k, 0.0, self.true_col)
+                    return self._full()
                 cand = np.flatnonzero(self.level < 3)
                 continue
             coarse = cand[self.level[cand] == 1]
@@ -391,24 +392,38 @@ class _Search:
     def _mass(self) -> float:
         return _mass(self.joint, self.ub[self.level < 3])
 
-    def _refine_mass(self) -> bool:
-        """Refine or score, at once, the fewest places whose bounds hold more unscored posterior mass than ``tol``.
+    def _full(self) -> tuple[IArray, FArray, FArray, float, int, int]:
+        """Every place scored at once: the linear scan's answer."""
+        joint = np.asarray(self.ix.model.joint_log_likelihood([self.o])[0], dtype=np.float64)
+        return _finish(np.arange(self.ix.n_places), joint, self.k, 0.0, self.true_col)
 
-        True when that would leave at most :data:`_FULL_FRACTION` of the places unscored: score every
-        place instead (the linear scan, in one call, is cheaper than scoring most places in pieces).
-        """
+    def _needed(self) -> tuple[IArray, int]:
+        """Places not scored, most mass first, and how many of them hold more than ``tol`` of the posterior (bounds)."""
         unscored = np.flatnonzero(self.level < 3)
         top = float(np.max(self.joint)) if self.joint.size else -math.inf
         if not math.isfinite(top):
-            return True
+            return unscored, unscored.size
         ub = self.ub[unscored]
         order = np.argsort(-ub, kind="stable")
         z = float(np.exp(self.joint - top).sum())
         tail = np.cumsum(np.exp(ub[order] - top)[::-1])[::-1]  # tail[i]: bound on the mass of order[i:]
-        need = max(1, int(np.searchsorted(-tail, -float(self.tol or 0.0) * z, side="left")))
+        return unscored[order], max(1, int(np.searchsorted(-tail, -float(self.tol or 0.0) * z, side="left")))
+
+    def _needs_most(self) -> bool:
+        """True when, by the bounds known, more than :data:`_FULL_FRACTION` of the places are to be scored."""
+        _, need = self._needed()
+        return self.joint.size + need > _FULL_FRACTION * self.ix.n_places
+
+    def _refine_mass(self) -> bool:
+        """Refine or score, at once, the fewest places whose bounds hold more unscored posterior mass than ``tol``.
+
+        True when that would score more than :data:`_FULL_FRACTION` of the places: score every
+        place instead (the linear scan, in one call, is cheaper than scoring most places in pieces).
+        """
+        ordered, need = self._needed()
         if self.joint.size + need > _FULL_FRACTION * self.ix.n_places:
             return True
-        chosen = unscored[order[:need]]
+        chosen = ordered[:need]
         coarse = chosen[self.level[chosen] == 1]
         if coarse.size:
             self.refine(self.ix.group_of[coarse])
