@@ -354,6 +354,8 @@ class _Search:
 
     def run(self) -> tuple[IArray, FArray, FArray, float, int, int]:
         ix, k = self.ix, self.k
+        if self.tol is not None and self._broad():  # the posterior to tol: most places, as far as the bounds tell
+            return self._full()
         if self.true_col is not None:  # the truth first: its score bounds what must be scored
             self.score(np.array([self.true_col]))
         # 1. a first threshold: the groups of the places with the best coarse bounds, refined, their best scored
@@ -408,6 +410,19 @@ class _Search:
         z = float(np.exp(self.joint - top).sum())
         tail = np.cumsum(np.exp(ub[order] - top)[::-1])[::-1]  # tail[i]: bound on the mass of order[i:]
         return unscored[order], max(1, int(np.searchsorted(-tail, -float(self.tol or 0.0) * z, side="left")))
+
+    def _broad(self) -> bool:
+        """A first guess, from the coarse bounds alone, that the posterior to ``tol`` needs most places.
+
+        True when more than :data:`_FULL_FRACTION` of the places have a bound within ``-log(tol)``
+        nats of the best bound: on a map of look-alike places, the full scan at once is then
+        cheaper than refining. A guess only: the answer is exact either way.
+        """
+        finite = self.ub[np.isfinite(self.ub)]
+        if finite.size == 0:
+            return True
+        lim = float(finite.max()) + math.log(max(float(self.tol or 0.0), 1e-300))
+        return int(np.count_nonzero(finite >= lim)) > _FULL_FRACTION * self.ix.n_places
 
     def _needs_most(self) -> bool:
         """True when, by the bounds known, more than :data:`_FULL_FRACTION` of the places are to be scored."""
