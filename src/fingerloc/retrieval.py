@@ -269,10 +269,19 @@ class PlaceIndex:
         for i, o in enumerate(obs):
             if not isinstance(o, Observation):
                 raise InvalidParameterError(f"observations[{i}] must be an Observation, got {type(o).__name__}")
-            true_col = None if truth is None else self._column(truth[i])
-            places, joint, lp, mass, scored, rank = self._one(o, kk, tol, true_col)
-            res.places[i], res.joint[i], res.log_posterior[i] = places, joint, lp
-            res.mass_bound[i], res.scored[i], res.rank_of_truth[i] = mass, scored, rank
+        cols = [None if truth is None else self._column(t) for t in (truth or [None] * n)]
+        full: list[int] = []  # queries scored against every place, together (one batched call is cheaper)
+        for i, o in enumerate(obs):
+            one = None if (self.dense or not self.bounds) else _Search(self, o, kk, tol, cols[i]).run()
+            if one is None:
+                full.append(i)
+            else:
+                _put(res, i, one)
+        for s in range(0, len(full), _FULL_BATCH):
+            part = full[s : s + _FULL_BATCH]
+            joint = np.asarray(self.model.joint_log_likelihood([obs[i] for i in part]), dtype=np.float64)
+            for row, i in enumerate(part):
+                _put(res, i, _finish(np.arange(self.n_places), joint[row], kk, 0.0, cols[i]))
         return res
 
     def _column(self, label: Hashable | None) -> int | None:
@@ -288,11 +297,6 @@ class PlaceIndex:
         """True when every term of non-zero weight has bounds of its own (none is scored in full for every query)."""
         return not self.dense and bool(self.bounds) and not any(isinstance(b, DenseBound) for b in self.bounds.values())
 
-    def _one(self, o: Observation, k: int, tol: float | None, true_col: int | None) -> tuple[IArray, FArray, FArray, float, int, int]:
-        if self.dense or not self.bounds:
-            joint = np.asarray(self.model.joint_log_likelihood([o])[0], dtype=np.float64)
-            return _finish(np.arange(self.n_places), joint, k, 0.0, true_col)
-        return _Search(self, o, k, tol, true_col).run()
 
 
 class _Search:
@@ -352,10 +356,10 @@ class _Search:
         th = self.theta()
         return th - _MARGIN * (1.0 + abs(th)) if math.isfinite(th) else -math.inf
 
-    def run(self) -> tuple[IArray, FArray, FArray, float, int, int]:
+    def run(self) -> tuple[IArray, FArray, FArray, float, int, int] | None:
         ix, k = self.ix, self.k
         if self.tol is not None and self._broad():  # the posterior to tol: most places, as far as the bounds tell
-            return self._full()
+            return None  # every place to be scored: search() does it for such queries together
         if self.true_col is not None:  # the truth first: its score bounds what must be scored
             self.score(np.array([self.true_col]))
         # 1. a first threshold: the groups of the places with the best coarse bounds, refined, their best scored
@@ -364,7 +368,7 @@ class _Search:
         self.refine(ix.group_of[top])
         self.score(top[np.argsort(-self.ub[top], kind="stable")][: max(2 * k, 16)])
         if self.tol is not None and self._needs_most():  # the posterior to tol would score most places anyway
-            return self._full()
+            return None  # every place to be scored: search() does it for such queries together
         # 2. the fine bounds of every group holding a place the coarse bounds keep (whole groups skipped)
         cand = np.flatnonzero((self.level < 3) & (self.ub >= self.cut()))
         self.refine(ix.group_of[cand[self.level[cand] == 1]])
@@ -376,7 +380,7 @@ class _Search:
                 if self.tol is None or self._mass() <= self.tol:
                     break
                 if self._refine_mass():  # most places would be scored: the linear scan, at once
-                    return self._full()
+                    return None  # every place to be scored: search() does it for such queries together
                 cand = np.flatnonzero(self.level < 3)
                 continue
             coarse = cand[self.level[cand] == 1]
@@ -393,11 +397,6 @@ class _Search:
 
     def _mass(self) -> float:
         return _mass(self.joint, self.ub[self.level < 3])
-
-    def _full(self) -> tuple[IArray, FArray, FArray, float, int, int]:
-        """Every place scored at once: the linear scan's answer."""
-        joint = np.asarray(self.ix.model.joint_log_likelihood([self.o])[0], dtype=np.float64)
-        return _finish(np.arange(self.ix.n_places), joint, self.k, 0.0, self.true_col)
 
     def _needed(self) -> tuple[IArray, int]:
         """Places not scored, most mass first, and how many of them hold more than ``tol`` of the posterior (bounds)."""
@@ -487,6 +486,16 @@ def index_for(model: Any, *, min_places: int | None = None) -> PlaceIndex | None
     index = PlaceIndex(model)
     _CACHE[model] = (key, index)
     return index
+
+
+#: Queries scored against every place in one call of ``model.joint_log_likelihood``.
+_FULL_BATCH = 64
+
+
+def _put(res: SearchResult, i: int, one: tuple[IArray, FArray, FArray, float, int, int]) -> None:
+    places, joint, lp, mass, scored, rank = one
+    res.places[i], res.joint[i], res.log_posterior[i] = places, joint, lp
+    res.mass_bound[i], res.scored[i], res.rank_of_truth[i] = mass, scored, rank
 
 
 def _weighted(weights: dict[str, float], per_term: dict[str, FArray]) -> FArray:
