@@ -226,9 +226,9 @@ def test_a_bag_without_odometry_maps_from_fingerprints_and_the_place_filter_trac
     code, _, err = run_cli(capsys, "map", bag, "--places", "fingerprints", "--pose-source", "none", "--db", cli_db)
     assert code == 0, err
     assert f"{fm.n_places} place(s) from fingerprints" in err
-    code, out, err = run_cli(capsys, "track", bag, "--db", cli_db, "--filter", "places", "--pose-source", "none", "-q")
+    code, out, err = run_cli(capsys, "track", bag, "--db", cli_db, "--pose-source", "none", "-q")  # no --filter
     assert code == 0, err
-    assert f"{len(run) - fm.n_mapping} steps" in out
+    assert "filter: places" in err and f"{len(run) - fm.n_mapping} steps" in out
     code, out, err = run_cli(capsys, "localize", bag, "--db", cli_db, "--pose-source", "none", "-q")
     assert code == 0, err
 
@@ -241,6 +241,60 @@ def test_map_from_fingerprints_refuses_queries_before_writing(tmp_path, rooms_lo
     assert code == 2 and "--queries" in err and not db.exists()
     code, _, err = run_cli(capsys, "map", rooms_log, "--places", "nowhere", "--db", db)
     assert code == 2 and not db.exists()
+
+
+def test_map_from_fingerprints_writes_all_its_outputs_or_none(tmp_path, rooms_log, capsys, monkeypatch):
+    import errno
+    import os
+
+    import fingerloc.reporting.loops as pages
+
+    db, js, rep, tum = tmp_path / "m.sqlite", tmp_path / "m.jsonl", tmp_path / "rep", tmp_path / "m.tum"
+    rep.mkdir()
+    old = {db: b"old database", js: b"old views\n", rep / "index.html": b"<p>old</p>", rep / "places.png": b"old"}
+    for path, content in old.items():
+        path.write_bytes(content)
+    draw = pages.draw_fingerprint_places
+
+    def full_disk(path, **kwargs):  # the figure is written, then the device is full
+        draw(path, **kwargs)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(pages, "draw_fingerprint_places", full_disk)
+    args = ("map", rooms_log, "--places", "fingerprints", "--db", db, "--overwrite", "--json", js, "--report", rep,
+            "--tum", tum)  # fmt: skip
+    code, _, err = run_cli(capsys, *args)
+    last = err.strip().splitlines()[-1]
+    assert code == 2 and last == f"error: cannot write {rep / 'places.png'}: no space left on the device"
+    assert "Traceback" not in err
+    assert {p: p.read_bytes() for p in old} == old  # every existing file byte-identical
+    assert sorted(os.listdir(tmp_path)) == ["m.jsonl", "m.sqlite", "m.sqlite.lock", "rep"]  # no temporary left
+    assert sorted(os.listdir(rep)) == ["index.html", "places.png"]
+    monkeypatch.setattr(pages, "draw_fingerprint_places", draw)
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0, err
+    assert db.read_bytes().startswith(b"SQLite format 3") and js.read_bytes() != old[js] and tum.exists()
+    assert b"Places from fingerprints" in (rep / "index.html").read_bytes() and (rep / "report.json").exists()
+    assert sorted(os.listdir(tmp_path)) == ["m.jsonl", "m.sqlite", "m.sqlite.lock", "m.tum", "rep"]
+    assert f"poses to {tum}" in err
+
+
+def test_map_from_fingerprints_of_a_short_run_warns_of_its_single_place(tmp_path, capsys):
+    from ._logs import write_log
+
+    log = write_log(tmp_path / "short.log", [(3.0, 3.0, 1.5, 1.5, 0.0)] * 4)  # four views of one room
+    code, _, err = run_cli(capsys, "map", log, "--places", "fingerprints", "--db", tmp_path / "s.sqlite")
+    assert code == 0, err
+    assert "1 place(s) from fingerprints" in err and "warning: the map has 1 place" in err
+
+
+def test_map_from_fingerprints_refuses_tum_without_poses_before_any_work(tmp_path, capsys):
+    bag = _bag_without_odometry(tmp_path / "noodom.bag")
+    db = tmp_path / "n.sqlite"
+    code, _, err = run_cli(capsys, "map", bag, "--places", "fingerprints", "--pose-source", "none", "--db", db,
+                           "--tum", tmp_path / "n.tum")  # fmt: skip
+    assert code == 2 and "--tum" in err and "no pose" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["noodom.bag"]
 
 
 def test_map_from_fingerprints_of_a_log_with_poses_reports_its_purity(tmp_path, rooms_log, capsys):
@@ -283,7 +337,9 @@ def test_panoramas_in_order_give_one_place_per_room_and_the_place_filter_follows
     half = np.array(room[: fm.n_mapping])
     for j in range(4):  # a place never mixes two offices
         assert not set(fm.assignment[half == j].tolist()) & set(fm.assignment[half != j].tolist())
-    code, _, err = run_cli(capsys, "map", path, "--places", "fingerprints", "--no-calibration", "--db", tmp_path / "p.sqlite")
+    code, _, err = run_cli(
+        capsys, "map", path, "--places", "fingerprints", "--no-calibration", "--db", tmp_path / "p.sqlite"
+    )
     assert code == 0, err
     pm = fl.load_map(tmp_path / "p.sqlite")
     res = pm.track(run, filter="places")  # the run the map was made from: the views after its mapping part
@@ -291,4 +347,4 @@ def test_panoramas_in_order_give_one_place_per_room_and_the_place_filter_follows
     right = [
         int(a.place) in set(fm.assignment[half == room[fm.n_mapping + t]].tolist()) for t, a in enumerate(res.answers)
     ]
-    assert sum(right) >= len(right) - 1  # the second round through the offices: the first round's places
+    assert sum(right) >= len(right) - 1  # the second pass through the offices: the first pass's places

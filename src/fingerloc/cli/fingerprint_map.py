@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from ._io import warn
 from .app import err_console
 
 __all__ = ["map_fingerprints"]
@@ -22,12 +23,18 @@ def map_fingerprints(
     json_out: Path | None,
     report: Path | None,
     data: Path,
+    tum: Path | None = None,
 ) -> None:
-    """Make the map, save it to ``db``, print one summary line; ``--json``: the labelled keyframes; ``--report``."""
+    """Make the map, save it to ``db``, print one summary line; ``--json``: the labelled keyframes; ``--report``;
+    ``--tum``: the run's poses (a run with poses only, checked before any work)."""
     from ..config import Config
+    from ..errors import InvalidParameterError
+    from ..pipeline.compat import check_map
     from ..pipeline.presets import empty_terms
     from ..pipeline.topology import PURITY_RADIUS_M, place_purity, places_from_fingerprints
 
+    if tum is not None and run.poses is None:
+        raise InvalidParameterError("--tum: the run has no pose on every scan")
     with err_console.status("mapping from fingerprints...") as status:
         fm = places_from_fingerprints(
             run, preset=preset, overrides=overrides, mapping_part=mapping_part, until=until,
@@ -39,7 +46,9 @@ def map_fingerprints(
         err_console.print(f"warning: no view has {', '.join(empty)} bearings: those terms cannot tell places apart "
                           "(see --preset / --terms)", markup=False)  # fmt: skip
     config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
-    size = fm.place_map(config).save(db)
+    place_map = fm.place_map(config)
+    warn(check_map(place_map))  # one place, views without features
+    size = place_map.save(db)
     poses = run.poses
     figures: dict[str, Any] = {}
     score = ""
@@ -63,6 +72,13 @@ def map_fingerprints(
 
         n = write_observations(json_out, fm.training)
         err_console.print(f"wrote {n} labelled keyframes to {json_out}", markup=False)
+    if tum is not None:
+        from ..atomic import replacing
+        from ._follow import write_reference
+
+        with replacing(tum) as tmp:  # renamed with the database and the other outputs when the command ends well
+            write_reference(tmp, run.timestamps, poses,
+                            warn=lambda s: err_console.print(s.replace(str(tmp), str(tum)), markup=False))  # fmt: skip
     if report is not None:
         from ..reporting.loops import write_places_report
 

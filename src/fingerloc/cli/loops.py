@@ -9,7 +9,7 @@ from typing import Any
 import typer
 
 from ..errors import InvalidParameterError
-from ._io import check_output, write_json
+from ._io import all_or_nothing, check_output, write_json
 from .app import bench_app, console, err_console
 
 __all__ = ["loops_cmd", "print_loops"]
@@ -28,9 +28,9 @@ def print_loops(js: dict[str, Any]) -> None:
     console.print("-" * len(head), soft_wrap=True)
     for name, lg in rows:
         for k, (m, f) in enumerate(lg["methods"].items()):
-            lead = f"{name:<{lw}} {lg['queries']:>7} {lg['positives']:>5}" if k == 0 else " " * (lw + 14)
+            prefix = f"{name:<{lw}} {lg['queries']:>7} {lg['positives']:>5}" if k == 0 else " " * (lw + 14)
             console.print(
-                f"{lead}  {m:<{mw}}  {f['max_f1']:>6.3f} {f['recall_at_100']:>6.3f} {f['recall_at_99']:>6.3f} "
+                f"{prefix}  {m:<{mw}}  {f['max_f1']:>6.3f} {f['recall_at_100']:>6.3f} {f['recall_at_99']:>6.3f} "
                 f"{f['average_precision']:>6.3f} {f['seconds']:>6.1f}",
                 soft_wrap=True,
             )
@@ -61,6 +61,7 @@ def print_loops(js: dict[str, Any]) -> None:
 
 
 @bench_app.command("loops")
+@all_or_nothing  # --json and the report's files renamed into place together at the end, or none
 def loops_cmd(
     logs: list[Path] = typer.Argument(..., metavar="LOG", help="Laser logs with poses (CARMEN .log/.log.gz, bags)."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the figures as JSON to this file."),

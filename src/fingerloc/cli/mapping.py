@@ -122,7 +122,7 @@ def map_cmd(
 
         map_fingerprints(run, db, preset=preset, overrides=overrides, until=until,
                          mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
-                         report=report, data=runs[0])  # fmt: skip
+                         report=report, data=runs[0], tum=tum)  # fmt: skip
         return
     doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     config = Config().with_(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +27,7 @@ from .options import (
 if TYPE_CHECKING:
     import numpy as np
 
-    from ..pipeline.placemap import PlaceMap, TrackResult
+    from ..pipeline.placemap import PlaceMap
 else:
     np = LazyModule("numpy")  # imported when a command runs, not for --help
 compat = LazyModule("fingerloc.pipeline.compat")
@@ -146,12 +145,14 @@ def track_cmd(
     probability). ``--json`` also gives each step's clock (``stamp``) and the
     pose filter's pose estimate with its covariance.
     """
+    from ..pipeline.placemap import check_track_options
     from ..pipeline.readers import detect_kind
     from ._follow import write_trajectories
     from .reports import check_report, track_report
 
     check_report(report)
-    _check_options(observe, filter_kind, odometry_error, radius, scale, metres_per_move, alpha, uniform_mix, scan_gamma)
+    check_track_options(observe=observe, filter=filter_kind, odometry_error=odometry_error, radius=radius, beta=scale,
+                        metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma)
     check_output(json_out, "--json")
     check_output(tum, "--tum")
     check_output(kitti, "--kitti")
@@ -204,7 +205,8 @@ def track_cmd(
                 soft_wrap=True,
                 markup=False,
             )
-    _print_summary(tr)
+    for line in tr.summary_lines():
+        console.print(line, soft_wrap=True, markup=False)
     warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
     write_trajectories(tr.answers, tum=tum, kitti=kitti, warn=lambda s: err_console.print(s, markup=False))
@@ -213,34 +215,6 @@ def track_cmd(
         track_report(report, result=tr.result, log_likelihood=beta * tr.log_likelihood, truth=tr.truth,
                      classes=tr.places, names=[a.name for a in tr.answers],
                      geo={"poses": tr.poses, "centres": tr.centres}, data=data, db=db)  # fmt: skip
-
-
-def _check_options(
-    observe: str,
-    filter_kind: str,
-    odometry_error: float | None,
-    radius: float | None,
-    scale: float | None,
-    metres_per_move: float | None,
-    alpha: float,
-    uniform_mix: float | None,
-    scan_gamma: float | None,
-) -> None:
-    """One-line errors for the filter's options, before anything is read."""
-    if observe not in ("queries", "all"):
-        raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
-    if filter_kind not in ("places", "pose", "auto"):
-        raise InvalidParameterError(f"--filter must be 'pose', 'places' or 'auto', got {filter_kind!r}")
-    for flag, v in (("--odometry-error", odometry_error), ("--alpha", alpha), ("--scan-gamma", scan_gamma)):
-        if v is not None and not (math.isfinite(v) and v >= 0):
-            raise InvalidParameterError(f"{flag} must be a finite number >= 0, got {v!r}")
-    if odometry_error is not None and odometry_error > 100:  # a factor on the odometry's simulated errors
-        raise InvalidParameterError(f"--odometry-error must be a factor in [0, 100], got {odometry_error!r}")
-    for flag, v in (("--radius", radius), ("--scale", scale), ("--metres-per-move", metres_per_move)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise InvalidParameterError(f"{flag} must be a positive number, got {v!r}")
-    if uniform_mix is not None and not (0 <= uniform_mix < 1):
-        raise InvalidParameterError(f"--uniform-mix must be in [0, 1), got {uniform_mix!r}")
 
 
 def _check_db_flags(raw_kind: str, db: Path, map_log: bool, graph_from: Path | None, overwrite: bool) -> None:
@@ -311,28 +285,3 @@ def _place_map(
             else "the pose filter needs the places' positions: give --graph-from with poses"
         raise InvalidParameterError(why)
     return pm
-
-
-def _print_summary(tr: TrackResult) -> None:
-    s = tr.summary
-    f, single = s["filtered"], s["single_shot"]
-    if f.get("labelled"):
-        console.print(
-            f"{f['labelled']} labelled observed steps: filtered top-1 {f['top1']:.3f}, mean rank {f['mean_rank']:.2f}; "
-            f"single-shot top-1 {single['top1']:.3f}, mean rank {single['mean_rank']:.2f}",
-            soft_wrap=True,
-        )
-    head = f"{s['steps']} steps ({s['observed_steps']} observed), {s['places']} places, beta {s['likelihood_scale']:.3g}, "
-    if s["filter"] == "pose":
-        gamma = s.get("scan_gamma")
-        evidence = "" if not gamma else f", scan evidence gamma {gamma:g}"
-        console.print(head + f"pose filter (odometry increments, error factor {tr.odometry_error:g}{evidence})", soft_wrap=True)
-    else:
-        metres = s["metres_per_move"]
-        if s.get("transitions") == "metric":
-            odometry = "metric transitions over the place positions (the place spacing, widened by the distance travelled)"
-        else:
-            odometry = "odometry off" if metres is None else f"odometry {metres:.2f} m per place change"
-        console.print(head + f"uniform mixing {s['uniform_mix']:.3g}, {odometry}", soft_wrap=True)
-        if s.get("place_filter"):
-            console.print(s["place_filter"], soft_wrap=True, markup=False)

@@ -46,7 +46,7 @@ if TYPE_CHECKING:
     from ..observation import Observation
     from .places import PlaceSplit
 
-__all__ = ["LocalizeResult", "PlaceMap", "TrackResult", "load_map", "store_graph"]
+__all__ = ["LocalizeResult", "PlaceMap", "TrackResult", "check_track_options", "load_map", "store_graph"]
 
 Note = Callable[[str], None]
 
@@ -96,6 +96,32 @@ class TrackResult:
     def steps(self) -> list[dict[str, Any]]:
         """Every step's record of ``track --json``."""
         return [a.to_json() for a in self.answers]
+
+    def summary_lines(self) -> list[str]:
+        """The summary in words (what ``fingerloc track`` prints last): the scores of the labelled observed steps
+        when there are any, then the filter and the calibration it used."""
+        s = self.summary
+        f, single = s["filtered"], s["single_shot"]
+        lines = []
+        if f.get("labelled"):
+            lines.append(
+                f"{f['labelled']} labelled observed steps: filtered top-1 {f['top1']:.3f}, mean rank {f['mean_rank']:.2f}; "
+                f"single-shot top-1 {single['top1']:.3f}, mean rank {single['mean_rank']:.2f}"
+            )
+        head = f"{s['steps']} steps ({s['observed_steps']} observed), {s['places']} places, beta {s['likelihood_scale']:.3g}, "
+        if s["filter"] == "pose":
+            gamma = s.get("scan_gamma")
+            evidence = "" if not gamma else f", scan evidence gamma {gamma:g}"
+            return [*lines, head + f"pose filter (odometry increments, error factor {self.odometry_error:g}{evidence})"]
+        metres = s["metres_per_move"]
+        if s.get("transitions") == "metric":
+            odometry = "metric transitions over the place positions (the place spacing, widened by the distance travelled)"
+        else:
+            odometry = "odometry off" if metres is None else f"odometry {metres:.2f} m per place change"
+        lines.append(head + f"uniform mixing {s['uniform_mix']:.3g}, {odometry}")
+        if s.get("place_filter"):
+            lines.append(str(s["place_filter"]))
+        return lines
 
 
 @dataclass(slots=True)
@@ -436,7 +462,8 @@ class PlaceMap:
             or JSON Lines observations in order. The place filter also tracks a
             laser log or bag without poses, or against a map without place
             positions (a map made from fingerprints): every scan observes.
-        filter : {"pose", "places"}, default "pose"
+        filter : {"pose", "places", "auto"}, default "pose"
+            ``auto``: :meth:`default_filter` (said through ``on_note``).
         seed : int, default 0
             Seeds the particles (``seed``) and the simulated odometry errors (``seed + 1``).
         observe : {"queries", "all"}, default "queries"
@@ -455,8 +482,12 @@ class PlaceMap:
         TrackResult
         """
         note = on_note or _quiet
-        if observe not in ("queries", "all"):
-            raise InvalidParameterError(f"observe must be 'queries' or 'all', got {observe!r}")
+        if filter == "auto":
+            filter, why = self.default_filter(run)
+            note(why)
+        check_track_options(observe=observe, filter=filter, odometry_error=odometry_error, beta=beta,
+                            metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix,
+                            scan_gamma=scan_gamma)  # fmt: skip
         factor = 0.0
         if filter == "pose":
             factor = odometry_error if odometry_error is not None else (1.0 if run.kind == "carmen" else 0.0)
@@ -586,6 +617,41 @@ def _track_summary(ll: FArray, truth: IArray, result: FilterResult, tracker: Tra
         "filtered": _summary(result.log_posterior, t),
         "single_shot": _summary(single, t),
     }
+
+
+def check_track_options(
+    *,
+    observe: str = "queries",
+    filter: str = "pose",
+    odometry_error: float | None = None,
+    radius: float | None = None,
+    beta: float | None = None,
+    metres_per_move: float | None = None,
+    alpha: float | None = None,
+    uniform_mix: float | None = None,
+    scan_gamma: float | None = None,
+) -> None:
+    """Check :meth:`PlaceMap.track`'s options (``auto`` is also a ``filter`` here: the command line's default).
+
+    Raises
+    ------
+    InvalidParameterError
+        One line naming the option (as the command line spells it) and the value.
+    """
+    if observe not in ("queries", "all"):
+        raise InvalidParameterError(f"--observe must be 'queries' or 'all', got {observe!r}")
+    if filter not in (*FILTERS, "auto"):
+        raise InvalidParameterError(f"--filter must be 'pose', 'places' or 'auto', got {filter!r}")
+    for flag, v in (("--odometry-error", odometry_error), ("--alpha", alpha), ("--scan-gamma", scan_gamma)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise InvalidParameterError(f"{flag} must be a finite number >= 0, got {v!r}")
+    if odometry_error is not None and odometry_error > 100:  # a factor on the odometry's simulated errors
+        raise InvalidParameterError(f"--odometry-error must be a factor in [0, 100], got {odometry_error!r}")
+    for flag, v in (("--radius", radius), ("--scale", beta), ("--metres-per-move", metres_per_move)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise InvalidParameterError(f"{flag} must be a positive number, got {v!r}")
+    if uniform_mix is not None and not (0 <= uniform_mix < 1):
+        raise InvalidParameterError(f"--uniform-mix must be in [0, 1), got {uniform_mix!r}")
 
 
 def load_map(path: str | Path, *, scan: bool = True) -> PlaceMap:

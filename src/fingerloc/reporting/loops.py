@@ -7,13 +7,17 @@
 * :func:`write_loops_report`: ``index.html`` with both per log, the figures'
   table and ``report.json``.
 
-Inputs are plain arrays (positions in metres); matplotlib is imported only here.
+Inputs are plain arrays (positions in metres); matplotlib is imported only here. Both pages are
+written whole or not at all: their files go to a temporary folder beside the report folder and are
+renamed into it at the end (inside a command's :class:`~fingerloc.atomic.OutputGroup`, together with
+the command's other outputs; on an error the report folder stays as it was).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -146,6 +150,53 @@ def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
+@contextmanager
+def _staged(out: Path) -> Iterator[Path]:
+    """A temporary folder beside ``out`` whose files replace their namesakes in ``out`` when the block ends well.
+
+    The renames go through :func:`fingerloc.atomic.replace`: inside an output group they happen with the
+    group's other outputs, or not at all. The temporary folder is removed at the end either way; ``out``,
+    when this created it and nothing was renamed into it, too.
+    """
+    import shutil
+    import tempfile
+
+    from ..atomic import current_group, replace
+
+    base = out.parent
+    while not base.is_dir():  # the nearest existing folder: the same file system as the report's
+        base = base.parent
+    created = not out.exists()
+    tmp = Path(tempfile.mkdtemp(prefix=".fingerloc-report-", dir=base))
+
+    def clean() -> None:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created:
+            try:
+                out.rmdir()  # only when empty: a report that was renamed into it stays
+            except OSError:
+                pass
+
+    try:
+        yield tmp
+        out.mkdir(parents=True, exist_ok=True)
+        for f in sorted(tmp.iterdir()):
+            replace(f, out / f.name)
+    except OSError as err:
+        clean()
+        if err.filename is not None and Path(err.filename).parent == tmp:  # name the report's file, not the temporary
+            raise OSError(err.errno, err.strerror, str(out / Path(err.filename).name)) from None
+        raise
+    except BaseException:
+        clean()
+        raise
+    group = current_group()
+    if group is None:
+        clean()
+    else:
+        group.at_end(clean)
+
+
 def write_loops_report(
     out_dir: str | Path,
     logs: Sequence[Mapping[str, Any]],
@@ -158,7 +209,7 @@ def write_loops_report(
     Parameters
     ----------
     out_dir : path
-        The report folder (created).
+        The report folder (created with its parents when missing; its files of the same names are replaced).
     logs : sequence of mapping
         Per log: ``name``; ``metrics`` (method -> figures, as ``bench loops --json``);
         ``curves`` (method -> (precision, recall)); ``positives``; optionally
@@ -174,8 +225,20 @@ def write_loops_report(
     Path
         ``index.html``.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    target = Path(out_dir)
+    with _staged(target) as out:
+        _loops_files(out, logs, pooled=pooled, protocol=protocol)
+    return target / "index.html"
+
+
+def _loops_files(
+    out: Path,
+    logs: Sequence[Mapping[str, Any]],
+    *,
+    pooled: Mapping[str, Any] | None,
+    protocol: Mapping[str, Any] | None,
+) -> None:
+    """The files of :func:`write_loops_report`, written into the existing folder ``out``."""
     page = Page("Loop closures and places from fingerprints")
     if protocol:
         page.paragraph(
@@ -240,7 +303,7 @@ def write_loops_report(
         "protocol": dict(protocol or {}),
     }
     (out / "report.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    return page.write(out)
+    page.write(out)
 
 
 def write_places_report(
@@ -260,6 +323,7 @@ def write_places_report(
     Parameters
     ----------
     out_dir : path
+        The report folder (created with its parents when missing; its files of the same names are replaced).
     labels : sequence of str
         Place labels (place ``j`` is ``labels[j]``).
     assignment : array_like of int, shape (m,)
@@ -276,9 +340,32 @@ def write_places_report(
         Lines shown under the title (the command...).
     figures : mapping, optional
         Numbers shown as a list and kept in ``report.json`` (purity...).
+
+    Returns
+    -------
+    Path
+        ``index.html``.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    target = Path(out_dir)
+    with _staged(target) as out:
+        _places_files(out, labels=labels, assignment=assignment, keyframes=keyframes, closures=closures,
+                      consensus=consensus, trajectory=trajectory, notes=notes, figures=figures)  # fmt: skip
+    return target / "index.html"
+
+
+def _places_files(
+    out: Path,
+    *,
+    labels: Sequence[str],
+    assignment: Any,
+    keyframes: Any,
+    closures: Any,
+    consensus: Sequence[str | None] | None,
+    trajectory: Any,
+    notes: Sequence[str],
+    figures: Mapping[str, Any] | None,
+) -> None:
+    """The files of :func:`write_places_report`, written into the existing folder ``out``."""
     lab = np.asarray(assignment, dtype=np.int64).reshape(-1)
     keys = np.asarray(keyframes, dtype=np.int64).reshape(-1)
     cl = np.zeros((0, 2), np.int64) if closures is None else np.asarray(closures, dtype=np.int64).reshape(-1, 2)
@@ -312,4 +399,4 @@ def write_places_report(
         "figures": dict(figures or {}),
     }
     (out / "report.json").write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-    return page.write(out)
+    page.write(out)
