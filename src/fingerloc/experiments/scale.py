@@ -38,7 +38,7 @@ protocol; ``laser2d`` views have random headings):
    ``index_used_by_localize``: whether ``localize`` goes through the index
    at this size (:func:`~fingerloc.retrieval.index_for`).
 
-Also the 1-minute load average at the end of each phase: timings on a
+Also the 1-minute load average at the end of each step: timings on a
 shared machine are only comparable with it.
 """
 
@@ -93,7 +93,7 @@ def _campus(preset: str, n_places: int, seed: int, query_places: np.ndarray | No
     return train, queries
 
 
-def _learn_phase(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any]:
+def _learn_step(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any]:
     """Fresh process: draw the campus, learn, save. Returns the learn figures."""
     from ..map.database import save_model
     from ..pipeline.presets import resolve_preset
@@ -123,7 +123,7 @@ def _learn_phase(preset: str, n_places: int, seed: int, db: str) -> dict[str, An
     }
 
 
-def _localize_phase(
+def _localize_step(
     preset: str, n_places: int, seed: int, db: str, n_queries: int, exact_queries: int, repeat: int
 ) -> dict[str, Any]:
     """Fresh process: load, index, answer the queries (module docstring). Returns the localize figures."""
@@ -223,13 +223,13 @@ def scale_figures(
     repeat: int = 3,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """The figures of one preset at one size (module docstring), each phase in its own process."""
+    """The figures of one preset at one size (module docstring), each step in its own process."""
     if preset not in PRESETS:
         raise InvalidParameterError(f"unknown preset {preset!r} for bench scale (known: {', '.join(PRESETS)})")
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         db = str(Path(tmp) / "places.sqlite")
-        out = _in_child(_learn_phase, preset, n_places, seed, db)
-        out.update(_in_child(_localize_phase, preset, n_places, seed, db, n_queries, exact_queries, repeat))
+        out = _in_child(_learn_step, preset, n_places, seed, db)
+        out.update(_in_child(_localize_step, preset, n_places, seed, db, n_queries, exact_queries, repeat))
     return out
 
 
