@@ -176,7 +176,21 @@ def test_cli_track_picks_the_filter_the_data_allow(rooms_log, tmp_path, capsys):
     code, _, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--map", "--json", str(out), "-q")
     assert code == 0, err
     assert "filter: pose" in err and "odometry" in err
-    assert json.loads(out.read_text())["summary"]["filter"] == "pose"
+    auto = json.loads(out.read_text())["summary"]
+    assert auto["filter"] == "pose"
+    # the default gives the pose filter's figure: the same answers as --filter pose
+    out_pose = tmp_path / "pose.json"
+    code, _, err = _run_cli(capsys, "track", str(rooms_log), "--db", str(db), "--filter", "pose", "--json",
+                            str(out_pose), "-q")  # fmt: skip
+    assert code == 0 and "filter: " not in err, err
+    assert json.loads(out_pose.read_text())["summary"] == auto
+    from types import SimpleNamespace
+
+    from fingerloc.pipeline.placemap import load_map
+
+    pm = load_map(db, scan=False)
+    assert pm.default_filter(SimpleNamespace(poses=None))[0] == "places"
+    assert "no poses" in pm.default_filter(SimpleNamespace(poses=None))[1]
     from fingerloc.io.jsonl import write_observations
     from fingerloc.map.database import load_model
 

@@ -427,3 +427,42 @@ def test_calibrated_errors_put_global_alignment_above_minimum_energy():
     me, ga = cal["minimum_energy"]["top1"], cal["global_alignment"]["top1"]
     assert none["minimum_energy"]["top1"] >= 0.9 and none["global_alignment"]["top1"] >= 0.85
     assert ga - me >= 0.1 and me <= 0.8
+
+
+def test_reference_story_tells_the_given_figures_and_verdicts():
+    from copy import deepcopy
+
+    from fingerloc.experiments.robot_findings import REFERENCE_RUN, reference_story
+
+    ref = deepcopy(REFERENCE_RUN)
+    ref["cells"]["table3/minimum_energy"] = (0.5, 0.41, 0.59)
+    ref["findings"]["ga_beats_me"] = (-0.1, -0.15, -0.05)
+    ref["findings"]["fp_helps"] = (0.02, -0.01, 0.05)
+    lines = reference_story(ref)
+    text = "\n".join(lines)
+    assert "minimum energy    50.0% [41.0, 59.0]  paper 62.4%" in text
+    ga = next(line for line in lines if "global alignment beats minimum energy" in line)
+    assert "reversed (-10.0 points [-15.0, -5.0]" in ga
+    fp = next(line for line in lines if "the full program beats VE & Ex" in line)
+    assert "not shown (+2.0 points" in fp
+    assert "VE 5.7 Ex 6.2 CP 2.6 B 4.2 (paper 5.6 5.6 2.7 3.9)" in text
+    # the heading-kept comparison is told only when its figures are given
+    assert "paper-ideal" in text
+    del ref["ideal"]
+    assert "paper-ideal" not in "\n".join(reference_story(ref))
+    assert reference_story({**ref, "cells": {}}) == []
+
+
+def test_reference_run_figures_are_the_documented_ones():
+    """The demo's reference figures are those of the reproduction section of docs/METHOD.md."""
+    from pathlib import Path
+
+    from fingerloc.experiments.robot_findings import REFERENCE_RUN
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "METHOD.md").read_text(encoding="utf-8")
+    for key, (m, lo, hi) in REFERENCE_RUN["cells"].items():
+        cell = f"{100 * m:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]"
+        assert cell in doc, (key, cell)
+    for key, (m, lo, hi) in REFERENCE_RUN["findings"].items():
+        diff = f"{100 * m:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+        assert diff in doc, (key, diff)

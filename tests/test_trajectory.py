@@ -148,7 +148,7 @@ def test_tum_refuses_timestamps_that_do_not_increase(tmp_path):
 def test_writer_refuses_an_unknown_format_and_a_missing_directory(tmp_path):
     with pytest.raises(InvalidParameterError, match="format must be one of tum, kitti"):
         TrajectoryWriter(tmp_path / "x", "csv")
-    with pytest.raises(InvalidParameterError, match="cannot write"):
+    with pytest.raises(InvalidParameterError, match=r"directory .* does not exist"):
         TrajectoryWriter(tmp_path / "missing" / "x.tum")
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,9 +24,12 @@ def map_fingerprints(
     report: Path | None,
     data: Path,
     tum: Path | None = None,
+    doubts: Sequence[str] = (),
 ) -> None:
     """Make the map, save it to ``db``, print one summary line; ``--json``: the labelled keyframes; ``--report``;
-    ``--tum``: the run's poses (a run with poses only, checked before any work)."""
+    ``--tum``: the run's poses (a run with poses only, checked before any work). ``doubts``: warnings about the
+    run (:func:`fingerloc.pipeline.compat.check_run_for_map`), said with the map's own once every output is
+    written."""
     from ..config import Config
     from ..errors import InvalidParameterError
     from ..pipeline.compat import check_map
@@ -47,7 +50,6 @@ def map_fingerprints(
                           "(see --preset / --terms)", markup=False)  # fmt: skip
     config = Config().with_(places={"mapping_part": mapping_part, "until_s": until}, calibration={"enabled": False})
     place_map = fm.place_map(config)
-    warn(check_map(place_map))  # one place, views without features
     size = place_map.save(db)
     poses = run.poses
     figures: dict[str, Any] = {}
@@ -88,3 +90,4 @@ def map_fingerprints(
             notes=[f"fingerloc map {data} --places fingerprints --db {db}"], figures=figures,
         )  # fmt: skip
         err_console.print(f"wrote {page} (open it in a browser)", soft_wrap=True, markup=False)
+    warn([*doubts, *check_map(place_map)])  # stationary, one place, no features: said once every output is written

@@ -9,7 +9,7 @@ from typing import Any
 import typer
 
 from ..errors import InvalidParameterError
-from ._io import all_or_nothing, check_output, write_json
+from ._io import all_or_nothing, check_output, warn, write_json
 from .app import bench_app, console, err_console
 
 __all__ = ["loops_cmd", "print_loops"]
@@ -143,3 +143,6 @@ def loops_cmd(
         }
         path = write_loops_report(report, items, pooled=pooled, protocol=js["protocol"])
         err_console.print(f"wrote {path} (open it in a browser)", soft_wrap=True, markup=False)
+    warn(f"{name}: no query has a true match ({lg['queries']} queries; a true match is an earlier scan within "
+         f"{distance:g} m, outside the last {exclude_s:g} s): its figures are 0 by definition, not a measurement"
+         for name, lg in js["logs"].items() if not lg["positives"])  # fmt: skip

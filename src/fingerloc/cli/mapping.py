@@ -117,14 +117,14 @@ def map_cmd(
     check_report(report)
     bag = bag_options(topic, pose_source, base_frame)
     run = read_run_files(runs, kind=kind, skip_bad=skip_bad, bag=bag)
+    doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     if places == "fingerprints":
         from .fingerprint_map import map_fingerprints
 
         map_fingerprints(run, db, preset=preset, overrides=overrides, until=until,
                          mapping_part=0.5 if mapping_part is None else mapping_part, json_out=json_out,
-                         report=report, data=runs[0], tum=tum)  # fmt: skip
+                         report=report, data=runs[0], tum=tum, doubts=doubts)  # fmt: skip
         return
-    doubts = check_run_for_map(run)  # no usable scan: an error now; a stationary run: a warning once mapped
     config = Config().with_(
         places={"spacing_m": spacing, "radius_m": radius, "mapping_part": 0.5 if mapping_part is None else mapping_part,
                 "until_s": until},
@@ -134,11 +134,11 @@ def map_cmd(
         pm = make_map(run, config, preset=preset, overrides=overrides, on_step=lambda s: status.update(s))
     assert pm.preset is not None and pm.calibration is not None and pm.split is not None and pm.training is not None
     err_console.print(pm.preset.reason, markup=False)
-    warn(doubts + check_map(pm))  # one place, beta at a bound, empty training views
+    late = doubts + check_map(pm)  # one place, beta at a bound, empty views: said once every output is written
     empty = empty_terms(pm.preset.options, pm.training)
     if empty:
-        err_console.print(f"warning: no training scan has {', '.join(empty)} bearings: those terms cannot tell "
-                          "places apart (see --preset / --terms)", markup=False)  # fmt: skip
+        late.append(f"no training scan has {', '.join(empty)} bearings: those terms cannot tell places apart (see "
+                    "--preset / --terms)")  # fmt: skip
     size = pm.save(db)
     sp, cal = pm.split, pm.calibration
     sm = pm.scan_map
@@ -167,3 +167,4 @@ def map_cmd(
     if report is not None:
         map_report(report, model=pm.model, centres=pm.positions, radius=radius, edges=pm.graph.edges(),
                    trajectory=run.poses, scans=run.scans, data=runs[0], db=db)  # fmt: skip
+    warn(late)

@@ -156,7 +156,7 @@ def track_cmd(
     check_output(json_out, "--json")
     check_output(tum, "--tum")
     check_output(kitti, "--kitti")
-    if (tum is not None or kitti is not None) and filter_kind != "pose":
+    if (tum is not None or kitti is not None) and filter_kind == "places":
         raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)")
     if str(data) == "-" or follow:
         from .track_follow import track_follow
@@ -185,6 +185,8 @@ def track_cmd(
     why = None
     if filter_kind == "auto":
         filter_kind, why = pm.default_filter(run)
+        if filter_kind != "pose" and (tum is not None or kitti is not None):  # before the work, not after
+            raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter, and {why.partition('(')[2].rstrip(')')}")
     tr = pm.track(
         run, filter=filter_kind, seed=seed, observe=observe, odometry_error=odometry_error, scan=scan, heading=heading,
         beta=scale, metres_per_move=metres_per_move, alpha=alpha, uniform_mix=uniform_mix, scan_gamma=scan_gamma,
@@ -207,7 +209,6 @@ def track_cmd(
             )
     for line in tr.summary_lines():
         console.print(line, soft_wrap=True, markup=False)
-    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # ... said once tracking succeeded
     write_json(json_out, {"steps": steps, "summary": tr.summary})
     write_trajectories(tr.answers, tum=tum, kitti=kitti, warn=lambda s: err_console.print(s, markup=False))
     if report is not None:
@@ -215,6 +216,7 @@ def track_cmd(
         track_report(report, result=tr.result, log_likelihood=beta * tr.log_likelihood, truth=tr.truth,
                      classes=tr.places, names=[a.name for a in tr.answers],
                      geo={"poses": tr.poses, "centres": tr.centres}, data=data, db=db)  # fmt: skip
+    warn(doubts + compat.check_queries(tr.summary["filtered"].get("labelled", 0)))  # once every output is written
 
 
 def _check_db_flags(raw_kind: str, db: Path, map_log: bool, graph_from: Path | None, overwrite: bool) -> None:

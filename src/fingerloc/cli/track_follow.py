@@ -55,13 +55,13 @@ def track_follow(
     if max_range is not None and not max_range > 0:
         raise InvalidParameterError(f"--max-range must be a positive number of metres, got {max_range!r}")
     filter_kind = tracker_options["filter"]
-    if (tum is not None or kitti is not None) and filter_kind != "pose":
+    if (tum is not None or kitti is not None) and filter_kind == "places":
         raise InvalidParameterError(
             f"{'--tum' if tum is not None else '--kitti'} needs the pose filter (--filter pose)"
         )
     if db.is_dir():
         raise InvalidParameterError(f"--db: {db} is a directory, not a place database")
-    pm = load_map(db, scan=bool(tracker_options.get("scan", True)) and filter_kind == "pose")
+    pm = load_map(db, scan=bool(tracker_options.get("scan", True)) and filter_kind in ("pose", "auto"))
     if filter_kind == "pose" and not pm.has_positions:
         raise InvalidParameterError(
             f"{db}: the pose filter needs place positions: make the database with 'fingerloc map'"
@@ -73,8 +73,17 @@ def track_follow(
         err_console.print(text, markup=False)
 
     def step(item: Any) -> Any:
+        nonlocal filter_kind
         stepper = state.get("stepper")
         if stepper is None:  # the first item tells the stream's format, and so the odometry default
+            if filter_kind == "auto":  # the pose filter when the map has positions and the stream poses
+                filter_kind, why = pm.default_filter()
+                if filter_kind == "pose" and item.pose is None and item.odometry is None:
+                    filter_kind, why = "places", "filter: places (the stream's first line has no pose or odometry)"
+                options["filter"] = filter_kind
+                if filter_kind != "pose" and (tum is not None or kitti is not None):
+                    raise InvalidParameterError(f"{'--tum' if tum is not None else '--kitti'} needs the pose filter, and {why.partition('(')[2].rstrip(')')}")
+                note(why)
             factor = odometry_error
             if factor is None:
                 factor = 1.0 if item.kind == "carmen" and filter_kind == "pose" else 0.0

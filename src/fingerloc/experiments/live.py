@@ -159,6 +159,8 @@ def latency(
     note = on_progress or (lambda s: None)
     note(f"reading {log.name}")
     run = fl.read_run(log)
+    if run.scans is None or any(s.pose is None for s in run.scans):
+        raise InvalidParameterError(f"{log}: the latency needs a laser log with a pose on every scan (CARMEN)")
     note(f"mapping {log.name} (calibrated)")
     own = fl.make_map(run, config)
     assert own.split is not None and own.calibration is not None

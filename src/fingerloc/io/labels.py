@@ -24,7 +24,10 @@ from pathlib import Path
 
 from ..errors import DataFormatError
 
-__all__ = ["PhotoLabel", "match_labels", "read_labels"]
+__all__ = ["MAX_LABELS_BYTES", "PhotoLabel", "match_labels", "read_labels"]
+
+#: Largest labels CSV read (bytes): a tour of a million photos fits.
+MAX_LABELS_BYTES = 64 << 20
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,17 +58,33 @@ def read_labels(path: str | Path) -> list[PhotoLabel]:
     Raises
     ------
     DataFormatError
-        Naming the file and line: unreadable, no ``file`` / ``place`` column,
-        an empty file or place, a repeated file, a non-numeric or half-given position.
+        Naming the file and line: unreadable, larger than :data:`MAX_LABELS_BYTES`,
+        binary (NUL bytes) or not UTF-8, a malformed CSV row (a field over
+        csv's limit), no ``file`` / ``place`` column, an empty file or place,
+        a repeated file, a non-numeric or half-given position.
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_LABELS_BYTES + 1)  # bounded: /dev/zero or a huge file is refused, not read whole
     except FileNotFoundError as err:
         raise DataFormatError("no such file", path=p) from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataFormatError(f"cannot read the labels ({err})", path=p) from err
-    rows = list(csv.reader(text.splitlines()))
+    except OSError as err:
+        raise DataFormatError(f"cannot read the labels ({err.strerror or err})", path=p) from err
+    if len(raw) > MAX_LABELS_BYTES:
+        raise DataFormatError(f"larger than {MAX_LABELS_BYTES:,} bytes: not a labels CSV", path=p)
+    if b"\0" in raw:
+        raise DataFormatError("binary data (NUL bytes), not a labels CSV", path=p, line=raw.count(b"\n", 0, raw.index(b"\0")) + 1)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise DataFormatError(f"not UTF-8 text (byte 0x{raw[err.start]:02x}); save the CSV as UTF-8", path=p,
+                              line=raw.count(b"\n", 0, err.start) + 1) from None  # fmt: skip
+    reader = csv.reader(text.splitlines())
+    try:
+        rows = list(reader)
+    except csv.Error as err:
+        raise DataFormatError(f"not a CSV row ({err})", path=p, line=max(reader.line_num, 1)) from None
     if not rows:
         raise DataFormatError("the labels file is empty (expected a header row file,place[,x,y])", path=p)
     header = [h.strip().lower() for h in rows[0]]
@@ -99,8 +118,6 @@ def read_labels(path: str | Path) -> list[PhotoLabel]:
     if not out:
         raise DataFormatError("the labels file lists no photo", path=p)
     return out
-
-
 
 
 def match_labels(photos: Sequence[Path], labels: Sequence[PhotoLabel], base: Path) -> list[PhotoLabel]:

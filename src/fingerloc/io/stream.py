@@ -47,6 +47,8 @@ from __future__ import annotations
 
 import gzip
 import math
+import os
+import stat
 import sys
 import time
 from collections.abc import Callable, Collection, Iterable, Iterator
@@ -61,7 +63,7 @@ from ..errors import DataFormatError, InvalidParameterError
 from ..observation import Observation
 from ..sensors import Scan
 from .carmen import KNOWN_NO_RETURN_CODES, LASER_MESSAGES, LaserRecord, OdomRecord, ReadStats, parse_line
-from .jsonl import observation_from_record, parse_record
+from .jsonl import MAX_LINE_BYTES, observation_from_record, parse_record
 
 __all__ = [
     "STREAM_KINDS",
@@ -386,17 +388,29 @@ def _decode(raw: bytes) -> str:
     return raw.decode("utf-8", errors="replace")
 
 
-def stream_lines(fh: _LineSource) -> Iterator[tuple[int, str]]:
+def _too_long(lineno: int, where: str | Path) -> DataFormatError:
+    return DataFormatError(f"line {lineno} is longer than {MAX_LINE_BYTES:,} bytes: not a log or JSON Lines line",
+                           path=where)  # fmt: skip
+
+
+def stream_lines(fh: _LineSource, where: str | Path = "stdin") -> Iterator[tuple[int, str]]:
     """Numbered lines (1-based) of a binary stream, each returned as soon as its newline arrives.
 
     Bytes that are not UTF-8 become U+FFFD (the line then fails to parse, by its number).
+
+    Raises
+    ------
+    DataFormatError
+        A line longer than :data:`MAX_LINE_BYTES` (binary data, ``/dev/zero``): memory stays bounded.
     """
     lineno = 0
     while True:
-        raw = fh.readline()
+        raw = fh.readline(MAX_LINE_BYTES + 1)
         if not raw:
             return
         lineno += 1
+        if len(raw) > MAX_LINE_BYTES:
+            raise _too_long(lineno, where)
         yield lineno, _decode(raw)
 
 
@@ -406,6 +420,7 @@ def follow_lines(
     poll_s: float = POLL_S,
     idle_timeout_s: float | None = None,
     stop: Callable[[], bool] | None = None,
+    fh: IO[bytes] | None = None,
 ) -> Iterator[tuple[int, str]]:
     """Numbered lines of a file that is still being written (as ``tail -f`` from its start).
 
@@ -422,6 +437,8 @@ def follow_lines(
         a newline is then returned); ``None``: never (until ``stop``).
     stop : callable, optional
         Checked while waiting; True ends the stream.
+    fh : binary file, optional
+        ``path`` already open (it is closed at the end).
 
     Raises
     ------
@@ -429,18 +446,21 @@ def follow_lines(
         The file cannot be opened, or shrinks while followed.
     """
     p = Path(path)
-    try:
-        fh = open(p, "rb")
-    except OSError as err:
-        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
+    if fh is None:
+        try:
+            fh = open(p, "rb")
+        except OSError as err:
+            raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
     lineno = 0
     partial = b""
     idle_since = time.monotonic()
     with fh:
         while True:
-            raw = fh.readline()
+            raw = fh.readline(MAX_LINE_BYTES + 1)
             if raw:
                 partial += raw
+                if len(partial) > MAX_LINE_BYTES:
+                    raise _too_long(lineno + 1, p)
                 if partial.endswith(b"\n"):
                     lineno += 1
                     yield lineno, _decode(partial)
@@ -477,6 +497,8 @@ def open_lines(
     stream (recognised by its first bytes) is decompressed block by block.
     """
     if str(path) == "-":
+        if stdin is None and (sys.stdin is None or sys.stdin.closed):
+            raise InvalidParameterError("standard input ('-') is closed: nothing to read")
         fh = stdin if stdin is not None else sys.stdin.buffer
         peek = getattr(fh, "peek", None)
         head = peek(2)[:2] if callable(peek) else b""
@@ -485,24 +507,30 @@ def open_lines(
         return stream_lines(fh)
     p = Path(path)
     try:
-        with open(p, "rb") as probe:
-            magic = probe.read(2)
+        fh = open(p, "rb")  # opened once: a FIFO or a process substitution is read as it comes
     except IsADirectoryError:
         raise DataFormatError("is a directory, not a log", path=p) from None
     except OSError as err:
         raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
+    try:
+        regular = stat.S_ISREG(os.fstat(fh.fileno()).st_mode)
+        magic = fh.peek(2)[:2]
+    except OSError as err:
+        fh.close()
+        raise DataFormatError(f"cannot read: {err.strerror or err}", path=p) from None
     if magic == b"\x1f\x8b":
-        if follow:
+        if follow and regular:
+            fh.close()
             raise InvalidParameterError(f"{p}: a gzip file cannot be followed while it grows (give a plain text log)")
-        return _gzip_lines(gzip.GzipFile(p, mode="rb"), p)
-    if follow:
-        return follow_lines(p, poll_s=poll_s, idle_timeout_s=idle_timeout_s)
-    return _file_lines(p)
+        return _gzip_lines(gzip.GzipFile(fileobj=fh, mode="rb"), p)
+    if follow and regular:  # a FIFO or a device is read as it comes, to its end, as standard input is
+        return follow_lines(p, poll_s=poll_s, idle_timeout_s=idle_timeout_s, fh=fh)
+    return _file_lines(fh, p)
 
 
-def _file_lines(p: Path) -> Iterator[tuple[int, str]]:
-    with open(p, "rb") as fh:
-        yield from stream_lines(fh)
+def _file_lines(fh: IO[bytes], p: Path) -> Iterator[tuple[int, str]]:
+    with fh:
+        yield from stream_lines(fh, p)
 
 
 def _gzip_lines(fh: gzip.GzipFile, where: str | Path) -> Iterator[tuple[int, str]]:

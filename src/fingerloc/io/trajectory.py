@@ -34,6 +34,7 @@ from typing import IO, Any
 import numpy as np
 
 from .._types import FArray
+from ..atomic import check_target, replace, temporary_name, umask
 from ..errors import DataFormatError, EmptyInputError, InvalidParameterError
 
 __all__ = [
@@ -106,14 +107,11 @@ def kitti_line(pose: Any) -> str:
     return " ".join(_num(v) for row in rows for v in row)
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
 class TrajectoryWriter:
     """Write a trajectory one pose at a time; the file appears (atomically) at :meth:`close`.
+
+    Inside a :class:`fingerloc.atomic.OutputGroup` the file appears with the
+    group's other outputs (or not at all when the group fails).
 
     Lines go to a temporary file next to ``path`` (flushed after each pose
     when ``flush=True``, so a crash loses nothing already written there);
@@ -135,7 +133,8 @@ class TrajectoryWriter:
     Raises
     ------
     InvalidParameterError
-        An unknown format, or a directory that cannot hold the file.
+        An unknown format, a path that is not a regular file (a device, a FIFO, a link loop), or a directory
+        that cannot hold the file.
     """
 
     def __init__(self, path: str | Path, fmt: str = "tum", *, flush: bool = False, strict: bool = True) -> None:
@@ -151,12 +150,13 @@ class TrajectoryWriter:
         self._strict = strict
         self._flush = flush
         self._last: float | None = None
-        target = Path(os.path.realpath(p)) if p.is_symlink() else p
+        target = check_target(p, fmt.upper())  # a regular file or none: a device, a FIFO, a link loop are refused
         self._target = target
         directory = target.parent if str(target.parent) else Path(".")
-        self._mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~_umask()
+        self._mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~umask()
+        prefix, suffix = temporary_name(target)
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+            fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=directory)
         except OSError as err:
             raise InvalidParameterError(f"cannot write {p}: {err.strerror or err}") from None
         self._tmp = Path(tmp)
@@ -200,9 +200,11 @@ class TrajectoryWriter:
             return self.count
         fh, self._fh = self._fh, None
         try:
+            fh.flush()
+            os.fsync(fh.fileno())
             fh.close()
             os.chmod(self._tmp, self._mode)
-            os.replace(self._tmp, self._target)
+            replace(self._tmp, self._target)  # inside an OutputGroup: with the command's other outputs
         except BaseException:
             self._tmp.unlink(missing_ok=True)
             raise
