@@ -113,7 +113,10 @@ def scale_cmd(
             sizes, presets=presets, seed=seed, n_queries=queries, exact_queries=exact_queries, repeat=repeat,
             on_step=lambda s: status.update(f"measuring {s}..."),
         )  # fmt: skip
-    cols = ("learn_s", "peak_rss_mb", "db_mb", "localize_ms", "localize_batched_ms", "top1", "mean_rank", "exact", "scored")
+    cols = (
+        "learn_s", "peak_rss_mb", "db_mb", "localize_ms", "localize_cpu_ms", "localize_batched_ms",
+        "localize_posterior_cpu_ms", "top1", "mean_rank", "exact", "exact_posterior", "scored",
+    )  # fmt: skip
     for name, block in res["presets"].items():
         console.print(name, style="bold")
         console.print("  places  " + "  ".join(cols), soft_wrap=True)

@@ -29,8 +29,16 @@ protocol; ``laser2d`` views have random headings):
    number of places the index scored in full, ``mass_bound`` the median
    bound on the posterior mass of the places it did not score, relative to
    those it did (:mod:`fingerloc.retrieval`).
+4. *the posterior*: ``localize`` asks the index for every probability
+   within :data:`~fingerloc.retrieval.POSTERIOR_TOL` (1e-9) of the linear
+   scan's; ``localize_posterior_ms`` (and ``_cpu_ms``) times that for the
+   first :data:`POSTERIOR_QUERIES` queries, ``scored_posterior`` the places
+   it scored, ``exact_posterior`` checks the 5 best places and their
+   probabilities against the linear scan (those of the exactness queries).
+   ``index_used_by_localize``: whether ``localize`` goes through the index
+   at this size (:func:`~fingerloc.retrieval.index_for`).
 
-Also the 1-minute load average at the end of each phase: timings on a
+Also the 1-minute load average at the end of each step: timings on a
 shared machine are only comparable with it.
 """
 
@@ -55,6 +63,8 @@ __all__ = ["PRESETS", "run_scale", "scale_figures"]
 
 #: The presets measured, and how their views are drawn: (camera, random heading).
 PRESETS: dict[str, tuple[bool, bool]] = {"laser2d": (False, True), "paper": (True, False)}
+#: Queries answered with the posterior within the tolerance ``localize`` asks (``localize_posterior_ms``).
+POSTERIOR_QUERIES = 20
 #: Queries answered in one batch by the batched figure (``localize`` reads a log 256 at a time).
 CHUNK = 256
 
@@ -83,7 +93,7 @@ def _campus(preset: str, n_places: int, seed: int, query_places: np.ndarray | No
     return train, queries
 
 
-def _learn_phase(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any]:
+def _learn_step(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any]:
     """Fresh process: draw the campus, learn, save. Returns the learn figures."""
     from ..map.database import save_model
     from ..pipeline.presets import resolve_preset
@@ -113,12 +123,13 @@ def _learn_phase(preset: str, n_places: int, seed: int, db: str) -> dict[str, An
     }
 
 
-def _localize_phase(
+def _localize_step(
     preset: str, n_places: int, seed: int, db: str, n_queries: int, exact_queries: int, repeat: int
 ) -> dict[str, Any]:
     """Fresh process: load, index, answer the queries (module docstring). Returns the localize figures."""
     from ..map.database import load_model
-    from ..retrieval import PlaceIndex
+    from ..model import normalise_log
+    from ..retrieval import POSTERIOR_TOL, PlaceIndex, index_for
 
     rng = np.random.default_rng(seed)
     picked = np.sort(rng.choice(n_places, min(n_queries, n_places), replace=False))
@@ -168,8 +179,15 @@ def _localize_phase(
         "scored": float(np.mean(plain.scored)),
         "mass_bound": float(np.median(plain.mass_bound)),
     }
+    # the posterior within POSTERIOR_TOL, as ``localize`` asks of the index (on the first queries)
+    n_post = min(POSTERIOR_QUERIES, len(queries))
+    w0, c0 = time.perf_counter(), time.process_time()
+    post = index.search(queries[:n_post], k=5, tol=POSTERIOR_TOL)
+    out["localize_posterior_ms"] = 1e3 * (time.perf_counter() - w0) / max(n_post, 1)
+    out["localize_posterior_cpu_ms"] = 1e3 * (time.process_time() - c0) / max(n_post, 1)
+    out["scored_posterior"] = float(np.mean(post.scored)) if n_post else None
     n_check = min(exact_queries, len(queries))
-    same = True
+    same = same_post = True
     lin = []
     for i in range(n_check):
         c0 = time.process_time()
@@ -177,7 +195,13 @@ def _localize_phase(
         lin.append(time.process_time() - c0)
         top = np.lexsort((np.arange(joint.size), -joint))[:5]
         same &= bool(np.array_equal(top, plain.places[i]) and np.array_equal(joint[top], plain.joint[i]))
-    out.update(exact=same, exact_queries=n_check, linear_cpu_ms=1e3 * float(np.mean(lin)) if lin else None)
+        if i < n_post:
+            p_lin = np.exp(normalise_log(joint[None, :])[0, top])
+            same_post &= bool(np.array_equal(top, post.places[i]) and np.max(np.abs(p_lin - np.exp(post.log_posterior[i]))) <= POSTERIOR_TOL)
+    out.update(
+        exact=same, exact_posterior=same_post, exact_queries=n_check, linear_cpu_ms=1e3 * float(np.mean(lin)) if lin else None,
+        index_used_by_localize=index_for(model) is not None,
+    )  # fmt: skip
     out["peak_rss_mb"] = _peak_rss_mb()
     out["load_average"] = _load1()
     return out
@@ -199,13 +223,13 @@ def scale_figures(
     repeat: int = 3,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """The figures of one preset at one size (module docstring), each phase in its own process."""
+    """The figures of one preset at one size (module docstring), each step in its own process."""
     if preset not in PRESETS:
         raise InvalidParameterError(f"unknown preset {preset!r} for bench scale (known: {', '.join(PRESETS)})")
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         db = str(Path(tmp) / "places.sqlite")
-        out = _in_child(_learn_phase, preset, n_places, seed, db)
-        out.update(_in_child(_localize_phase, preset, n_places, seed, db, n_queries, exact_queries, repeat))
+        out = _in_child(_learn_step, preset, n_places, seed, db)
+        out.update(_in_child(_localize_step, preset, n_places, seed, db, n_queries, exact_queries, repeat))
     return out
 
 

@@ -88,6 +88,12 @@ def answer_chunk(
     from ..metrics import rank_scores
     from ..model import normalise_log
 
+    if not records and not keep and not model.unknown_prior > 0:
+        from ..retrieval import index_for
+
+        index = index_for(model)
+        if index is not None:  # a large map: the best places without scoring every place, same answers
+            return _answer_indexed(index, model, obs, start, top, table=table)
     classes = [str(c) for c in model.classes_]
     n = len(obs)
     terms = model.term_log_likelihoods(obs)  # once: the posterior, ranks and headings follow from them
@@ -148,6 +154,38 @@ def answer_chunk(
         for i, o in enumerate(obs):
             order = np.argsort(-logp[i], kind="stable")[:top]
             topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
+            r = rank_of_true[i]
+            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
+            if with_heading:
+                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
+            out.rows.append(row)
+    return out
+
+
+def _answer_indexed(index: Any, model: Any, obs: list[Any], start: int, top: int, *, table: bool) -> ChunkAnswers:
+    """:func:`answer_chunk` through an exact index (:mod:`fingerloc.retrieval`): no records, no kept matrices.
+
+    The same best places, ranks and headings as the full scan, and every posterior shown within
+    :data:`~fingerloc.retrieval.POSTERIOR_TOL` of it.
+    """
+    from ..retrieval import POSTERIOR_TOL
+
+    classes = [str(c) for c in model.classes_]
+    n = len(obs)
+    res = index.search(obs, k=min(top, len(classes)), tol=POSTERIOR_TOL, truth=[o.label for o in obs])
+    best_cols = res.places[:, 0] if n else np.zeros(0, dtype=np.int64)
+    rank_of_true = res.rank_of_truth
+    headings = np.full(n, np.nan)
+    with_heading = shows_heading(model)
+    if with_heading and n:
+        h, _, _ = model.heading_sources(obs, [model.classes_[j] for j in best_cols])
+        headings = np.mod(-h, 360.0)
+    out = ChunkAnswers(n, rank_of_true=[int(r) for r in rank_of_true])
+    out.pairs = [(str(o.label), classes[int(best_cols[i])]) for i, o in enumerate(obs) if rank_of_true[i] > 0]
+    if table:
+        post = np.exp(res.log_posterior)
+        for i, o in enumerate(obs):
+            topk = ", ".join(f"{classes[int(j)]} {post[i, c]:.3f}" for c, j in enumerate(res.places[i][:top]))
             r = rank_of_true[i]
             row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
             if with_heading:

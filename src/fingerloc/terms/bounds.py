@@ -56,7 +56,7 @@ from .base import Term
 from .fingerprint import FingerprintTerm
 from .range import RangeTerm
 
-__all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for"]
+__all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for", "has_bound"]
 
 #: Steps of a range descriptor entry (in [0, 1]) in the coarse bound.
 _RANGE_STEPS = 65535
@@ -327,10 +327,17 @@ def _l1_columns(desc_t: NDArray[np.uint16], q: NDArray[np.uint16]) -> NDArray[np
     return out
 
 
+def has_bound(term: Term) -> bool:
+    """True when this module has bounds of the term's own (not :class:`DenseBound`'s full scoring)."""
+    if isinstance(term, FingerprintTerm):
+        return term.reference == "all" and len(term._refs) > 0
+    return isinstance(term, RangeTerm) and term.every_place_described()
+
+
 def bound_for(term: Term, layout: PlaceLayout) -> TermBound:
     """The best bound this module has for ``term``: its own, or :class:`DenseBound`."""
-    if isinstance(term, FingerprintTerm) and term.reference == "all" and len(term._refs):
+    if not has_bound(term):
+        return DenseBound(term, layout)
+    if isinstance(term, FingerprintTerm):
         return FingerprintBound(term, layout)
-    if isinstance(term, RangeTerm) and term.every_place_described():
-        return RangeBound(term, layout)
-    return DenseBound(term, layout)
+    return RangeBound(term, layout)  # type: ignore[arg-type]
