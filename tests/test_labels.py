@@ -62,8 +62,9 @@ def test_features_gives_each_photo_its_place_in_one_call(tmp_path, capsys):
     from ._cli import run_cli
 
     rng = np.random.default_rng(0)
-    for name in ("a.png", "b.png", "c.png"):
-        Image.fromarray(rng.integers(0, 255, (128, 256, 3), dtype=np.uint8)).save(tmp_path / name)
+    for name in ("a.png", "b.png", "c.png"):  # a few coloured walls with vertical edges (noise would give thousands)
+        cols = np.repeat(rng.integers(0, 255, (8, 3), dtype=np.uint8), 32, axis=0)
+        Image.fromarray(np.repeat(cols[None, :, :], 128, axis=0)).save(tmp_path / name)
     (tmp_path / "labels.csv").write_text("file,place\na.png,hall\nb.png,kitchen\n")
     out = tmp_path / "o.jsonl"
     code, _, err = run_cli(capsys, "features", tmp_path / "a.png", tmp_path / "b.png", "--labels",
