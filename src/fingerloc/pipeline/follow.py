@@ -25,17 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InvalidParameterError
 from ..io.stream import StreamItem
-from .placemap import PlaceMap
+from .placemap import PlaceMap, check_track_options
 from .places import nearest_within
 from .tracker import Answer, Tracker
 
-__all__ = ["OBSERVE", "StreamStepper", "track_stream"]
-
-#: Which items observe: ``queries`` (a scan with a pose only at a place) or ``all``.
-OBSERVE: tuple[str, ...] = ("queries", "all")
-
+__all__ = ["StreamStepper", "track_stream"]
 
 class StreamStepper:
     """One :meth:`step` per stream item: the item's truth, observe flag and motion (module docstring).
@@ -49,8 +44,7 @@ class StreamStepper:
     """
 
     def __init__(self, place_map: PlaceMap, tracker: Tracker, *, observe: str = "queries") -> None:
-        if observe not in OBSERVE:
-            raise InvalidParameterError(f"observe must be 'queries' or 'all', got {observe!r}")
+        check_track_options(observe=observe)
         self.tracker = tracker
         self.observe = observe
         self.labels = list(place_map.labels)
