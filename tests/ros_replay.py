@@ -80,6 +80,10 @@ def main() -> int:
     if time.monotonic() >= deadline:
         sys.stderr.write("replay: the node did not connect in time\n")
         return 3
+    # A subscriber counts its connection once the publisher's handshake header arrives, but rospy's publisher
+    # writes that header before it adds the connection to the ones it sends to: a message published in between
+    # is lost. The node's own publishers are the ones that matter here, and they cannot be asked; let them settle.
+    time.sleep(0.5)
     steps = 0
     for topic, msg, _ in bag.read_messages():
         pubs[topic].publish(msg)
