@@ -315,3 +315,43 @@ def test_map_writes_the_database_and_its_outputs_together_or_none(tmp_path, caps
     assert code == 2 and err.strip().splitlines()[-1].startswith("error: ") and "no space left" in err.lower(), err
     assert db.read_bytes() == b"old database" and train.read_text() == "old training\n" and not queries.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_report_that_fails_halfway_leaves_the_old_report_and_database(tmp_path, capsys, rooms_log, monkeypatch):
+    """``map --report`` out of space after some of the report's figures: the old report and database stay."""
+    db, report = tmp_path / "m.sqlite", tmp_path / "report"
+    db.write_bytes(b"old database")
+    report.mkdir()
+    (report / "index.html").write_text("old page")
+    import fingerloc.reporting.pages as pages
+
+    real = pages.draw_view_thumbnail
+    calls = {"n": 0}
+
+    def failing(*args, **kw):
+        calls["n"] += 1
+        if calls["n"] > 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(pages, "draw_view_thumbnail", failing)
+    code, _, err = run(capsys, "map", rooms_log, "--db", db, "--overwrite", "--report", report, "--no-calibration",
+                       "--no-heading")  # fmt: skip
+    assert code == 2 and err.strip().splitlines()[-1].startswith("error: ") and "no space left" in err.lower(), err
+    assert calls["n"] == 3
+    assert db.read_bytes() == b"old database"
+    assert (
+        sorted(p.name for p in report.iterdir()) == ["index.html"] and (report / "index.html").read_text() == "old page"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.sqlite", "m.sqlite.lock", "report"]  # no temporary
+
+
+def test_a_new_report_folder_is_written_whole_with_the_database(tmp_path, capsys, rooms_log):
+    db, report = tmp_path / "m.sqlite", tmp_path / "report"
+    code, _, err = run(capsys, "map", rooms_log, "--db", db, "--report", report, "--no-calibration", "--no-heading")
+    assert code == 0, err
+    assert (report / "index.html").is_file() and db.is_file()
+    page = (report / "index.html").read_text()
+    figures = [p for p in report.rglob("*.png")]
+    assert figures and all(f'src="{p.relative_to(report).as_posix()}"' in page or p.parent != report for p in figures)
+    assert not [p for p in tmp_path.rglob(".fingerloc-report-*")]

@@ -16,8 +16,7 @@ the command's other outputs; on an error the report folder stays as it was).
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from .html import Page
+from .staging import staged_folder
 
 __all__ = ["draw_fingerprint_places", "draw_pr_curves", "write_loops_report", "write_places_report"]
 
@@ -150,53 +150,6 @@ def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
-@contextmanager
-def _staged(out: Path) -> Iterator[Path]:
-    """A temporary folder beside ``out`` whose files replace their namesakes in ``out`` when the block ends well.
-
-    The renames go through :func:`fingerloc.atomic.replace`: inside an output group they happen with the
-    group's other outputs, or not at all. The temporary folder is removed at the end either way; ``out``,
-    when this created it and nothing was renamed into it, too.
-    """
-    import shutil
-    import tempfile
-
-    from ..atomic import current_group, replace
-
-    base = out.parent
-    while not base.is_dir():  # the nearest existing folder: the same file system as the report's
-        base = base.parent
-    created = not out.exists()
-    tmp = Path(tempfile.mkdtemp(prefix=".fingerloc-report-", dir=base))
-
-    def clean() -> None:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if created:
-            try:
-                out.rmdir()  # only when empty: a report that was renamed into it stays
-            except OSError:
-                pass
-
-    try:
-        yield tmp
-        out.mkdir(parents=True, exist_ok=True)
-        for f in sorted(tmp.iterdir()):
-            replace(f, out / f.name)
-    except OSError as err:
-        clean()
-        if err.filename is not None and Path(err.filename).parent == tmp:  # name the report's file, not the temporary
-            raise OSError(err.errno, err.strerror, str(out / Path(err.filename).name)) from None
-        raise
-    except BaseException:
-        clean()
-        raise
-    group = current_group()
-    if group is None:
-        clean()
-    else:
-        group.at_end(clean)
-
-
 def write_loops_report(
     out_dir: str | Path,
     logs: Sequence[Mapping[str, Any]],
@@ -226,7 +179,7 @@ def write_loops_report(
         ``index.html``.
     """
     target = Path(out_dir)
-    with _staged(target) as out:
+    with staged_folder(target) as out:
         _loops_files(out, logs, pooled=pooled, protocol=protocol)
     return target / "index.html"
 
@@ -347,7 +300,7 @@ def write_places_report(
         ``index.html``.
     """
     target = Path(out_dir)
-    with _staged(target) as out:
+    with staged_folder(target) as out:
         _places_files(out, labels=labels, assignment=assignment, keyframes=keyframes, closures=closures,
                       consensus=consensus, trajectory=trajectory, notes=notes, figures=figures)  # fmt: skip
     return target / "index.html"

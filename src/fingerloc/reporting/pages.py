@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from .html import Page, ellipsize_middle, esc, table_html
+from .staging import staged_report
 from .views import FeatureView, draw_view_thumbnail, legend_text
 
 __all__ = [
@@ -112,6 +113,7 @@ def _edge_indices(edges: Sequence[tuple[Any, Any]], names: Sequence[str]) -> IAr
     return np.array(out, dtype=np.int64).reshape(-1, 2)
 
 
+@staged_report
 def write_map_report(
     out_dir: str | Path,
     *,
@@ -337,6 +339,7 @@ def most_confused(confusion: IArray, k: int) -> IArray:
     return np.sort(top)
 
 
+@staged_report
 def write_localize_report(
     out_dir: str | Path,
     *,
@@ -660,6 +663,7 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
 
 
+@staged_report
 def write_track_report(
     out_dir: str | Path,
     *,
@@ -832,6 +836,7 @@ def write_track_report(
 # ----------------------------------------------------------------------------- panorama
 
 
+@staged_report
 def write_panorama_report(
     out_dir: str | Path,
     image: ArrayLike,

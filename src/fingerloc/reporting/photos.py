@@ -22,6 +22,7 @@ import numpy as np
 from .._types import FArray
 from ..errors import FingerlocError
 from .html import Page, esc
+from .staging import staged_report
 
 __all__ = ["draw_photo_match", "term_evidence", "write_photo_answers"]
 
@@ -102,6 +103,7 @@ def draw_photo_match(
     return figures._save(fig, path)
 
 
+@staged_report
 def write_photo_answers(
     out_dir: str | Path,
     *,
