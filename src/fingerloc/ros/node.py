@@ -28,10 +28,8 @@ import os
 import subprocess
 import sys
 import sysconfig
-import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from ..errors import FingerlocError
 from .live import LiveLocalizer, NodeConfig, StepTracker, load_tracker
@@ -144,61 +142,31 @@ def run(config: NodeConfig, tracker: StepTracker, *, init: bool = True, name: st
     from std_msgs.msg import String
     from tf2_msgs.msg import TFMessage
 
-    from .convert import answer_json, fill_pose_with_covariance, odometry_from_msg, scan_from_msg, transforms_from_msg
+    from .handlers import MessageHandlers
 
     if init:
         rospy.init_node(name)
     pub_place = rospy.Publisher("~current_place", String, queue_size=1, latch=True)
     pub_answer = rospy.Publisher("~posterior", String, queue_size=100)
     pub_pose = rospy.Publisher("~pose", PoseWithCovarianceStamped, queue_size=100)
-
-    def publish_pose(ans: Any) -> None:
-        msg = PoseWithCovarianceStamped()
-        msg.header.stamp = rospy.Time.from_sec(float(ans.stamp or 0.0))
-        msg.header.frame_id = config.map_frame
-        fill_pose_with_covariance(msg.pose, ans.pose, ans.covariance)
-        pub_pose.publish(msg)
-
-    loc = LiveLocalizer(
+    h = MessageHandlers(
         tracker,
         config,
-        on_place=lambda place: pub_place.publish(String(data=str(place))),
-        on_answer=lambda ans: pub_answer.publish(String(data=answer_json(ans))),
-        on_pose=publish_pose,
+        publish_place=lambda text: pub_place.publish(String(data=text)),
+        publish_answer=lambda text: pub_answer.publish(String(data=text)),
+        publish_pose=pub_pose.publish,
+        pose_message=PoseWithCovarianceStamped,
+        stamp=rospy.Time.from_sec,
+        warn=lambda text: rospy.logwarn_throttle(5.0, text),
     )
-    lock = threading.Lock()
-
-    def guarded(what: str, fn: Callable[[], Any]) -> None:
-        with lock:
-            try:
-                fn()
-            except FingerlocError as err:
-                rospy.logwarn_throttle(5.0, f"{what}: {err}")
-
-    def on_scan(msg: Any, topic: str) -> None:
-        def go() -> None:
-            scan, frame = scan_from_msg(msg)
-            loc.scan(topic, scan, frame)
-
-        guarded(f"scan on {topic}", go)
-
-    def on_odom(msg: Any) -> None:
-        def go() -> None:
-            t, pose, _, child = odometry_from_msg(msg)
-            loc.odometry(t, pose, child)
-
-        guarded("odometry", go)
-
-    def on_tf(msg: Any, static: bool) -> None:
-        guarded("/tf", lambda: loc.transforms(transforms_from_msg(msg), static=static))
-
-    subs = [rospy.Subscriber("/tf", TFMessage, on_tf, callback_args=False, queue_size=100),
-            rospy.Subscriber("/tf_static", TFMessage, on_tf, callback_args=True, queue_size=100)]  # fmt: skip
+    loc = h.localizer
+    subs = [rospy.Subscriber("/tf", TFMessage, h.transforms, callback_args=False, queue_size=100),
+            rospy.Subscriber("/tf_static", TFMessage, h.transforms, callback_args=True, queue_size=100)]  # fmt: skip
     if config.pose_source == "odom":
-        subs.append(rospy.Subscriber(config.odom_topic, Odometry, on_odom, queue_size=100))
+        subs.append(rospy.Subscriber(config.odom_topic, Odometry, h.odometry, queue_size=100))
     for topic in config.scan_topics:
-        subs.append(rospy.Subscriber(topic, LaserScan, on_scan, callback_args=topic, queue_size=config.queue_size))
-    timer = rospy.Timer(rospy.Duration(POLL_PERIOD_S), lambda _event: guarded("timer", loc.poll))
+        subs.append(rospy.Subscriber(topic, LaserScan, h.scan, callback_args=topic, queue_size=config.queue_size))
+    timer = rospy.Timer(rospy.Duration(POLL_PERIOD_S), lambda _event: h.poll())
     rospy.loginfo(
         f"fingerloc: {config.database}, {config.filter} filter; scans {', '.join(config.scan_topics)}, "
         f"poses {config.pose_source}{' ' + config.odom_topic if config.pose_source == 'odom' else ''}"

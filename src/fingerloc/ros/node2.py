@@ -11,8 +11,6 @@ profile (best effort), ``/tf_static`` transient local.
 from __future__ import annotations
 
 import sys
-import threading
-from collections.abc import Callable
 from typing import Any
 
 from ..errors import FingerlocError
@@ -66,68 +64,35 @@ def run(node: Any, config: NodeConfig, tracker: StepTracker, *, spin: bool = Tru
     from std_msgs.msg import String
     from tf2_msgs.msg import TFMessage
 
-    from .convert import answer_json, fill_pose_with_covariance, odometry_from_msg, scan_from_msg, transforms_from_msg
+    from .handlers import MessageHandlers
 
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     pub_place = node.create_publisher(String, "~/current_place", latched)
     pub_answer = node.create_publisher(String, "~/posterior", 100)
     pub_pose = node.create_publisher(PoseWithCovarianceStamped, "~/pose", 100)
     log = node.get_logger()
-
-    def publish_pose(ans: Any) -> None:
-        msg = PoseWithCovarianceStamped()
-        msg.header.stamp = _stamp(float(ans.stamp or 0.0))
-        msg.header.frame_id = config.map_frame
-        fill_pose_with_covariance(msg.pose, ans.pose, ans.covariance)
-        pub_pose.publish(msg)
-
-    loc = LiveLocalizer(
+    h = MessageHandlers(
         tracker,
         config,
-        on_place=lambda place: pub_place.publish(String(data=str(place))),
-        on_answer=lambda ans: pub_answer.publish(String(data=answer_json(ans))),
-        on_pose=publish_pose,
+        publish_place=lambda text: pub_place.publish(String(data=text)),
+        publish_answer=lambda text: pub_answer.publish(String(data=text)),
+        publish_pose=pub_pose.publish,
+        pose_message=PoseWithCovarianceStamped,
+        stamp=_stamp,
+        warn=lambda text: log.warning(text, throttle_duration_sec=5.0),
     )
-    lock = threading.Lock()
-
-    def guarded(what: str, fn: Callable[[], Any]) -> None:
-        with lock:
-            try:
-                fn()
-            except FingerlocError as err:
-                log.warning(f"{what}: {err}", throttle_duration_sec=5.0)
-
-    def scan_cb(topic: str) -> Callable[[Any], None]:
-        def cb(msg: Any) -> None:
-            def go() -> None:
-                scan, frame = scan_from_msg(msg)
-                loc.scan(topic, scan, frame)
-
-            guarded(f"scan on {topic}", go)
-
-        return cb
-
-    def odom_cb(msg: Any) -> None:
-        def go() -> None:
-            t, pose, _, child = odometry_from_msg(msg)
-            loc.odometry(t, pose, child)
-
-        guarded("odometry", go)
-
-    node.create_subscription(TFMessage, "/tf", lambda m: guarded("/tf", lambda: loc.transforms(
-        transforms_from_msg(m), static=False)), 100)  # fmt: skip
+    node.create_subscription(TFMessage, "/tf", lambda m: h.transforms(m, False), 100)
     tf_static = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(TFMessage, "/tf_static", lambda m: guarded("/tf_static", lambda: loc.transforms(
-        transforms_from_msg(m), static=True)), tf_static)  # fmt: skip
+    node.create_subscription(TFMessage, "/tf_static", lambda m: h.transforms(m, True), tf_static)
     if config.pose_source == "odom":
-        node.create_subscription(Odometry, config.odom_topic, odom_cb, 100)
+        node.create_subscription(Odometry, config.odom_topic, h.odometry, 100)
     for topic in config.scan_topics:
-        node.create_subscription(LaserScan, topic, scan_cb(topic), qos_profile_sensor_data)
-    node.create_timer(POLL_PERIOD_S, lambda: guarded("timer", loc.poll))
+        node.create_subscription(LaserScan, topic, lambda m, topic=topic: h.scan(m, topic), qos_profile_sensor_data)
+    node.create_timer(POLL_PERIOD_S, h.poll)
     log.info(f"fingerloc: {config.database}, {config.filter} filter; scans {', '.join(config.scan_topics)}")
     if spin:
         try:
             rclpy.spin(node)
         except KeyboardInterrupt:
             pass
-    return loc
+    return h.localizer
