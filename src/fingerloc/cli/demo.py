@@ -15,6 +15,7 @@ import typer
 
 from ._io import check_output
 from .app import app, console, err_console, real_console
+from .robot import WORLD_HELP
 
 
 @app.command("demo")
@@ -31,12 +32,7 @@ def demo_cmd(
     world: str = typer.Option(
         "paper",
         "--world",
-        help=(
-            "Simulated offices and robot: 'paper' (calibrated to the paper's Tables II and III; the test "
-            "measurements at a later visit: chairs moved, doors closed, people, daylight, the robot's heading), "
-            "'paper-static' (the same, nothing changed between visits), 'paper-ideal' (the paper world seen with "
-            "perfect perception and the same heading at both visits) or 'alike' (the original)."
-        ),
+        help=WORLD_HELP,
     ),
 ) -> None:
     """Simulate 10 offices, extract features from raw scans and images, learn, localize, print tables, write a report."""

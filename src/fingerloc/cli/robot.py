@@ -12,6 +12,14 @@ from ._io import check_output
 from .app import console, reproduce_app, trial_progress
 from .bench import write_json
 
+#: The ``--world`` option's help (``reproduce robot`` and ``demo``).
+WORLD_HELP = (
+    "Simulated offices and robot: 'paper' (calibrated to the paper's Tables II and III; the test "
+    "measurements at a later visit: chairs moved, doors closed, people, daylight, the robot's heading), "
+    "'paper-static' (the same, nothing changed between visits), 'paper-ideal' (the paper world seen with "
+    "perfect perception and the same heading at both visits) or 'alike' (the original)."
+)
+
 if TYPE_CHECKING:
     from rich.console import Console
     from rich.table import Table
@@ -209,12 +217,7 @@ def robot_cmd(
     world: str = typer.Option(
         "paper",
         "--world",
-        help=(
-            "Simulated offices and robot: 'paper' (calibrated to the paper's Tables II and III; the test "
-            "measurements at a later visit: chairs moved, doors closed, people, daylight, the robot's heading), "
-            "'paper-static' (the same, nothing changed between visits), 'paper-ideal' (the paper world seen with "
-            "perfect perception and the same heading at both visits) or 'alike' (the original)."
-        ),
+        help=WORLD_HELP,
     ),
     workers: int | None = typer.Option(
         None,
