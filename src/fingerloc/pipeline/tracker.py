@@ -49,6 +49,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -61,7 +62,7 @@ from ..map.filter import MarkovFilter, TransitionModel, entropy_bits
 from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
 from ..sensors import Scan
-from .calibration import Calibration, implied_headings, posterior_columns
+from .calibration import Calibration
 from .filters import place_transition_of, pose_filter_of, pose_tracking, transition_of
 
 if TYPE_CHECKING:
@@ -314,6 +315,8 @@ class Tracker:
         self.heading_budget = heading_budget
         self._tree: Any = None
         self._heading_set: tuple[int, Any, IArray | None] | None = None
+        self._columns: tuple[IArray, IArray] | None = None
+        self._views: list[tuple[Any, FArray | None]] | None = None
         self.scan_map = scan_map if filter == "pose" else None
         self._pose: PoseTracking | None = None
         self._places: MarkovFilter | None = None
@@ -403,8 +406,9 @@ class Tracker:
         mid = (np.column_stack([code // width, code % width]) + lo + 0.5) * _HEADING_CELL_M
         reach = float(pf.radius) + HEADING_REACH_M + _HEADING_CELL_M * math.sqrt(0.5)
         near = self._tree.query_ball_point(mid, reach)
-        found = np.fromiter((j for js in near for j in js), dtype=np.int64)
-        held = np.bincount(found, weights=np.repeat(per_cell, [len(js) for js in near]), minlength=self.n_places)
+        lengths = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+        found = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(lengths.sum()))
+        held = np.bincount(found, weights=np.repeat(per_cell, lengths), minlength=self.n_places)
         with np.errstate(divide="ignore"):
             score = np.where(held > 0, np.log(held) + np.where(np.isnan(row), -np.inf, row), -np.inf)
         ranked = np.argsort(-score, kind="stable")[:n_near]
@@ -413,6 +417,43 @@ class Tracker:
         return out
 
     # -- one step from raw data ---------------------------------------------------------------------
+
+    def _posterior_columns(self, obs: Observation) -> FArray:
+        """:func:`~fingerloc.pipeline.calibration.posterior_columns` of one observation, shape (1, P), with the
+        model's column of each place found once."""
+        if self._columns is None:
+            col = {lab: j for j, lab in enumerate(self.labels)}
+            pairs = [(k, col[str(c)]) for k, c in enumerate(self.model.classes_) if str(c) in col]
+            pairs = list({j: (k, j) for k, j in pairs}.values())  # a column written twice keeps its last class
+            self._columns = (np.array([k for k, _ in pairs], dtype=np.int64), np.array([j for _, j in pairs], dtype=np.int64))
+        out = np.full((1, self.n_places), -np.inf)
+        lp = np.asarray(self.model.predict_log_proba([obs]), dtype=np.float64)
+        ks, js = self._columns
+        out[:, js] = lp[:, ks]
+        return out
+
+    def _implied_headings(self, obs: Observation, columns: IArray | None) -> FArray:
+        """:func:`~fingerloc.pipeline.calibration.implied_headings` of one observation, shape (P,), with each
+        place's model key and its views' recorded headings found once."""
+        if self._views is None:
+            places = getattr(self.model, "places_", {})
+            by_name = {str(k): k for k in places}
+            keys = [by_name.get(lab) for lab in self.labels]
+            self._views = [
+                (None, None) if key is None
+                else (key, np.array([np.nan if o.pose is None else float(o.pose[2]) for o in places[key].observations]))
+                for key in keys
+            ]  # fmt: skip
+        out = np.full(self.n_places, np.nan)
+        cols = range(self.n_places) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
+        for j in cols:
+            key, theta = self._views[j]
+            if key is None or theta is None:
+                continue
+            h, v = self.model.headings_with_reference([obs], [key])
+            if v[0] >= 0 and v[0] < theta.size and math.isfinite(h[0]):
+                out[j] = np.mod(theta[v] - np.radians(h) + math.pi, 2 * math.pi)[0] - math.pi
+        return out
 
     def observe(self, item: Scan | Observation) -> tuple[FArray, FArray | None, FArray | None, float | None]:
         """What one item brings to the filter: its scaled log-likelihood row (P,), implied headings (P,) or None,
@@ -424,10 +465,10 @@ class Tracker:
             obs = observation_from_scan(item, **self.features)
         if not isinstance(obs, Observation):
             raise InvalidParameterError(f"a tracker step takes a Scan or an Observation, got {type(item).__name__}")
-        row = scaled(posterior_columns(self.model, [obs], self.n_places, self.labels), self.calibration.beta)[0]
+        row = scaled(self._posterior_columns(obs), self.calibration.beta)[0]
         hd = None
         if self.heading:
-            hd = implied_headings(self.model, [obs], self.labels, self.heading_places(row))[0]
+            hd = self._implied_headings(obs, self.heading_places(row))
         pts = end_points_of(item) if self.uses_scan else None
         unknown = None
         if getattr(self.model, "unknown_prior", 0) > 0:
