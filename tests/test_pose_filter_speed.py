@@ -106,3 +106,19 @@ def test_centre_grid_cells_list_few_candidates_on_a_spread_map():
     c = rng.uniform(0, 300, (1000, 2))
     g = CentreGrid(c)
     assert g.cand.size / (g.shape[0] * g.shape[1]) < 20  # not every centre in every cell
+
+
+def test_centre_grid_mass_within_equals_the_tree_ball_query():
+    rng = np.random.default_rng(7)
+    for t in range(80):
+        n_c = int(rng.integers(1, 600))
+        c = rng.uniform(-50, 50, (n_c, 2))
+        mid = (np.floor(rng.uniform(-60, 60, (int(rng.integers(1, 300)), 2)) / 0.5) + 0.5) * 0.5
+        reach = float(rng.uniform(0.1, 8.0))
+        if t % 4 == 0:  # centres exactly at the reach of a point
+            c, mid, reach = np.round(c), np.round(mid), 2.0
+        w = rng.integers(1, 30, mid.shape[0]).astype(np.float64)
+        near = cKDTree(c).query_ball_point(mid, reach)
+        found = np.array([j for js in near for j in js], dtype=np.int64)
+        expected = np.bincount(found, weights=np.repeat(w, [len(js) for js in near]), minlength=n_c)
+        assert CentreGrid(c).mass_within(mid, w, reach).tobytes() == expected.tobytes()

@@ -49,7 +49,6 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -313,7 +312,7 @@ class Tracker:
                 raise InvalidParameterError(f"heading_budget must be two integers >= 0 or None, got {heading_budget!r}")
             heading_budget = (int(heading_budget[0]), int(heading_budget[1]))
         self.heading_budget = heading_budget
-        self._tree: Any = None
+        self._grid: Any = None
         self._heading_set: tuple[int, Any, IArray | None] | None = None
         self._columns: tuple[IArray, IArray] | None = None
         self._views: list[tuple[Any, FArray | None]] | None = None
@@ -395,20 +394,17 @@ class Tracker:
         n_near, n_top = self.heading_budget
         top = np.argsort(-np.where(np.isnan(row), -np.inf, row), kind="stable")[:n_top]
         pf = pose.pose_filter
-        if self._tree is None:
-            from scipy.spatial import cKDTree
+        if self._grid is None:
+            from ..map._nearest import CentreGrid
 
-            self._tree = cKDTree(pf.centres)
+            self._grid = CentreGrid(pf.centres)
         cells = np.floor(pf.particles_[:, :2] / _HEADING_CELL_M).astype(np.int64)
         lo = cells.min(axis=0)
         width = int(cells[:, 1].max() - lo[1]) + 1
         code, per_cell = np.unique((cells[:, 0] - lo[0]) * width + (cells[:, 1] - lo[1]), return_counts=True)
         mid = (np.column_stack([code // width, code % width]) + lo + 0.5) * _HEADING_CELL_M
         reach = float(pf.radius) + HEADING_REACH_M + _HEADING_CELL_M * math.sqrt(0.5)
-        near = self._tree.query_ball_point(mid, reach)
-        lengths = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
-        found = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(lengths.sum()))
-        held = np.bincount(found, weights=np.repeat(per_cell, lengths), minlength=self.n_places)
+        held = self._grid.mass_within(mid, per_cell.astype(np.float64), reach)
         with np.errstate(divide="ignore"):
             score = np.where(held > 0, np.log(held) + np.where(np.isnan(row), -np.inf, row), -np.inf)
         ranked = np.argsort(-score, kind="stable")[:n_near]
@@ -446,13 +442,16 @@ class Tracker:
             ]  # fmt: skip
         out = np.full(self.n_places, np.nan)
         cols = range(self.n_places) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
-        for j in cols:
-            key, theta = self._views[j]
-            if key is None or theta is None:
-                continue
-            h, v = self.model.headings_with_reference([obs], [key])
-            if v[0] >= 0 and v[0] < theta.size and math.isfinite(h[0]):
-                out[j] = np.mod(theta[v] - np.radians(h) + math.pi, 2 * math.pi)[0] - math.pi
+        cols = [j for j in cols if self._views[j][0] is not None]
+        if not cols:
+            return out
+        # one call for every place: the model's loop over (observation, place) pairs, the same headings
+        h, v = self.model.headings_with_reference([obs] * len(cols), [self._views[j][0] for j in cols])
+        for i, j in enumerate(cols):
+            theta = self._views[j][1]
+            assert theta is not None
+            if v[i] >= 0 and v[i] < theta.size and math.isfinite(h[i]):
+                out[j] = np.mod(theta[v[i : i + 1]] - np.radians(h[i : i + 1]) + math.pi, 2 * math.pi)[0] - math.pi
         return out
 
     def observe(self, item: Scan | Observation) -> tuple[FArray, FArray | None, FArray | None, float | None]:
