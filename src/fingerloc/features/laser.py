@@ -371,6 +371,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
             continue
         lines.append(_make_line(pts, lo, hi, 1))
     # merge neighbouring collinear lines
+    min_cos = np.cos(np.deg2rad(p.merge_angle_deg))
     merged = True
     while merged and len(lines) > 1:
         merged = False
@@ -379,7 +380,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
             if not (_is_line(a) and _is_line(bl)):
                 continue
             cosang = abs(float(np.dot(a.direction, bl.direction)))
-            if cosang < np.cos(np.deg2rad(p.merge_angle_deg)):
+            if cosang < min_cos:
                 continue
             lo, hi = a.start, bl.stop
             _, _, rms = _tls(pts[lo:hi])
