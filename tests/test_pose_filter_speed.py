@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fingerloc.map import pose_filter as pf
-from fingerloc.map._nearest import nearest_centres
+from fingerloc.map._nearest import CentreGrid, nearest_centres
 from fingerloc.map.driver import run_pose_filter
 from fingerloc.map.filter import MarkovFilter, TransitionModel
 from fingerloc.map.graph import PlaceGraph
@@ -70,10 +70,55 @@ def test_pose_filter_run_is_the_same_with_the_tree_and_scipy(monkeypatch):
     assert np.all(np.isfinite(fast[~np.all(np.isnan(fast), axis=1)]).any(axis=1))
 
 
-def test_many_places_use_the_tree():
+def test_many_places_give_the_tree_answer():
     rng = np.random.default_rng(2)
     c = rng.uniform(-100, 100, (300, 2))
     f = PoseFilter(c, 1.0, n_particles=500, random_state=0)
     d, j = f._nearest(f.particles_[:, :2])
     d0, j0 = _tree_nearest(f, f.particles_[:, :2])
     assert d.tobytes() == d0.tobytes() and np.array_equal(j, j0)
+
+
+def test_centre_grid_equals_the_brute_force():
+    rng = np.random.default_rng(5)
+    for t in range(60):
+        n_c = int(rng.integers(1, 400))
+        c = rng.uniform(-50, 50, (n_c, 2))
+        if t % 5 == 0:
+            c *= rng.uniform(0, 1, 2)  # a flat or tiny box
+        if t % 7 == 0:
+            c[:, 1] = 3.0  # every centre on one line
+        if t % 11 == 0:
+            c = np.round(c / 10.0) * 10.0  # repeated centres and exact ties
+        xy = rng.uniform(-70, 70, (int(rng.integers(0, 2000)), 2))  # some off the grid
+        if xy.shape[0] >= 50:
+            xy[:50] = c[rng.integers(0, n_c, 50)]  # points exactly on a centre
+        d, j = CentreGrid(c).nearest(xy)
+        d0, j0 = nearest_centres(xy, c)
+        assert d.tobytes() == d0.tobytes()
+        np.testing.assert_array_equal(j, j0)
+    g = CentreGrid(np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]]))
+    assert g.nearest(np.array([[1.0, 0.0], [1.0, 1.0], [0.4, 1.9]]))[1].tolist() == [0, 0, 2]  # ties: the lower index
+
+
+def test_centre_grid_cells_list_few_candidates_on_a_spread_map():
+    rng = np.random.default_rng(6)
+    c = rng.uniform(0, 300, (1000, 2))
+    g = CentreGrid(c)
+    assert g.cand.size / (g.shape[0] * g.shape[1]) < 20  # not every centre in every cell
+
+
+def test_centre_grid_mass_within_equals_the_tree_ball_query():
+    rng = np.random.default_rng(7)
+    for t in range(80):
+        n_c = int(rng.integers(1, 600))
+        c = rng.uniform(-50, 50, (n_c, 2))
+        mid = (np.floor(rng.uniform(-60, 60, (int(rng.integers(1, 300)), 2)) / 0.5) + 0.5) * 0.5
+        reach = float(rng.uniform(0.1, 8.0))
+        if t % 4 == 0:  # centres exactly at the reach of a point
+            c, mid, reach = np.round(c), np.round(mid), 2.0
+        w = rng.integers(1, 30, mid.shape[0]).astype(np.float64)
+        near = cKDTree(c).query_ball_point(mid, reach)
+        found = np.array([j for js in near for j in js], dtype=np.int64)
+        expected = np.bincount(found, weights=np.repeat(w, [len(js) for js in near]), minlength=n_c)
+        assert CentreGrid(c).mass_within(mid, w, reach).tobytes() == expected.tobytes()

@@ -355,37 +355,14 @@ def _make_line(pts: FArray, start: int, stop: int, margin: int) -> _Line:
     return _Line(start, stop, c, d, c + t0 * d, c + t1 * d)
 
 
-def _split(pts: FArray, rng: FArray, lo: int, hi: int, p: LaserParams, out: list[tuple[int, int]]) -> None:
-    """Recursive iterative-end-point split of ``pts[lo:hi]`` into pieces."""
-    if hi - lo < 3:
-        out.append((lo, hi))
-        return
-    a, bpt = pts[lo], pts[hi - 1]
-    chord = bpt - a
-    length = float(np.hypot(*chord))
-    seg = pts[lo:hi]
-    if length < 1e-9:
-        dist = np.linalg.norm(seg - a, axis=1)
-    else:
-        normal = np.array([-chord[1], chord[0]]) / length
-        dist = np.abs((seg - a) @ normal)
-    tol = _tol(rng[lo:hi], p)
-    excess = dist - tol
-    k = int(np.argmax(dist / tol))
-    if excess[k] > 0 and 0 < k < hi - lo - 1:
-        _split(pts, rng, lo, lo + k + 1, p, out)  # the split point ends the left piece...
-        _split(pts, rng, lo + k, hi, p, out)  # ...and starts the right one
-    else:
-        out.append((lo, hi))
-
-
 def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams) -> list[_Line]:
     """Split-and-merge lines of one segment; line indices refer to the full (rolled) beam arrays."""
     idx = np.arange(seg.start, seg.stop)
     idx = idx[np.isfinite(all_rng[idx])]  # bridged drop-outs have no point
     pts, rng = all_pts[idx], all_rng[idx]
-    pieces: list[tuple[int, int]] = []
-    _split(pts, rng, 0, idx.size, p, pieces)
+    from ._laser_kernels import split_pieces
+
+    pieces = split_pieces(np.ascontiguousarray(pts, dtype=np.float64), _tol(rng, p)).tolist()
     # neighbouring pieces share their split point; each fit leaves out its two end points
     lines: list[_Line] = []
     for lo, hi in pieces:
@@ -394,6 +371,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
             continue
         lines.append(_make_line(pts, lo, hi, 1))
     # merge neighbouring collinear lines
+    min_cos = np.cos(np.deg2rad(p.merge_angle_deg))
     merged = True
     while merged and len(lines) > 1:
         merged = False
@@ -402,7 +380,7 @@ def _fit_segment(all_pts: FArray, all_rng: FArray, seg: _Segment, p: LaserParams
             if not (_is_line(a) and _is_line(bl)):
                 continue
             cosang = abs(float(np.dot(a.direction, bl.direction)))
-            if cosang < np.cos(np.deg2rad(p.merge_angle_deg)):
+            if cosang < min_cos:
                 continue
             lo, hi = a.start, bl.stop
             _, _, rms = _tls(pts[lo:hi])

@@ -276,6 +276,7 @@ class PoseFilter:
             check_random_state(random_state)
         )
         self._tree = cKDTree(c)
+        self._grid: Any = None
         self._near_cache: tuple[FArray, FArray, IArray, FArray] | None = None
         self.reset()
 
@@ -306,9 +307,12 @@ class PoseFilter:
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
-        if self.centres.shape[0] > 256:  # many places: the tree
-            d, j = self._tree.query(xy)
-            return np.asarray(d, dtype=np.float64), np.asarray(j, dtype=np.int64)
+        if self.centres.shape[0] > 256:  # many places: the candidates of a grid cell
+            if self._grid is None:
+                from ._nearest import CentreGrid
+
+                self._grid = CentreGrid(self.centres)
+            return self._grid.nearest(xy)
         from ._nearest import nearest_centres  # the tree's answer, compiled brute force
 
         return nearest_centres(xy, self.centres)

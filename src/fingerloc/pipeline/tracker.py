@@ -61,7 +61,7 @@ from ..map.filter import MarkovFilter, TransitionModel, entropy_bits
 from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
 from ..sensors import Scan
-from .calibration import Calibration, implied_headings, posterior_columns
+from .calibration import Calibration
 from .filters import place_transition_of, pose_filter_of, pose_tracking, transition_of
 
 if TYPE_CHECKING:
@@ -312,8 +312,10 @@ class Tracker:
                 raise InvalidParameterError(f"heading_budget must be two integers >= 0 or None, got {heading_budget!r}")
             heading_budget = (int(heading_budget[0]), int(heading_budget[1]))
         self.heading_budget = heading_budget
-        self._tree: Any = None
+        self._grid: Any = None
         self._heading_set: tuple[int, Any, IArray | None] | None = None
+        self._columns: tuple[IArray, IArray] | None = None
+        self._views: list[tuple[Any, FArray | None]] | None = None
         self.scan_map = scan_map if filter == "pose" else None
         self._pose: PoseTracking | None = None
         self._places: MarkovFilter | None = None
@@ -392,19 +394,17 @@ class Tracker:
         n_near, n_top = self.heading_budget
         top = np.argsort(-np.where(np.isnan(row), -np.inf, row), kind="stable")[:n_top]
         pf = pose.pose_filter
-        if self._tree is None:
-            from scipy.spatial import cKDTree
+        if self._grid is None:
+            from ..map._nearest import CentreGrid
 
-            self._tree = cKDTree(pf.centres)
+            self._grid = CentreGrid(pf.centres)
         cells = np.floor(pf.particles_[:, :2] / _HEADING_CELL_M).astype(np.int64)
         lo = cells.min(axis=0)
         width = int(cells[:, 1].max() - lo[1]) + 1
         code, per_cell = np.unique((cells[:, 0] - lo[0]) * width + (cells[:, 1] - lo[1]), return_counts=True)
         mid = (np.column_stack([code // width, code % width]) + lo + 0.5) * _HEADING_CELL_M
         reach = float(pf.radius) + HEADING_REACH_M + _HEADING_CELL_M * math.sqrt(0.5)
-        near = self._tree.query_ball_point(mid, reach)
-        found = np.fromiter((j for js in near for j in js), dtype=np.int64)
-        held = np.bincount(found, weights=np.repeat(per_cell, [len(js) for js in near]), minlength=self.n_places)
+        held = self._grid.mass_within(mid, per_cell.astype(np.float64), reach)
         with np.errstate(divide="ignore"):
             score = np.where(held > 0, np.log(held) + np.where(np.isnan(row), -np.inf, row), -np.inf)
         ranked = np.argsort(-score, kind="stable")[:n_near]
@@ -413,6 +413,46 @@ class Tracker:
         return out
 
     # -- one step from raw data ---------------------------------------------------------------------
+
+    def _posterior_columns(self, obs: Observation) -> FArray:
+        """:func:`~fingerloc.pipeline.calibration.posterior_columns` of one observation, shape (1, P), with the
+        model's column of each place found once."""
+        if self._columns is None:
+            col = {lab: j for j, lab in enumerate(self.labels)}
+            pairs = [(k, col[str(c)]) for k, c in enumerate(self.model.classes_) if str(c) in col]
+            pairs = list({j: (k, j) for k, j in pairs}.values())  # a column written twice keeps its last class
+            self._columns = (np.array([k for k, _ in pairs], dtype=np.int64), np.array([j for _, j in pairs], dtype=np.int64))
+        out = np.full((1, self.n_places), -np.inf)
+        lp = np.asarray(self.model.predict_log_proba([obs]), dtype=np.float64)
+        ks, js = self._columns
+        out[:, js] = lp[:, ks]
+        return out
+
+    def _implied_headings(self, obs: Observation, columns: IArray | None) -> FArray:
+        """:func:`~fingerloc.pipeline.calibration.implied_headings` of one observation, shape (P,), with each
+        place's model key and its views' recorded headings found once."""
+        if self._views is None:
+            places = getattr(self.model, "places_", {})
+            by_name = {str(k): k for k in places}
+            keys = [by_name.get(lab) for lab in self.labels]
+            self._views = [
+                (None, None) if key is None
+                else (key, np.array([np.nan if o.pose is None else float(o.pose[2]) for o in places[key].observations]))
+                for key in keys
+            ]  # fmt: skip
+        out = np.full(self.n_places, np.nan)
+        cols = range(self.n_places) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
+        cols = [j for j in cols if self._views[j][0] is not None]
+        if not cols:
+            return out
+        # one call for every place: the model's loop over (observation, place) pairs, the same headings
+        h, v = self.model.headings_with_reference([obs] * len(cols), [self._views[j][0] for j in cols])
+        for i, j in enumerate(cols):
+            theta = self._views[j][1]
+            assert theta is not None
+            if v[i] >= 0 and v[i] < theta.size and math.isfinite(h[i]):
+                out[j] = np.mod(theta[v[i : i + 1]] - np.radians(h[i : i + 1]) + math.pi, 2 * math.pi)[0] - math.pi
+        return out
 
     def observe(self, item: Scan | Observation) -> tuple[FArray, FArray | None, FArray | None, float | None]:
         """What one item brings to the filter: its scaled log-likelihood row (P,), implied headings (P,) or None,
@@ -424,10 +464,10 @@ class Tracker:
             obs = observation_from_scan(item, **self.features)
         if not isinstance(obs, Observation):
             raise InvalidParameterError(f"a tracker step takes a Scan or an Observation, got {type(item).__name__}")
-        row = scaled(posterior_columns(self.model, [obs], self.n_places, self.labels), self.calibration.beta)[0]
+        row = scaled(self._posterior_columns(obs), self.calibration.beta)[0]
         hd = None
         if self.heading:
-            hd = implied_headings(self.model, [obs], self.labels, self.heading_places(row))[0]
+            hd = self._implied_headings(obs, self.heading_places(row))
         pts = end_points_of(item) if self.uses_scan else None
         unknown = None
         if getattr(self.model, "unknown_prior", 0) > 0:
