@@ -22,7 +22,7 @@ def test_bench_scale_writes_every_figure_and_is_exact(tmp_path, capsys):
     sizes = res["presets"]["laser2d"]["sizes"]
     assert sorted(sizes, key=int) == ["30", "60"]
     for n, f in sizes.items():
-        for key in ("learn_s", "peak_rss_mb", "db_mb", "localize_ms", "localize_batched_ms", "top1", "exact"):
+        for key in ("learn_s", "peak_rss_mb", "db_mb", "localize_ms", "localize_batched_ms", "top1", "exact", "size_wall_s"):
             assert key in f
         assert f["places"] == int(n)
         assert f["views"] == 3 * int(n)

@@ -12,8 +12,9 @@ protocol; ``laser2d`` views have random headings):
    process CPU, ``learn_cpu_s``); ``db_mb`` the database file;
    ``learn_peak_rss_mb`` the process's peak resident memory (the drawn
    campus included).
-2. *localize* (another fresh process, as ``fingerloc localize`` would be):
-   load the database (``load_s``), build the exact index
+2. *localize* (another fresh process, as ``fingerloc localize`` would be;
+   the queries are drawn with the campus in the first process and handed
+   over): load the database (``load_s``), build the exact index
    (:class:`fingerloc.retrieval.PlaceIndex`, ``index_s``), then answer the
    queries of ``queries`` random places: the best 5 places exactly, their
    posterior, and the heading at the best place (for a cyclic model), one
@@ -93,13 +94,19 @@ def _campus(preset: str, n_places: int, seed: int, query_places: np.ndarray | No
     return train, queries
 
 
-def _learn_step(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any]:
-    """Fresh process: draw the campus, learn, save. Returns the learn figures."""
+def _query_places(n_places: int, n_queries: int, seed: int) -> np.ndarray:
+    """The places queried: ``n_queries`` random ones (all when fewer), ascending."""
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(n_places, min(n_queries, n_places), replace=False))
+
+
+def _learn_step(preset: str, n_places: int, seed: int, db: str, n_queries: int) -> tuple[dict[str, Any], list[Any]]:
+    """Fresh process: draw the campus, learn, save. Returns the learn figures and the queries (drawn with the campus)."""
     from ..map.database import save_model
     from ..pipeline.presets import resolve_preset
 
     t0 = time.perf_counter()
-    train, _ = _campus(preset, n_places, seed, np.zeros(0, dtype=np.int64))
+    train, queries = _campus(preset, n_places, seed, _query_places(n_places, n_queries, seed))
     simulate_s = time.perf_counter() - t0
     model = resolve_preset(preset).model()
     w0, c0 = time.perf_counter(), time.process_time()
@@ -120,20 +127,15 @@ def _learn_step(preset: str, n_places: int, seed: int, db: str) -> dict[str, Any
         "learn_peak_rss_mb": _peak_rss_mb(),
         "calibration": cal,
         "load_average_learn": _load1(),
-    }
+    }, queries
 
 
-def _localize_step(
-    preset: str, n_places: int, seed: int, db: str, n_queries: int, exact_queries: int, repeat: int
-) -> dict[str, Any]:
+def _localize_step(db: str, queries: list[Any], exact_queries: int, repeat: int) -> dict[str, Any]:
     """Fresh process: load, index, answer the queries (module docstring). Returns the localize figures."""
     from ..map.database import load_model
     from ..model import normalise_log
     from ..retrieval import POSTERIOR_TOL, PlaceIndex, index_for
 
-    rng = np.random.default_rng(seed)
-    picked = np.sort(rng.choice(n_places, min(n_queries, n_places), replace=False))
-    _, queries = _campus(preset, n_places, seed, picked)
     t0 = time.perf_counter()
     model = load_model(db)
     load_s = time.perf_counter() - t0
@@ -207,7 +209,7 @@ def _localize_step(
     return out
 
 
-def _in_child(fn: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+def _in_child(fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(*args)`` in a fresh process (its own memory figures)."""
     with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
         return pool.submit(fn, *args).result()
@@ -226,10 +228,12 @@ def scale_figures(
     """The figures of one preset at one size (module docstring), each step in its own process."""
     if preset not in PRESETS:
         raise InvalidParameterError(f"unknown preset {preset!r} for bench scale (known: {', '.join(PRESETS)})")
+    t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         db = str(Path(tmp) / "places.sqlite")
-        out = _in_child(_learn_step, preset, n_places, seed, db)
-        out.update(_in_child(_localize_step, preset, n_places, seed, db, n_queries, exact_queries, repeat))
+        out, queries = _in_child(_learn_step, preset, n_places, seed, db, n_queries)
+        out.update(_in_child(_localize_step, db, queries, exact_queries, repeat))
+    out["size_wall_s"] = time.perf_counter() - t0  # this size and preset, from the first drawn place to the last answer
     return out
 
 

@@ -94,6 +94,7 @@ from ._validate import (
     digest_value,
     missing_tables,
 )
+from .database_rows import decode_rows
 
 __all__ = [
     "DEFAULT_LOCK_TIMEOUT_S",
@@ -461,6 +462,37 @@ def _observation_blob(obs: Any, stored_fp: Any, scan: bool, default_fov: Any, ma
     return data, True
 
 
+def _observation_blobs(
+    observations: list[Any], stored: list[Any], scan: bool, default_fov: Any, params: dict[str, Any]
+) -> list[tuple[bytes, bool]]:
+    """:func:`_observation_blob` of every observation, the fingerprints of the decoded records computed in batches."""
+    from .database_rows import record_fingerprints
+
+    def fingerprints(rows: list[int], data: list[bytes]) -> list[Any]:
+        obs = [observations[i] for i in rows]
+        return record_fingerprints(data, [o.label for o in obs], [o.source for o in obs], params, default_fov=default_fov)
+
+    def same(fp: Any, want: Any) -> bool:
+        return bool(fp.letters == want[0] and np.array_equal(fp.bearings, want[1]))
+
+    out = [
+        (encode_observation(o, scan=scan, default_fov=default_fov, walls32=bool(o.w.size)), False) for o in observations
+    ]
+    check = [i for i, s in enumerate(stored) if s is not None]
+    retry: list[int] = []
+    for i, fp in zip(check, fingerprints(check, [out[i][0] for i in check]), strict=True):
+        if not same(fp, stored[i]):
+            if observations[i].w.size:  # float32 walls changed the fingerprint: float64 ones
+                retry.append(i)
+            else:
+                out[i] = (out[i][0], True)
+    if retry:
+        again = [encode_observation(observations[i], scan=scan, default_fov=default_fov) for i in retry]
+        for i, data, fp in zip(retry, again, fingerprints(retry, again), strict=True):
+            out[i] = (data, not same(fp, stored[i]))
+    return out
+
+
 #: Encodings of the range term's rows in ``range_descriptors.encoding`` (schema version 3): numpy dtypes.
 _RANGE_ENCODINGS = {"<f8": "descriptors", "|u1": "counts", "<u2": "counts", "<u4": "counts"}
 
@@ -610,16 +642,6 @@ def _save_locked(
     directory = target.parent
     mode = target.stat().st_mode & 0o7777 if target.is_file() else 0o666 & ~umask()
 
-    def make_fp(obs: Any) -> Any:
-        from ..fingerprint import make_fingerprint
-
-        return make_fingerprint(
-            obs,
-            empty_step_deg=params["empty_step_deg"],
-            merge_tol_deg=params["merge_tol_deg"],
-            laser_letters=params["laser_letters"],
-        )
-
     prefix, suffix = temporary_name(target)
     try:
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=directory)
@@ -651,27 +673,30 @@ def _save_locked(
                 if any(isinstance(lab, int) and not isinstance(lab, bool) for lab in labels):
                     meta["labels"] = _meta_json([lab if isinstance(lab, int) and not isinstance(lab, bool) else str(lab) for lab in labels])
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
+                place_rows = []
+                views: list[tuple[int, int, Any, Any]] = []  # (place, index, observation, stored fingerprint)
                 for pid, (label, group) in enumerate(zip(labels, state["observations"], strict=True)):
                     cons = fp["consensus"][pid] if fp else None
-                    con.execute(
-                        "INSERT INTO places VALUES (?, ?, ?, ?, ?)",
-                        (
-                            pid,
-                            str(label),
-                            fp["medoids"][pid] if fp else 0,
-                            None if cons is None else cons[0],
-                            None if cons is None else _blob(cons[1]),
-                        ),
-                    )
+                    place_rows.append((
+                        pid,
+                        str(label),
+                        fp["medoids"][pid] if fp else 0,
+                        None if cons is None else cons[0],
+                        None if cons is None else _blob(cons[1]),
+                    ))  # fmt: skip
                     for idx, obs in enumerate(group):
-                        stored = fp["fingerprints"][pid][idx] if fp else None
-                        data, keep_fp = _observation_blob(obs, stored, rng is None, default_fov, make_fp)
-                        cur = con.execute(
-                            "INSERT INTO observations(place_id, idx, data, source) VALUES (?, ?, ?, ?)",
-                            (pid, idx, data, obs.source),
-                        )
-                        if keep_fp and stored is not None:
-                            con.execute("INSERT INTO fingerprints VALUES (?, ?, ?)", (cur.lastrowid, stored[0], _blob(stored[1])))
+                        views.append((pid, idx, obs, fp["fingerprints"][pid][idx] if fp else None))
+                con.executemany("INSERT INTO places VALUES (?, ?, ?, ?, ?)", place_rows)
+                blobs = _observation_blobs([v[2] for v in views], [v[3] for v in views], rng is None, default_fov, params)
+                # ids 1, 2, ... in order: those SQLite gives rows inserted one by one into the new table
+                con.executemany(
+                    "INSERT INTO observations(id, place_id, idx, data, source) VALUES (?, ?, ?, ?, ?)",
+                    ((row + 1, pid, idx, blobs[row][0], obs.source) for row, (pid, idx, obs, _) in enumerate(views)),
+                )
+                con.executemany(
+                    "INSERT INTO fingerprints VALUES (?, ?, ?)",
+                    ((row + 1, stored[0], _blob(stored[1])) for row, (_, _, _, stored) in enumerate(views) if blobs[row][1] and stored is not None),
+                )
                 for name, t in terms.items():
                     for pid, mx in enumerate(t.get("mixtures", [])):
                         if mx is not None:
@@ -860,6 +885,7 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
             "SELECT o.place_id, o.data, o.source, f.letters, f.bearings FROM observations o "
             "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
         )
+    pending: list[tuple[int, Any, Any]] = []  # schema 3+: (place, record, source), decoded together below
     for pid, record, source, letters, bearings in con.execute(q):
         if pid not in index:
             raise DatabaseError(f"{path}: an observation row names place id {pid!r}, which the database does not hold")
@@ -872,13 +898,17 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
                 obs = observation_from_record(parse_record(record))
             except (ValueError, DataFormatError) as err:
                 raise DatabaseError(f"{path}: corrupt observation record in the place database ({err})") from err
+            observations[index[pid]].append(obs)
         else:
-            try:
-                obs = decode_observation(record, label=labels[index[pid]], source=source, default_fov=default_fov)
-            except DatabaseError as err:
-                raise DatabaseError(f"{path}: place {labels[index[pid]]!r}: {err}") from err
-        observations[index[pid]].append(obs)
+            pending.append((index[pid], record, source))
         fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
+    if pending:
+        try:
+            decoded = decode_rows([r for _, r, _ in pending], [labels[j] for j, _, _ in pending], [s for _, _, s in pending], default_fov=default_fov)
+        except DatabaseError as err:
+            raise DatabaseError(f"{path}: {err}") from err
+        for (j, _, _), obs in zip(pending, decoded, strict=True):
+            observations[j].append(obs)
     mixtures: dict[str, list[Any]] = {}
     for pid, term, w, m, sg in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
         if pid not in index:

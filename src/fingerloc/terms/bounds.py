@@ -266,7 +266,7 @@ class FingerprintBound(TermBound):
             return self.exact(query, self.layout.places_of(groups))
         g = np.asarray(groups, dtype=np.int64)
         blocks = _ranges(self.group_blocks[g], self.group_blocks[g + 1])
-        lanes = semiglobal_bounds(codes, self.gp, blocks)
+        lanes = semiglobal_bounds(codes, self.gp, blocks, workers=1)  # one query's blocks: a thread's handoff costs more
         used = np.arange(lanes.shape[1])[None, :] < (self.block_start[blocks + 1] - self.block_start[blocks])[:, None]
         return self._likelihood(self.views.least_in(lanes[used] / self.scale, g))
 
