@@ -126,6 +126,43 @@ def test_match_descriptors_is_mutual_with_the_ratio_test_on_both_sides():
         assert [tuple(r) for r in got] == want and len(want) >= 10
 
 
+def _matches_by_numpy(ua, ub, ratio):
+    """The mutual ratio test by whole-matrix numpy operations (argmax / max with the best masked out)."""
+    s = ua @ ub.T
+    rows, cols = np.arange(s.shape[0]), np.arange(s.shape[1])
+    j = np.argmax(s, axis=1)
+    i_back = np.argmax(s, axis=0)
+    best = s[rows, j].copy()
+    masked = s.copy()
+    masked[rows, j] = -4.0
+    sa = masked.max(axis=1) if s.shape[1] > 1 else np.full(s.shape[0], -4.0)
+    masked = s.copy()
+    masked[i_back, cols] = -4.0
+    sb = (masked.max(axis=0) if s.shape[0] > 1 else np.full(s.shape[1], -4.0))[j]
+    d1 = np.maximum(2 - 2 * best, 0)
+    r2 = np.float32(ratio * ratio)
+    ok = (i_back[j] == rows) & (d1 < r2 * np.maximum(2 - 2 * sa, 0)) & (d1 < r2 * np.maximum(2 - 2 * sb, 0))
+    i = np.flatnonzero(ok)
+    return np.stack([i, j[i]], axis=1)
+
+
+@pytest.mark.parametrize("shape", [(400, 350), (1, 30), (30, 1), (1, 1), (2, 2)])
+def test_match_descriptors_agrees_with_whole_matrix_numpy_on_rootsift_sized_sets(shape):
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    na, nb = shape
+    a = rng.random((na, 128)).astype(np.float32) ** 4
+    b = np.concatenate([a[: nb // 3] + 0.02 * rng.random((nb // 3, 128)), rng.random((nb - nb // 3, 128)) ** 4])
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = (b / np.linalg.norm(b, axis=1, keepdims=True)).astype(np.float32)
+    for ratio in (0.8, 0.95):
+        got = match_descriptors(a, b, ratio=ratio)
+        want = _matches_by_numpy(a, b, ratio)
+        assert got.dtype == np.int64 and got.shape[1] == 2
+        assert np.array_equal(got, want)
+    if na > 100:
+        assert len(want) >= nb // 4
+
+
 def test_encoding_round_trips_and_old_keypoints_are_refused(views):
     a = views["a"]
     rec = json.loads(json.dumps(encode_keypoints(a)))
