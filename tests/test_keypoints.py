@@ -255,6 +255,26 @@ def test_keypoint_term_recognises_rooms_gives_headings_and_keeps_its_state(room_
     assert src == ["keypoints"] * 3 and np.all(ref >= 0) and np.all(np.isfinite(h))
 
 
+def test_the_shortlist_adds_the_views_nearest_by_appearance(room_views):
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    train = [replace(o, appearance=rng.random(6)) for o in room_views["train"]]
+    groups = [train[0:3], train[3:6], train[6:9]]
+    term = KeypointTerm(shortlist=0, shortlist_appearance=2).fit(groups)
+    apps = np.stack([o.appearance for o in train])
+    for q in room_views["query"]:
+        a = rng.random(6)
+        want = np.sort(np.argsort(np.abs(apps - a).sum(axis=1))[:3])
+        assert np.array_equal(term.candidates(q.keypoints, a), want)  # type: ignore[arg-type]
+        assert term.candidates(q.keypoints).size == len(train)  # type: ignore[arg-type]  # no descriptor: every view
+    both = KeypointTerm(shortlist=2, shortlist_appearance=2).fit(groups)
+    q = room_views["query"][1]
+    a = apps[7] + 0.01
+    got = set(both.candidates(q.keypoints, a).tolist())  # type: ignore[arg-type]
+    assert {7} <= got and got >= set(both.candidates(q.keypoints).tolist()) and len(got) <= 6  # type: ignore[arg-type]
+
+
 def test_tilted_training_views_choose_the_general_model(room_views):
     tilted = room_views["tilted"]
     model, tilt = choose_model([[o.keypoints for o in tilted[0:3]], [o.keypoints for o in tilted[3:6]]])  # type: ignore[misc]
@@ -266,8 +286,8 @@ def test_tilted_training_views_choose_the_general_model(room_views):
 def test_the_shortlist_keeps_the_right_views(room_views):
     train, queries = room_views["train"], room_views["query"]
     groups = [train[0:3], train[3:6], train[6:9]]
-    full = KeypointTerm(shortlist=0).fit(groups)
-    short = KeypointTerm(shortlist=3).fit(groups)
+    full = KeypointTerm(shortlist=0, shortlist_appearance=0).fit(groups)
+    short = KeypointTerm(shortlist=3, shortlist_appearance=0).fit(groups)
     assert short.candidates(queries[0].keypoints).size == 4  # type: ignore[arg-type]
     assert list(np.argmax(short.log_likelihood(queries), axis=1)) == [0, 1, 2]
     assert list(np.argmax(full.log_likelihood(queries), axis=1)) == [0, 1, 2]

@@ -293,7 +293,10 @@ def bench_panorama_cmd(
     spacing: float = typer.Option(0.03, "--spacing", help="Places by position: centres this far apart, map units."),
     components: int = typer.Option(3, "-k", "--components", help="Mixture components per place (VE, CP)."),
     width: int = typer.Option(1440, "--width", help="Photos are resampled to this many columns (one per 0.25 deg)."),
-    shortlist: int = typer.Option(40, "--shortlist", min=1, help="Views kept by the bag-of-words retrieval (recall)."),
+    shortlist: int = typer.Option(10, "--shortlist", min=0, help="Views kept by the bag-of-words retrieval (recall)."),
+    shortlist_appearance: int = typer.Option(
+        10, "--shortlist-appearance", min=0, help="Views nearest by appearance added to the retrieval's shortlist."
+    ),
     preset: str | None = typer.Option(
         None,
         "--preset",
@@ -367,6 +370,7 @@ def bench_panorama_cmd(
                 n_components=components,
                 width=width,
                 shortlist=shortlist,
+                shortlist_appearance=shortlist_appearance,
                 on_step=step,
             )
         if preset is not None or speed_photos:
@@ -470,7 +474,8 @@ def _print_extras(res: dict[str, Any]) -> None:
         rr = r.get("retrieval")
         if rr:
             console.print(
-                f"retrieval ({name}, shortlist {rr['shortlist']}): best-verified view kept {rr['best_view']:.3f}, "
+                f"retrieval ({name}, shortlist {rr['shortlist']} + {rr.get('shortlist_appearance', 0)} by appearance): "
+                f"best-verified view kept {rr['best_view']:.3f}, "
                 f"true place kept {rr['true_place']:.3f}; K top-1 {rr['top1_shortlist']:.3f} "
                 f"(every view verified {rr['top1_all']:.3f})"
             )
