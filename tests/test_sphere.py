@@ -157,3 +157,24 @@ def test_ransac_is_deterministic_and_checks_its_input():
         ransac_pose(f1, f2[:-1])
     with pytest.raises(InvalidParameterError):
         ransac_pose(f1, f2, threshold=0.0)
+
+
+def test_few_matches_try_every_minimal_sample_and_find_the_best_one():
+    """With 12 matches (495 samples of 8, fewer than max_iter) the fit is at least the best exhaustive sample."""
+    import itertools
+
+    rng = np.random.default_rng(11)
+    rot, t = _rotation(25.0, 2.0, -1.0), np.array([0.4, 0.2, 0.05])
+    f1, f2, _, _ = _scene(rng, 12, rot, t, noise=0.001, outliers=4 / 12)
+    thr = 0.01
+    best = 0
+    for s in itertools.combinations(range(12), 8):
+        e = eight_point(f1[list(s)], f2[list(s)])
+        best = max(best, int(np.sum(epipolar_errors(e, f1, f2) < thr)))
+    for seed in (0, 1, 2):
+        fit = ransac_pose(f1, f2, model="general", threshold=thr, max_iter=1000, seed=seed)
+        assert fit is not None and fit.n_inliers >= best >= 8
+    # the same matches give the same answer whatever the seed: every sample is tried
+    a = ransac_pose(f1, f2, model="general", threshold=thr, seed=0)
+    b = ransac_pose(f1, f2, model="general", threshold=thr, seed=5)
+    assert a is not None and b is not None and np.array_equal(a.inliers, b.inliers)

@@ -38,6 +38,7 @@ the relative rotation is the angle between ``R``'s z column and the vertical.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -322,7 +323,8 @@ def ransac_pose(
         Largest epipolar error of an inlier, radians.
     max_iter : int
         Most hypotheses drawn (in batches; stops early once ``confidence``
-        says a better one is unlikely).
+        says a better one is unlikely). With no more distinct minimal
+        samples than this, each is tried once instead.
     confidence : float
         Probability of drawing at least one all-inlier sample that stops the search.
     seed : int
@@ -350,10 +352,14 @@ def ransac_pose(
     solve = _SOLVERS[model]
     rng = np.random.default_rng(seed)
     best_count, best_e = -1, np.eye(3)
+    # few matches: every minimal sample once (no more than the draws would be) instead of random draws
+    every = np.array(list(itertools.combinations(range(m), k)), dtype=np.int64) if math.comb(m, k) <= max_iter else None
+    if every is not None:
+        max_iter = len(every)
     drawn, needed, batch = 0, max_iter, 64
     while drawn < min(max_iter, needed):
         size = min(batch, max_iter - drawn)
-        idx = _samples(rng, m, k, size)
+        idx = every[drawn : drawn + size] if every is not None else _samples(rng, m, k, size)
         es = solve(f1[idx], f2[idx])  # (size, 3, 3)
         counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
         drawn += size

@@ -514,6 +514,9 @@ class KeypointTerm(IndexedTerm[_View]):
     def heading_at(self, observation: Observation, place: int) -> tuple[float | None, int, int]:
         """Heading of ``observation`` against the best-verified training view of place index ``place``.
 
+        The views looked at are the place's views in the query's shortlist
+        (:meth:`candidates`), or all of them when the shortlist holds none.
+
         Returns ``(heading_deg, view, inliers)``: a feature at bearing ``b``
         in the observation is at bearing ``b + heading_deg`` in that view
         (degrees, ``[0, 360)``, from the verified relative rotation), ``view``
@@ -526,6 +529,9 @@ class KeypointTerm(IndexedTerm[_View]):
         sel = np.flatnonzero(self.owner_ == place)
         if f is None or sel.size == 0:
             return None, -1, 0
+        # the views the likelihood verified (its memo answers at once); every view of the place if none of them was
+        short = np.intersect1d(sel, self.candidates(f.kp, f.app))
+        sel = short if short.size else sel
         checks = self.checks(f.kp, sel)
         k = int(np.argmax([c.inliers for c in checks]))
         best = checks[k]
