@@ -17,6 +17,7 @@ from fingerloc.features.sphere import (
     essential_from_pose,
     heading_of_rotation,
     ransac_pose,
+    refine_pose,
     rotation_about_z,
     tilt_of_rotation,
     upright_three_point,
@@ -178,3 +179,18 @@ def test_few_matches_try_every_minimal_sample_and_find_the_best_one():
     a = ransac_pose(f1, f2, model="general", threshold=thr, seed=0)
     b = ransac_pose(f1, f2, model="general", threshold=thr, seed=5)
     assert a is not None and b is not None and np.array_equal(a.inliers, b.inliers)
+
+
+def test_refine_pose_recovers_the_pose_from_a_perturbed_guess():
+    rng = np.random.default_rng(21)
+    rot, t = _rotation(70.0, 3.0, -2.0), np.array([0.3, -0.6, 0.1])
+    f1, f2, _, _ = _scene(rng, 60, rot, t)
+    guess = _rotation(2.0, 1.0, 0.5) @ rot
+    r, tt = refine_pose(f1, f2, guess, t + np.array([0.1, 0.05, -0.05]))
+    assert np.allclose(r, rot, atol=1e-6) and np.allclose(tt, t / np.linalg.norm(t), atol=1e-6)
+    # upright: only the turn about z and a horizontal translation
+    rot_u, t_u = rotation_about_z(math.radians(-120.0)), np.array([0.7, 0.2, 0.0])
+    f1, f2, _, _ = _scene(rng, 40, rot_u, t_u)
+    r, tt = refine_pose(f1, f2, rotation_about_z(math.radians(-117.0)), np.array([0.6, 0.3, 0.0]), model="upright")
+    assert abs(math.degrees(heading_of_rotation(r)) + 120.0) < 1e-6 and abs(tt[2]) < 1e-12
+

@@ -487,6 +487,13 @@ def _print_extras(res: dict[str, Any]) -> None:
                 f"{'-' if med is None else f'{med:.1f}'} deg (all pairs {h['median_error_deg']:.1f}), "
                 f"within 10 deg {h['within_10'] or 0:.2f}"
             )
+    hc = res.get("heading_closure")
+    if hc and hc["triples"]:
+        console.print(
+            f"keypoint headings around {hc['triples']} triples of one area (h_ab + h_bc - h_ac, >= {hc['min_inliers']} "
+            f"inliers): median {hc['median_deg']:.2f} deg (per pair about {hc['per_pair_deg']:.2f}), "
+            f"within 2 deg {hc['within_2_deg']:.2f}"
+        )
     for name, p in res.get("preset", {}).items():
         cal = p["calibration"] or {}
         unk = p["unknown"]

@@ -62,6 +62,7 @@ from .panorama_heading import (
     band_signature,
     feature_heading_deg,
     fingerprint_heading_deg,
+    heading_closure,
     heading_errors,
     heading_link_errors,
     image_rotation_deg,
@@ -95,6 +96,7 @@ __all__ = [
     "extract_features",
     "feature_heading_deg",
     "fingerprint_heading_deg",
+    "heading_closure",
     "heading_errors",
     "heading_link_errors",
     "hsv_histogram",
@@ -713,6 +715,7 @@ def run_panorama_bench(
     }
     kd = {"K": pairs.distances(), "K unverified": pairs.distances(verified=False)}
     res["heading"] = heading_errors(photos, feats)
+    res["heading_closure"] = heading_closure(pairs.inliers, pairs.heading_deg, [by_area[i] for i in have])
     if areas_dir is not None:
         pos = {i: k for k, i in enumerate(have)}
 

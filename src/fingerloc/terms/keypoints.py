@@ -60,7 +60,14 @@ from numpy.typing import NDArray
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..features.keypoints import Keypoints, match_descriptors
-from ..features.sphere import MODELS, SAMPLE_SIZE, ransac_pose
+from ..features.sphere import (
+    MODELS,
+    SAMPLE_SIZE,
+    heading_of_rotation,
+    ransac_pose,
+    refine_pose,
+    tilt_of_rotation,
+)
 from ..observation import Observation
 from .indexed import IndexedTerm
 
@@ -130,6 +137,7 @@ def check_pair(
     model: str = "upright",
     threshold_deg: float = 0.6,
     max_iter: int | None = None,
+    refine_min_inliers: int | None = 8,
 ) -> PairCheck:
     """Match two views' RootSIFT descriptors and verify the matches by one relative pose.
 
@@ -146,6 +154,10 @@ def check_pair(
         Largest epipolar error of an inlier, degrees.
     max_iter : int, optional
         RANSAC hypotheses (default 300 upright, 1000 general).
+    refine_min_inliers : int or None, default 8
+        With at least this many inliers, the rotation (hence the heading) is
+        refined on them by :func:`fingerloc.features.sphere.refine_pose`
+        (None: never); the inliers stay the RANSAC's.
     """
     m = match_descriptors(unit_a, unit_b, ratio=ratio)
     k = SAMPLE_SIZE[model]
@@ -162,7 +174,11 @@ def check_pair(
     )
     if fit is None:
         return PairCheck(len(m), 0, math.nan, math.nan)
-    return PairCheck(len(m), fit.n_inliers, fit.heading, fit.tilt)
+    rot = fit.rotation
+    if refine_min_inliers is not None and fit.n_inliers >= max(refine_min_inliers, k):
+        sel = m[fit.inliers]
+        rot, _ = refine_pose(vec_a[sel[:, 0]], vec_b[sel[:, 1]], fit.rotation, fit.translation, model=model)  # type: ignore[arg-type]
+    return PairCheck(len(m), fit.n_inliers, heading_of_rotation(rot), tilt_of_rotation(rot))
 
 
 def keypoint_distance(inliers: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
@@ -310,7 +326,7 @@ class KeypointTerm(IndexedTerm[_View]):
     shortlist_appearance : int, default 10
         Views nearest to the query by their appearance descriptors (L1) added
         to the shortlist (when the query and every stored view carry one).
-    min_inliers : int, default 15
+    min_inliers : int, default 8
         Fewest inliers for a heading from the verified rotation.
     max_queries : int, default 200
         At most this many training views (a seeded sample) serve as
@@ -343,7 +359,7 @@ class KeypointTerm(IndexedTerm[_View]):
         max_tilt_deg: float = 1.0,
         shortlist: int = 10,
         shortlist_appearance: int = 10,
-        min_inliers: int = 15,
+        min_inliers: int = 8,
         max_queries: int = 200,
     ) -> None:
         self.ratio = ratio
