@@ -194,3 +194,13 @@ def test_refine_pose_recovers_the_pose_from_a_perturbed_guess():
     r, tt = refine_pose(f1, f2, rotation_about_z(math.radians(-117.0)), np.array([0.6, 0.3, 0.0]), model="upright")
     assert abs(math.degrees(heading_of_rotation(r)) + 120.0) < 1e-6 and abs(tt[2]) < 1e-12
 
+
+
+def test_many_matches_are_ranked_on_a_probe_and_still_fit():
+    rng = np.random.default_rng(8)
+    rot, t = _rotation(-65.0, 2.0, 1.0), np.array([0.2, 0.7, -0.1])
+    f1, f2, _, _ = _scene(rng, 800, rot, t, noise=0.001, outliers=0.3)
+    fit = ransac_pose(f1, f2, model="general", threshold=0.01, max_iter=300)
+    truth = np.arange(800) >= 240
+    assert fit is not None and np.sum(fit.inliers & truth) >= 540 and np.sum(fit.inliers & ~truth) <= 10
+    assert abs(math.degrees(fit.heading) + 65.0) < 0.3

@@ -51,6 +51,7 @@ from ..errors import InvalidParameterError
 
 __all__ = [
     "MODELS",
+    "PROBE",
     "PoseFit",
     "bearing_vectors",
     "decompose_essential",
@@ -69,6 +70,8 @@ __all__ = [
 Model = Literal["general", "upright"]
 #: The relative-pose models of :func:`ransac_pose`.
 MODELS: tuple[str, ...] = ("upright", "general")
+#: With more than twice this many matches, RANSAC ranks each batch's hypotheses on this many (a fixed random subset).
+PROBE = 100
 #: Matches in a minimal sample, per model.
 SAMPLE_SIZE = {"upright": 3, "general": 8}
 
@@ -398,7 +401,9 @@ def ransac_pose(
     max_iter : int
         Most hypotheses drawn (in batches; stops early once ``confidence``
         says a better one is unlikely). With no more distinct minimal
-        samples than this, each is tried once instead.
+        samples than this, each is tried once instead. With more than
+        ``2 PROBE`` matches, each batch's hypotheses are ranked on
+        :data:`PROBE` of them and only the best is counted on all.
     confidence : float
         Probability of drawing at least one all-inlier sample that stops the search.
     seed : int
@@ -434,13 +439,22 @@ def ransac_pose(
     if every is not None:
         max_iter = len(every)
     drawn, needed, batch = 0, max_iter, 64
+    probe = np.sort(rng.choice(m, PROBE, replace=False)) if m > 2 * PROBE else None
     while drawn < min(max_iter, needed):
         size = min(batch, max_iter - drawn)
         idx = every[drawn : drawn + size] if every is not None else _samples(rng, m, k, size)
         es = solve(f1[idx], f2[idx])  # (size, 3, 3)
-        counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
         drawn += size
-        j = int(np.argmax(counts))
+        if probe is not None:  # many matches: hypotheses ranked on a fixed subset, the best one counted on all
+            j = int(np.argmax((epipolar_errors(es, f1[probe], f2[probe]) < threshold).sum(axis=1)))
+            count_j = int((epipolar_errors(es[j], f1, f2) < threshold).sum())
+            if count_j <= best_count:
+                continue
+            counts = np.zeros(size, dtype=np.int64)
+            counts[j] = count_j
+        else:
+            counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
+            j = int(np.argmax(counts))
         if counts[j] <= best_count:
             continue
         e, count = _refine(solve, es[j], f1, f2, threshold, k)

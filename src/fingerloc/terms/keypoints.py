@@ -73,19 +73,28 @@ from .indexed import IndexedTerm
 
 __all__ = [
     "CACHE_SIZE",
+    "REFINE_MAX",
     "KeypointTerm",
     "PairCheck",
     "Vocabulary",
     "check_pair",
     "choose_model",
+    "clear_pair_cache",
     "keypoint_distance",
 ]
 
 #: Pairs of views whose verification is memoised (process-wide).
 CACHE_SIZE = 400_000
 _CACHE: OrderedDict[tuple[Any, ...], PairCheck] = OrderedDict()
+#: Most inliers the rotation is refined on (evenly spread among them).
+REFINE_MAX = 100
 #: Seed of every RANSAC (the same pair gives the same answer).
 _SEED = 0
+
+
+def clear_pair_cache() -> None:
+    """Forget every memoised pair verification (a new process starts without them)."""
+    _CACHE.clear()
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,17 +162,17 @@ def check_pair(
     threshold_deg : float
         Largest epipolar error of an inlier, degrees.
     max_iter : int, optional
-        RANSAC hypotheses (default 300 upright, 1000 general).
+        RANSAC hypotheses (default 300; fewer when there are fewer distinct minimal samples).
     refine_min_inliers : int or None, default 8
         With at least this many inliers, the rotation (hence the heading) is
         refined on them by :func:`fingerloc.features.sphere.refine_pose`
-        (None: never); the inliers stay the RANSAC's.
+        (None: never; at most :data:`REFINE_MAX` of them, evenly spread); the inliers stay the RANSAC's.
     """
     m = match_descriptors(unit_a, unit_b, ratio=ratio)
     k = SAMPLE_SIZE[model]
     if len(m) < k:
         return PairCheck(len(m), 0, math.nan, math.nan)
-    it = max_iter if max_iter is not None else (300 if model == "upright" else 1000)
+    it = max_iter if max_iter is not None else 300
     fit = ransac_pose(
         vec_a[m[:, 0]],
         vec_b[m[:, 1]],
@@ -177,6 +186,8 @@ def check_pair(
     rot = fit.rotation
     if refine_min_inliers is not None and fit.n_inliers >= max(refine_min_inliers, k):
         sel = m[fit.inliers]
+        if len(sel) > REFINE_MAX:  # a spread subset bounds the cost (many inliers pin the rotation anyway)
+            sel = sel[np.linspace(0, len(sel) - 1, REFINE_MAX).round().astype(np.int64)]
         rot, _ = refine_pose(vec_a[sel[:, 0]], vec_b[sel[:, 1]], fit.rotation, fit.translation, model=model)  # type: ignore[arg-type]
     return PairCheck(len(m), fit.n_inliers, heading_of_rotation(rot), tilt_of_rotation(rot))
 
