@@ -291,7 +291,7 @@ def match_descriptors(ua: NDArray[np.float32], ub: NDArray[np.float32], *, ratio
     a = np.ascontiguousarray(ua, dtype=np.float32)
     b = np.ascontiguousarray(ub, dtype=np.float32)
     s = a @ b.T  # cosine similarities; distance^2 = 2 - 2 s
-    out: IArray = _mutual_ratio(s, np.float32(ratio * ratio))
+    out: IArray = _mutual_ratio(s, np.float32(ratio * ratio))  # type: ignore[arg-type]
     return out
 
 
