@@ -126,6 +126,43 @@ def test_match_descriptors_is_mutual_with_the_ratio_test_on_both_sides():
         assert [tuple(r) for r in got] == want and len(want) >= 10
 
 
+def _matches_by_numpy(ua, ub, ratio):
+    """The mutual ratio test by whole-matrix numpy operations (argmax / max with the best masked out)."""
+    s = ua @ ub.T
+    rows, cols = np.arange(s.shape[0]), np.arange(s.shape[1])
+    j = np.argmax(s, axis=1)
+    i_back = np.argmax(s, axis=0)
+    best = s[rows, j].copy()
+    masked = s.copy()
+    masked[rows, j] = -4.0
+    sa = masked.max(axis=1) if s.shape[1] > 1 else np.full(s.shape[0], -4.0)
+    masked = s.copy()
+    masked[i_back, cols] = -4.0
+    sb = (masked.max(axis=0) if s.shape[0] > 1 else np.full(s.shape[1], -4.0))[j]
+    d1 = np.maximum(2 - 2 * best, 0)
+    r2 = np.float32(ratio * ratio)
+    ok = (i_back[j] == rows) & (d1 < r2 * np.maximum(2 - 2 * sa, 0)) & (d1 < r2 * np.maximum(2 - 2 * sb, 0))
+    i = np.flatnonzero(ok)
+    return np.stack([i, j[i]], axis=1)
+
+
+@pytest.mark.parametrize("shape", [(400, 350), (1, 30), (30, 1), (1, 1), (2, 2)])
+def test_match_descriptors_agrees_with_whole_matrix_numpy_on_rootsift_sized_sets(shape):
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    na, nb = shape
+    a = rng.random((na, 128)).astype(np.float32) ** 4
+    b = np.concatenate([a[: nb // 3] + 0.02 * rng.random((nb // 3, 128)), rng.random((nb - nb // 3, 128)) ** 4])
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = (b / np.linalg.norm(b, axis=1, keepdims=True)).astype(np.float32)
+    for ratio in (0.8, 0.95):
+        got = match_descriptors(a, b, ratio=ratio)
+        want = _matches_by_numpy(a, b, ratio)
+        assert got.dtype == np.int64 and got.shape[1] == 2
+        assert np.array_equal(got, want)
+    if na > 100:
+        assert len(want) >= nb // 4
+
+
 def test_encoding_round_trips_and_old_keypoints_are_refused(views):
     a = views["a"]
     rec = json.loads(json.dumps(encode_keypoints(a)))
@@ -218,6 +255,26 @@ def test_keypoint_term_recognises_rooms_gives_headings_and_keeps_its_state(room_
     assert src == ["keypoints"] * 3 and np.all(ref >= 0) and np.all(np.isfinite(h))
 
 
+def test_the_shortlist_adds_the_views_nearest_by_appearance(room_views):
+    from dataclasses import replace
+
+    rng = np.random.default_rng(3)
+    train = [replace(o, appearance=rng.random(6)) for o in room_views["train"]]
+    groups = [train[0:3], train[3:6], train[6:9]]
+    term = KeypointTerm(shortlist=0, shortlist_appearance=2).fit(groups)
+    apps = np.stack([o.appearance for o in train])
+    for q in room_views["query"]:
+        a = rng.random(6)
+        want = np.sort(np.argsort(np.abs(apps - a).sum(axis=1))[:3])
+        assert np.array_equal(term.candidates(q.keypoints, a), want)  # type: ignore[arg-type]
+        assert term.candidates(q.keypoints).size == len(train)  # type: ignore[arg-type]  # no descriptor: every view
+    both = KeypointTerm(shortlist=2, shortlist_appearance=2).fit(groups)
+    q = room_views["query"][1]
+    a = apps[7] + 0.01
+    got = set(both.candidates(q.keypoints, a).tolist())  # type: ignore[arg-type]
+    assert {7} <= got and got >= set(both.candidates(q.keypoints).tolist()) and len(got) <= 6  # type: ignore[arg-type]
+
+
 def test_tilted_training_views_choose_the_general_model(room_views):
     tilted = room_views["tilted"]
     model, tilt = choose_model([[o.keypoints for o in tilted[0:3]], [o.keypoints for o in tilted[3:6]]])  # type: ignore[misc]
@@ -229,8 +286,8 @@ def test_tilted_training_views_choose_the_general_model(room_views):
 def test_the_shortlist_keeps_the_right_views(room_views):
     train, queries = room_views["train"], room_views["query"]
     groups = [train[0:3], train[3:6], train[6:9]]
-    full = KeypointTerm(shortlist=0).fit(groups)
-    short = KeypointTerm(shortlist=3).fit(groups)
+    full = KeypointTerm(shortlist=0, shortlist_appearance=0).fit(groups)
+    short = KeypointTerm(shortlist=3, shortlist_appearance=0).fit(groups)
     assert short.candidates(queries[0].keypoints).size == 4  # type: ignore[arg-type]
     assert list(np.argmax(short.log_likelihood(queries), axis=1)) == [0, 1, 2]
     assert list(np.argmax(full.log_likelihood(queries), axis=1)) == [0, 1, 2]

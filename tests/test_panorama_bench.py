@@ -365,3 +365,19 @@ def test_weighted_fusion_silences_a_loud_useless_term():
     assert top1(good) == 1.0
     assert top1(plain) < 0.5
     assert top1(fused) >= 0.95
+
+
+def test_heading_closure_against_triples_counted_by_hand():
+    from fingerloc.experiments.panorama import heading_closure
+
+    yaw = np.array([0.0, 30.0, 100.0, 250.0, 10.0])  # each photo's heading; h_ab = yaw_b - yaw_a
+    h = yaw[None, :] - yaw[:, None]
+    h[0, 2] += 3.0  # one pair off by 3 deg (and its reverse)
+    h[2, 0] -= 3.0
+    inl = np.full((5, 5), 20)
+    inl[3, 4] = inl[4, 3] = 2  # too few inliers: triples through this pair are left out
+    labels = ["r", "r", "r", "r", None]
+    got = heading_closure(inl, h, labels)
+    # triples of photos 0-3: (0,1,2) and (0,2,3) hold the bad pair (3 deg), (0,1,3) and (1,2,3) close exactly
+    assert got["triples"] == 4 and got["median_deg"] == pytest.approx(1.5) and got["within_2_deg"] == 0.5
+    assert heading_closure(inl, h, ["r", "r", "s", "s", "s"])["triples"] == 0

@@ -17,6 +17,7 @@ from fingerloc.features.sphere import (
     essential_from_pose,
     heading_of_rotation,
     ransac_pose,
+    refine_pose,
     rotation_about_z,
     tilt_of_rotation,
     upright_three_point,
@@ -157,3 +158,49 @@ def test_ransac_is_deterministic_and_checks_its_input():
         ransac_pose(f1, f2[:-1])
     with pytest.raises(InvalidParameterError):
         ransac_pose(f1, f2, threshold=0.0)
+
+
+def test_few_matches_try_every_minimal_sample_and_find_the_best_one():
+    """With 12 matches (495 samples of 8, fewer than max_iter) the fit is at least the best exhaustive sample."""
+    import itertools
+
+    rng = np.random.default_rng(11)
+    rot, t = _rotation(25.0, 2.0, -1.0), np.array([0.4, 0.2, 0.05])
+    f1, f2, _, _ = _scene(rng, 12, rot, t, noise=0.001, outliers=4 / 12)
+    thr = 0.01
+    best = 0
+    for s in itertools.combinations(range(12), 8):
+        e = eight_point(f1[list(s)], f2[list(s)])
+        best = max(best, int(np.sum(epipolar_errors(e, f1, f2) < thr)))
+    for seed in (0, 1, 2):
+        fit = ransac_pose(f1, f2, model="general", threshold=thr, max_iter=1000, seed=seed)
+        assert fit is not None and fit.n_inliers >= best >= 8
+    # the same matches give the same answer whatever the seed: every sample is tried
+    a = ransac_pose(f1, f2, model="general", threshold=thr, seed=0)
+    b = ransac_pose(f1, f2, model="general", threshold=thr, seed=5)
+    assert a is not None and b is not None and np.array_equal(a.inliers, b.inliers)
+
+
+def test_refine_pose_recovers_the_pose_from_a_perturbed_guess():
+    rng = np.random.default_rng(21)
+    rot, t = _rotation(70.0, 3.0, -2.0), np.array([0.3, -0.6, 0.1])
+    f1, f2, _, _ = _scene(rng, 60, rot, t)
+    guess = _rotation(2.0, 1.0, 0.5) @ rot
+    r, tt = refine_pose(f1, f2, guess, t + np.array([0.1, 0.05, -0.05]))
+    assert np.allclose(r, rot, atol=1e-6) and np.allclose(tt, t / np.linalg.norm(t), atol=1e-6)
+    # upright: only the turn about z and a horizontal translation
+    rot_u, t_u = rotation_about_z(math.radians(-120.0)), np.array([0.7, 0.2, 0.0])
+    f1, f2, _, _ = _scene(rng, 40, rot_u, t_u)
+    r, tt = refine_pose(f1, f2, rotation_about_z(math.radians(-117.0)), np.array([0.6, 0.3, 0.0]), model="upright")
+    assert abs(math.degrees(heading_of_rotation(r)) + 120.0) < 1e-6 and abs(tt[2]) < 1e-12
+
+
+
+def test_many_matches_are_ranked_on_a_probe_and_still_fit():
+    rng = np.random.default_rng(8)
+    rot, t = _rotation(-65.0, 2.0, 1.0), np.array([0.2, 0.7, -0.1])
+    f1, f2, _, _ = _scene(rng, 800, rot, t, noise=0.001, outliers=0.3)
+    fit = ransac_pose(f1, f2, model="general", threshold=0.01, max_iter=300)
+    truth = np.arange(800) >= 240
+    assert fit is not None and np.sum(fit.inliers & truth) >= 540 and np.sum(fit.inliers & ~truth) <= 10
+    assert abs(math.degrees(fit.heading) + 65.0) < 0.3

@@ -293,7 +293,10 @@ def bench_panorama_cmd(
     spacing: float = typer.Option(0.03, "--spacing", help="Places by position: centres this far apart, map units."),
     components: int = typer.Option(3, "-k", "--components", help="Mixture components per place (VE, CP)."),
     width: int = typer.Option(1440, "--width", help="Photos are resampled to this many columns (one per 0.25 deg)."),
-    shortlist: int = typer.Option(40, "--shortlist", min=1, help="Views kept by the bag-of-words retrieval (recall)."),
+    shortlist: int = typer.Option(10, "--shortlist", min=0, help="Views kept by the bag-of-words retrieval (recall)."),
+    shortlist_appearance: int = typer.Option(
+        10, "--shortlist-appearance", min=0, help="Views nearest by appearance added to the retrieval's shortlist."
+    ),
     preset: str | None = typer.Option(
         None,
         "--preset",
@@ -367,6 +370,7 @@ def bench_panorama_cmd(
                 n_components=components,
                 width=width,
                 shortlist=shortlist,
+                shortlist_appearance=shortlist_appearance,
                 on_step=step,
             )
         if preset is not None or speed_photos:
@@ -470,7 +474,8 @@ def _print_extras(res: dict[str, Any]) -> None:
         rr = r.get("retrieval")
         if rr:
             console.print(
-                f"retrieval ({name}, shortlist {rr['shortlist']}): best-verified view kept {rr['best_view']:.3f}, "
+                f"retrieval ({name}, shortlist {rr['shortlist']} + {rr.get('shortlist_appearance', 0)} by appearance): "
+                f"best-verified view kept {rr['best_view']:.3f}, "
                 f"true place kept {rr['true_place']:.3f}; K top-1 {rr['top1_shortlist']:.3f} "
                 f"(every view verified {rr['top1_all']:.3f})"
             )
@@ -482,6 +487,13 @@ def _print_extras(res: dict[str, Any]) -> None:
                 f"{'-' if med is None else f'{med:.1f}'} deg (all pairs {h['median_error_deg']:.1f}), "
                 f"within 10 deg {h['within_10'] or 0:.2f}"
             )
+    hc = res.get("heading_closure")
+    if hc and hc["triples"]:
+        console.print(
+            f"keypoint headings around {hc['triples']} triples of one area (h_ab + h_bc - h_ac, >= {hc['min_inliers']} "
+            f"inliers): median {hc['median_deg']:.2f} deg (per pair about {hc['per_pair_deg']:.2f}), "
+            f"within 2 deg {hc['within_2_deg']:.2f}"
+        )
     for name, p in res.get("preset", {}).items():
         cal = p["calibration"] or {}
         unk = p["unknown"]

@@ -62,6 +62,7 @@ from .panorama_heading import (
     band_signature,
     feature_heading_deg,
     fingerprint_heading_deg,
+    heading_closure,
     heading_errors,
     heading_link_errors,
     image_rotation_deg,
@@ -95,6 +96,7 @@ __all__ = [
     "extract_features",
     "feature_heading_deg",
     "fingerprint_heading_deg",
+    "heading_closure",
     "heading_errors",
     "heading_link_errors",
     "hsv_histogram",
@@ -345,7 +347,7 @@ def keypoint_pairs(
             threshold_deg=defaults.threshold_deg,
             max_tilt_deg=defaults.max_tilt_deg,
         )
-    term = KeypointTerm(shortlist=0).store([[Observation(keypoints=k)] for k in kps], model)
+    term = KeypointTerm(shortlist=0, shortlist_appearance=0).store([[Observation(keypoints=k)] for k in kps], model)
     stored = np.flatnonzero([len(k) > 0 for k in kps])
     n = len(kps)
     matches = np.zeros((n, n), dtype=np.int64)
@@ -365,13 +367,19 @@ def keypoint_pairs(
 
 
 def retrieval_recall(
-    obs: Sequence[Observation], owner: NDArray[np.int64], queries: Sequence[int], pairs: KeypointPairs, shortlist: int
+    obs: Sequence[Observation],
+    owner: NDArray[np.int64],
+    queries: Sequence[int],
+    pairs: KeypointPairs,
+    shortlist: int,
+    shortlist_appearance: int = 0,
 ) -> dict[str, Any]:
     """How often the bag-of-words shortlist (:class:`fingerloc.terms.keypoints.Vocabulary`) keeps what verification needs.
 
     Two vocabularies, each learned on the photos of even or odd index, rank
     the other half's queries against every other photo (the query left out);
-    the ``shortlist`` best are kept. Returns the share of queries whose
+    the ``shortlist`` best are kept, with the ``shortlist_appearance``
+    nearest by the appearance descriptors (L1; the term's rule). Returns the share of queries whose
     best-verified photo is in the shortlist (``best_view``), whose true place
     has a photo in it (``true_place``), and the top-1 of ``K`` when only the
     shortlist is verified (``top1_shortlist``) against every photo (``top1_all``).
@@ -383,6 +391,8 @@ def retrieval_recall(
     vocabs = [Vocabulary([units[i] for i in range(n) if i % 2 == half]) for half in (0, 1)]
     # each photo's histogram under each vocabulary
     hist = [np.stack([v.histogram(u) for u in units]) for v in vocabs]
+    has_app = all(o.appearance is not None for o in obs)
+    apps = np.stack([np.asarray(o.appearance, dtype=np.float64) for o in obs]) if has_app and obs else None
     best_in = true_in = hit_short = hit_all = 0
     n_places = int(owner.max()) + 1
     for q in queries:
@@ -390,6 +400,10 @@ def retrieval_recall(
         s = hist[voc] @ hist[voc][q]
         s[q] = -np.inf
         short = np.argsort(-s, kind="stable")[:shortlist]
+        if shortlist_appearance and apps is not None:
+            da = np.abs(apps - apps[q]).sum(axis=1)
+            da[q] = np.inf
+            short = np.union1d(short, np.argsort(da, kind="stable")[:shortlist_appearance])
         inl = pairs.inliers[q].astype(np.float64)
         inl[q] = -1.0
         best = int(np.argmax(inl))
@@ -406,6 +420,7 @@ def retrieval_recall(
     m = max(len(queries), 1)
     return {
         "shortlist": shortlist,
+        "shortlist_appearance": shortlist_appearance if apps is not None else 0,
         "queries": len(queries),
         "best_view": best_in / m,
         "true_place": true_in / m,
@@ -648,7 +663,8 @@ def run_panorama_bench(
     n_components: int = 3,
     width: int = DEFAULT_WIDTH,
     max_queries: int | None = None,
-    shortlist: int = 40,
+    shortlist: int = 10,
+    shortlist_appearance: int = 10,
     on_step: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Leave-one-out top-1, mean rank and calibration per method, places by area and by position (module docstring).
@@ -699,6 +715,7 @@ def run_panorama_bench(
     }
     kd = {"K": pairs.distances(), "K unverified": pairs.distances(verified=False)}
     res["heading"] = heading_errors(photos, feats)
+    res["heading_closure"] = heading_closure(pairs.inliers, pairs.heading_deg, [by_area[i] for i in have])
     if areas_dir is not None:
         pos = {i: k for k, i in enumerate(have)}
 
@@ -745,7 +762,7 @@ def run_panorama_bench(
                 }
                 for m, r in ranks.items()
             },
-            "retrieval": retrieval_recall(sub_obs, owner, queries, sub_pairs, shortlist),  # type: ignore[arg-type]
+            "retrieval": retrieval_recall(sub_obs, owner, queries, sub_pairs, shortlist, shortlist_appearance),  # type: ignore[arg-type]
         }
     return res
 

@@ -40,6 +40,7 @@ __all__ = [
     "band_signature",
     "feature_heading_deg",
     "fingerprint_heading_deg",
+    "heading_closure",
     "heading_errors",
     "heading_link_errors",
     "image_rotation_deg",
@@ -303,6 +304,55 @@ def heading_errors(photos: Sequence[CampusPhoto], feats: Sequence[PhotoFeatures 
     return out
 
 
+def heading_closure(
+    inliers: NDArray[np.int64], heading_deg: FArray, labels: Sequence[Any], *, min_inliers: int = 8
+) -> dict[str, Any]:
+    """How well headings add up around triples of photos of one place: an exact check that needs no ground truth.
+
+    For photos ``a, b, c`` of one label whose three pairs each have at least
+    ``min_inliers`` inliers, ``heading[a, b] + heading[b, c]`` must equal
+    ``heading[a, c]`` (a feature at ``x`` in ``a`` is at ``x + h_ab`` in ``b``).
+    With independent errors of spread ``s`` per pair, the closure error has
+    spread ``s sqrt(3)``.
+
+    Parameters
+    ----------
+    inliers : ndarray of int, shape (n, n)
+    heading_deg : ndarray, shape (n, n)
+        Degrees, NaN without a pose.
+    labels : sequence, length n
+        Place of each photo (None: left out).
+
+    Returns
+    -------
+    dict
+        ``triples``, ``median_deg`` (median absolute closure error, None
+        without triples), ``within_2_deg`` (share), ``per_pair_deg``
+        (``median_deg / sqrt(3)``), ``min_inliers``.
+    """
+    import itertools
+
+    inl = np.asarray(inliers)
+    h = np.asarray(heading_deg, dtype=np.float64)
+    by: dict[Any, list[int]] = {}
+    for i, lab in enumerate(labels):
+        if lab is not None:
+            by.setdefault(lab, []).append(i)
+    errs = []
+    for ids in by.values():
+        for a, b, c in itertools.combinations(ids, 3):
+            if min(inl[a, b], inl[b, c], inl[a, c]) >= min_inliers and np.isfinite([h[a, b], h[b, c], h[a, c]]).all():
+                errs.append(abs((h[a, b] + h[b, c] - h[a, c] + 180.0) % 360.0 - 180.0))
+    med = float(np.median(errs)) if errs else None
+    return {
+        "min_inliers": int(min_inliers),
+        "triples": len(errs),
+        "median_deg": med,
+        "within_2_deg": float(np.mean(np.asarray(errs) < 2.0)) if errs else None,
+        "per_pair_deg": med / math.sqrt(3.0) if med is not None else None,
+    }
+
+
 #: Heading estimators of :func:`heading_link_errors`.
 HEADING_ESTIMATORS: tuple[str, ...] = ("keypoints", "keypoints or profile", "profile", "Fp", "features", "signature")
 
@@ -313,7 +363,7 @@ def heading_link_errors(
     feats: Sequence[PhotoFeatures | None],
     *,
     keypoint_check: Callable[[Observation, Observation], PairCheck | None] | None = None,
-    min_inliers: int = 15,
+    min_inliers: int = 8,
 ) -> dict[str, Any]:
     """Heading estimators against the tour's arrows (:func:`load_tour_links`), on the photos linked both ways.
 

@@ -38,6 +38,7 @@ the relative rotation is the angle between ``R``'s z column and the vertical.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -50,6 +51,7 @@ from ..errors import InvalidParameterError
 
 __all__ = [
     "MODELS",
+    "PROBE",
     "PoseFit",
     "bearing_vectors",
     "decompose_essential",
@@ -58,6 +60,7 @@ __all__ = [
     "essential_from_pose",
     "heading_of_rotation",
     "ransac_pose",
+    "refine_pose",
     "rotation_about_z",
     "skew",
     "tilt_of_rotation",
@@ -67,6 +70,8 @@ __all__ = [
 Model = Literal["general", "upright"]
 #: The relative-pose models of :func:`ransac_pose`.
 MODELS: tuple[str, ...] = ("upright", "general")
+#: With more than twice this many matches, RANSAC ranks each batch's hypotheses on this many (a fixed random subset).
+PROBE = 100
 #: Matches in a minimal sample, per model.
 SAMPLE_SIZE = {"upright": 3, "general": 8}
 
@@ -295,6 +300,78 @@ def _refine(solve: Any, e: FArray, f1: FArray, f2: FArray, threshold: float, k: 
     return e, count
 
 
+def _rodrigues(w: FArray) -> FArray:
+    """The rotation matrix of a rotation vector ``w`` (axis times angle, radians), shape ``(3, 3)``."""
+    a = float(np.linalg.norm(w))
+    if a < 1e-12:
+        return np.eye(3) + skew(w)
+    k = skew(w / a)
+    return np.eye(3) + math.sin(a) * k + (1.0 - math.cos(a)) * (k @ k)
+
+
+def refine_pose(
+    f1: FArray, f2: FArray, rotation: FArray, translation: FArray, *, model: Model = "general"
+) -> tuple[FArray, FArray]:
+    """The relative pose that minimises the angular epipolar errors of matches (all inliers), from a first guess.
+
+    Non-linear least squares (:func:`scipy.optimize.least_squares`) of the
+    sines of the angles between each bearing and the other's epipolar plane
+    (both sides), over the rotation (a rotation vector applied to
+    ``rotation``; for ``"upright"`` only its turn about z) and the direction
+    of the translation (two angles about ``translation``; for ``"upright"``
+    horizontal). The linear fit on the inliers weighs matches by the lengths
+    of ``E f1`` and ``E^T f2``; this one does not.
+
+    Parameters
+    ----------
+    f1, f2 : ndarray, shape (m, 3)
+        Unit bearing vectors of the inlier matches.
+    rotation : ndarray, shape (3, 3)
+    translation : ndarray, shape (3,)
+    model : {"general", "upright"}
+
+    Returns
+    -------
+    rotation : ndarray, shape (3, 3)
+    translation : ndarray, shape (3,)
+        Unit vector.
+    """
+    from scipy.optimize import least_squares
+
+    r0 = np.asarray(rotation, dtype=np.float64)
+    t0 = np.asarray(translation, dtype=np.float64)
+    t0 = t0 / max(float(np.linalg.norm(t0)), 1e-300)
+    u = np.cross(t0, [0.0, 0.0, 1.0] if abs(t0[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(t0, u)
+    upright = model == "upright"
+
+    def pose(x: FArray) -> tuple[FArray, FArray]:
+        if upright:
+            r = rotation_about_z(float(x[0])) @ r0
+            t = rotation_about_z(float(x[1])) @ t0
+        else:
+            r = _rodrigues(x[:3]) @ r0
+            t = t0 + x[3] * u + x[4] * v
+            t = t / np.linalg.norm(t)
+        return r, t
+
+    def residuals(x: FArray) -> FArray:
+        r, t = pose(x)
+        g = f1 @ r.T
+        n1 = np.cross(t, g)  # normal of the epipolar plane of f1 in view 2
+        n2 = np.cross(t, f2)
+        num = np.einsum("ni,ni->n", f2, n1)
+        return np.concatenate([num / np.maximum(np.linalg.norm(n1, axis=1), 1e-12),
+                               num / np.maximum(np.linalg.norm(n2, axis=1), 1e-12)])  # fmt: skip
+
+    x0 = np.zeros(2 if upright else 5)
+    if len(f1) < len(x0):
+        return r0, t0
+    sol = least_squares(residuals, x0, method="lm" if 2 * len(f1) >= len(x0) else "trf")
+    return pose(sol.x)
+
+
 def _samples(rng: np.random.Generator, m: int, k: int, size: int) -> IArray:
     """``size`` random index sets of ``k`` distinct matches among ``m``, shape ``(size, k)``."""
     # argsort of random keys: distinct indices per row
@@ -310,6 +387,7 @@ def ransac_pose(
     max_iter: int = 500,
     confidence: float = 0.999,
     seed: int = 0,
+    refine: bool = False,
 ) -> PoseFit | None:
     """The relative pose of two spherical views from matched bearings, by RANSAC (module docstring).
 
@@ -322,11 +400,17 @@ def ransac_pose(
         Largest epipolar error of an inlier, radians.
     max_iter : int
         Most hypotheses drawn (in batches; stops early once ``confidence``
-        says a better one is unlikely).
+        says a better one is unlikely). With no more distinct minimal
+        samples than this, each is tried once instead. With more than
+        ``2 PROBE`` matches, each batch's hypotheses are ranked on
+        :data:`PROBE` of them and only the best is counted on all.
     confidence : float
         Probability of drawing at least one all-inlier sample that stops the search.
     seed : int
         Seeds the sampling (the same matches give the same answer).
+    refine : bool
+        Refine the rotation and translation on the inliers by
+        :func:`refine_pose` (the inliers and the essential matrix stay the RANSAC's).
 
     Returns
     -------
@@ -350,14 +434,27 @@ def ransac_pose(
     solve = _SOLVERS[model]
     rng = np.random.default_rng(seed)
     best_count, best_e = -1, np.eye(3)
+    # few matches: every minimal sample once (no more than the draws would be) instead of random draws
+    every = np.array(list(itertools.combinations(range(m), k)), dtype=np.int64) if math.comb(m, k) <= max_iter else None
+    if every is not None:
+        max_iter = len(every)
     drawn, needed, batch = 0, max_iter, 64
+    probe = np.sort(rng.choice(m, PROBE, replace=False)) if m > 2 * PROBE else None
     while drawn < min(max_iter, needed):
         size = min(batch, max_iter - drawn)
-        idx = _samples(rng, m, k, size)
+        idx = every[drawn : drawn + size] if every is not None else _samples(rng, m, k, size)
         es = solve(f1[idx], f2[idx])  # (size, 3, 3)
-        counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
         drawn += size
-        j = int(np.argmax(counts))
+        if probe is not None:  # many matches: hypotheses ranked on a fixed subset, the best one counted on all
+            j = int(np.argmax((epipolar_errors(es, f1[probe], f2[probe]) < threshold).sum(axis=1)))
+            count_j = int((epipolar_errors(es[j], f1, f2) < threshold).sum())
+            if count_j <= best_count:
+                continue
+            counts = np.zeros(size, dtype=np.int64)
+            counts[j] = count_j
+        else:
+            counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
+            j = int(np.argmax(counts))
         if counts[j] <= best_count:
             continue
         e, count = _refine(solve, es[j], f1, f2, threshold, k)
@@ -374,4 +471,6 @@ def ransac_pose(
     if model == "upright":  # exactly about z (the decomposition of an upright E is, up to round-off)
         r = rotation_about_z(heading_of_rotation(r))
         t = np.array([t[0], t[1], 0.0]) / max(math.hypot(t[0], t[1]), 1e-300)
+    if refine and inl.sum() >= k:
+        r, t = refine_pose(f1[inl], f2[inl], r, t, model=model)
     return PoseFit(model, inl, best_e, r, t)

@@ -443,6 +443,20 @@ def _circ_mean_deg(a: FArray, w: FArray | None = None) -> float:
     return float(np.rad2deg(np.arctan2((wts * np.sin(r)).sum(), (wts * np.cos(r)).sum())) % 360.0)
 
 
+def _bearing_extent(pano: Any, cols: NDArray[np.int64], w: int) -> tuple[float, float]:
+    """Circular mean bearing of pixels in columns ``cols`` and the half width (radians) of their bearings' span.
+
+    Per column (pixel counts as weights), not per pixel: the same sums, in
+    a different order.
+    """
+    counts = np.bincount(cols, minlength=w)
+    present = np.flatnonzero(counts)
+    cb = pano.column_bearing(present.astype(np.float64) + 0.5)
+    n = counts[present].astype(np.float64)
+    centre = float(np.arctan2((n * np.sin(cb)).sum(), (n * np.cos(cb)).sum()))
+    return centre, float(np.abs(wrap(cb - centre)).max()) + np.pi / w
+
+
 def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
     """Saturated colour regions of a panorama: their bearings and hues.
 
@@ -518,9 +532,7 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
                 continue
             pix = order[starts[r] : starts[r + 1]]
             rows, cols = np.divmod(pix, w)
-            cb = pano.column_bearing(cols.astype(np.float64) + 0.5)
-            centre = float(np.arctan2(np.sin(cb).sum(), np.cos(cb).sum()))
-            half = float(np.abs(wrap(cb - centre)).max()) + np.pi / w
+            centre, half = _bearing_extent(pano, cols, w)
             regions.append([rows, cols, centre, half])
         # merge regions of this hue that overlap in bearing (a poster split by a bar or a frame)
         merged = True
@@ -529,12 +541,10 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
             for i in range(len(regions)):
                 for j in range(i + 1, len(regions)):
                     a, b = regions[i], regions[j]
-                    if abs(float(wrap(a[2] - b[2]))) < a[3] + b[3]:
+                    if abs((a[2] - b[2] + math.pi) % TWO_PI - math.pi) < a[3] + b[3]:  # scalar wrap
                         rows = np.concatenate([a[0], b[0]])
                         cols = np.concatenate([a[1], b[1]])
-                        cb = pano.column_bearing(cols.astype(np.float64) + 0.5)
-                        centre = float(np.arctan2(np.sin(cb).sum(), np.cos(cb).sum()))
-                        half = float(np.abs(wrap(cb - centre)).max()) + np.pi / w
+                        centre, half = _bearing_extent(pano, cols, w)
                         regions[i] = [rows, cols, centre, half]
                         regions.pop(j)
                         merged = True

@@ -27,11 +27,14 @@ one place are verified with the general model and the median tilt of their
 relative rotations (``tilt_deg_``) decides: above ``max_tilt_deg`` the
 panoramas are not levelled and the general model is used.
 
-**Retrieval** (``shortlist``): verifying a view against every stored view
-costs a descriptor match and a RANSAC each; with more than ``shortlist``
-stored views, a bag of visual words (a vocabulary of the training
-descriptors, :class:`Vocabulary`) ranks the stored views first and only the
-``shortlist`` best are verified (the others count as 0 inliers).
+**Retrieval** (``shortlist``, ``shortlist_appearance``): verifying a view
+against every stored view costs a descriptor match and a RANSAC each; with
+more than ``shortlist + shortlist_appearance`` stored views, only a
+shortlist is verified (the others count as 0 inliers): the ``shortlist``
+best by a bag of visual words (a vocabulary of the training descriptors,
+:class:`Vocabulary`) and the ``shortlist_appearance`` nearest by the views'
+appearance descriptors (``Observation.appearance``, L1 distance, where the
+query and every stored view carry one).
 
 **Headings**: the verified rotation between the query and the best view of a
 place gives the heading (:meth:`KeypointTerm.heading_at`) when at least
@@ -57,25 +60,49 @@ from numpy.typing import NDArray
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
 from ..features.keypoints import Keypoints, match_descriptors
-from ..features.sphere import MODELS, SAMPLE_SIZE, ransac_pose
+from ..features.sphere import (
+    MODELS,
+    SAMPLE_SIZE,
+    heading_of_rotation,
+    ransac_pose,
+    refine_pose,
+    tilt_of_rotation,
+)
 from ..observation import Observation
 from .indexed import IndexedTerm
 
 __all__ = [
     "CACHE_SIZE",
+    "REFINE_MAX",
     "KeypointTerm",
     "PairCheck",
     "Vocabulary",
     "check_pair",
     "choose_model",
+    "clear_pair_cache",
     "keypoint_distance",
 ]
 
 #: Pairs of views whose verification is memoised (process-wide).
 CACHE_SIZE = 400_000
 _CACHE: OrderedDict[tuple[Any, ...], PairCheck] = OrderedDict()
+#: Most inliers the rotation is refined on (evenly spread among them).
+REFINE_MAX = 100
 #: Seed of every RANSAC (the same pair gives the same answer).
 _SEED = 0
+
+
+def clear_pair_cache() -> None:
+    """Forget every memoised pair verification (a new process starts without them)."""
+    _CACHE.clear()
+
+
+@dataclass(frozen=True, slots=True)
+class _View:
+    """What the term keeps of a view: its keypoints and, when it has one, its appearance descriptor."""
+
+    kp: Keypoints
+    app: FArray | None
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,6 +146,7 @@ def check_pair(
     model: str = "upright",
     threshold_deg: float = 0.6,
     max_iter: int | None = None,
+    refine_min_inliers: int | None = 8,
 ) -> PairCheck:
     """Match two views' RootSIFT descriptors and verify the matches by one relative pose.
 
@@ -134,13 +162,17 @@ def check_pair(
     threshold_deg : float
         Largest epipolar error of an inlier, degrees.
     max_iter : int, optional
-        RANSAC hypotheses (default 300 upright, 1000 general).
+        RANSAC hypotheses (default 300; fewer when there are fewer distinct minimal samples).
+    refine_min_inliers : int or None, default 8
+        With at least this many inliers, the rotation (hence the heading) is
+        refined on them by :func:`fingerloc.features.sphere.refine_pose`
+        (None: never; at most :data:`REFINE_MAX` of them, evenly spread); the inliers stay the RANSAC's.
     """
     m = match_descriptors(unit_a, unit_b, ratio=ratio)
     k = SAMPLE_SIZE[model]
     if len(m) < k:
         return PairCheck(len(m), 0, math.nan, math.nan)
-    it = max_iter if max_iter is not None else (300 if model == "upright" else 1000)
+    it = max_iter if max_iter is not None else 300
     fit = ransac_pose(
         vec_a[m[:, 0]],
         vec_b[m[:, 1]],
@@ -151,7 +183,13 @@ def check_pair(
     )
     if fit is None:
         return PairCheck(len(m), 0, math.nan, math.nan)
-    return PairCheck(len(m), fit.n_inliers, fit.heading, fit.tilt)
+    rot = fit.rotation
+    if refine_min_inliers is not None and fit.n_inliers >= max(refine_min_inliers, k):
+        sel = m[fit.inliers]
+        if len(sel) > REFINE_MAX:  # a spread subset bounds the cost (many inliers pin the rotation anyway)
+            sel = sel[np.linspace(0, len(sel) - 1, REFINE_MAX).round().astype(np.int64)]
+        rot, _ = refine_pose(vec_a[sel[:, 0]], vec_b[sel[:, 1]], fit.rotation, fit.translation, model=model)  # type: ignore[arg-type]
+    return PairCheck(len(m), fit.n_inliers, heading_of_rotation(rot), tilt_of_rotation(rot))
 
 
 def keypoint_distance(inliers: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
@@ -279,7 +317,7 @@ def choose_model(
 # the term
 
 
-class KeypointTerm(IndexedTerm[Keypoints]):
+class KeypointTerm(IndexedTerm[_View]):
     """The local-feature term ``K`` of the Bayesian program (module docstring).
 
     Parameters
@@ -292,10 +330,14 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         The relative-pose model; ``"auto"`` chooses it on the training views.
     max_tilt_deg : float, default 1.0
         ``"auto"``: the median tilt above which the general model is used.
-    shortlist : int, default 40
-        With more stored views than this, only the ``shortlist`` best-ranked
-        by the bag of words are verified (0: verify every view).
-    min_inliers : int, default 15
+    shortlist : int, default 10
+        With more stored views than ``shortlist + shortlist_appearance``, only
+        the ``shortlist`` best-ranked by the bag of words are verified, with
+        the ``shortlist_appearance`` nearest by appearance (0 and 0: verify every view).
+    shortlist_appearance : int, default 10
+        Views nearest to the query by their appearance descriptors (L1) added
+        to the shortlist (when the query and every stored view carry one).
+    min_inliers : int, default 8
         Fewest inliers for a heading from the verified rotation.
     max_queries : int, default 200
         At most this many training views (a seeded sample) serve as
@@ -326,8 +368,9 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         threshold_deg: float = 0.6,
         model: str = "auto",
         max_tilt_deg: float = 1.0,
-        shortlist: int = 40,
-        min_inliers: int = 15,
+        shortlist: int = 10,
+        shortlist_appearance: int = 10,
+        min_inliers: int = 8,
         max_queries: int = 200,
     ) -> None:
         self.ratio = ratio
@@ -335,13 +378,14 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         self.model = model
         self.max_tilt_deg = max_tilt_deg
         self.shortlist = shortlist
+        self.shortlist_appearance = shortlist_appearance
         self.min_inliers = min_inliers
         self.max_queries = max_queries
 
     def __repr__(self) -> str:
         return (
             f"KeypointTerm(ratio={self.ratio!r}, threshold_deg={self.threshold_deg!r}, model={self.model!r}, "
-            f"shortlist={self.shortlist!r})"
+            f"shortlist={self.shortlist!r}, shortlist_appearance={self.shortlist_appearance!r})"
         )
 
     def _validate(self) -> None:
@@ -354,17 +398,23 @@ class KeypointTerm(IndexedTerm[Keypoints]):
                 raise InvalidParameterError(f"{name} must be a number of degrees in (0, 90), got {v!r}")
         if self.model not in ("auto", *MODELS):
             raise InvalidParameterError(f"model must be one of auto, {', '.join(MODELS)}, got {self.model!r}")
-        for name in ("shortlist", "min_inliers"):
+        for name in ("shortlist", "shortlist_appearance", "min_inliers"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
                 raise InvalidParameterError(f"{name} must be an integer >= 0, got {v!r}")
         super()._validate()
 
     # -- fitting -----------------------------------------------------------------
-    def _feature(self, o: Observation) -> Keypoints | None:
-        return o.keypoints if o.keypoints is not None and len(o.keypoints) > 0 else None
+    def _feature(self, o: Observation) -> _View | None:
+        if o.keypoints is None or len(o.keypoints) == 0:
+            return None
+        return _View(o.keypoints, None if o.appearance is None else np.asarray(o.appearance, dtype=np.float64))
 
-    def _store(self, features: list[Keypoints]) -> None:
+    def _store(self, views: list[_View]) -> None:
+        apps = [v.app for v in views]
+        lengths = {a.shape for a in apps if a is not None}
+        self._apps = np.stack(apps) if views and all(a is not None for a in apps) and len(lengths) == 1 else None  # type: ignore[arg-type]
+        features = [v.kp for v in views]
         dims = {k.dim for k in features}
         if len(dims) > 1:
             raise InvalidParameterError(f"keypoints: every descriptor must have the same length, got {sorted(dims)}")
@@ -403,29 +453,49 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         if self.model != "auto":
             self.model_ = str(self.model)
             return
-        kps = [[f for o in g if (f := self._feature(o)) is not None] for g in groups]
+        kps = [[f.kp for o in g if (f := self._feature(o)) is not None] for g in groups]
         self.model_, self.tilt_deg_ = choose_model(
             kps, ratio=float(self.ratio), threshold_deg=float(self.threshold_deg), max_tilt_deg=float(self.max_tilt_deg)
         )
 
+    def _short(self) -> bool:
+        """Whether a query is verified against a shortlist only (more stored views than it holds)."""
+        k = int(self.shortlist) + int(self.shortlist_appearance)
+        return k > 0 and len(self._units) > k
+
     def _vocabulary(self) -> Vocabulary | None:
-        if not self.shortlist or len(self._units) <= self.shortlist:
+        if not self.shortlist or not self._short():
             return None
         if self._vocab is None:
             self._vocab = Vocabulary(self._units)
         return self._vocab
 
-    def candidates(self, query: Keypoints) -> IArray:
-        """Indices of the stored views to verify for ``query`` (every view, or the retrieval's shortlist)."""
+    def candidates(self, query: Keypoints, appearance: FArray | None = None) -> IArray:
+        """Indices of the stored views to verify for ``query`` (every view, or the retrieval's shortlist).
+
+        ``appearance``: the query's appearance descriptor, shape ``(d,)``
+        (its ``shortlist_appearance`` nearest stored views join the shortlist).
+        """
         self._check_fitted()
         n = len(self._units)
-        vocab = self._vocabulary()
-        if vocab is None:
+        if not self._short():
             return np.arange(n, dtype=np.int64)
-        s = vocab.scores(query.unit_descriptors())
-        # one more than the shortlist: a stored copy of the query itself takes a place
-        k = min(n, int(self.shortlist) + 1)
-        return np.sort(np.argpartition(-s, k - 1)[:k]).astype(np.int64)
+        picked = []
+        vocab = self._vocabulary()
+        # one more than each depth: a stored copy of the query itself takes a place
+        if vocab is not None:
+            s = vocab.scores(query.unit_descriptors())
+            k = min(n, int(self.shortlist) + 1)
+            picked.append(np.argpartition(-s, k - 1)[:k])
+        if self.shortlist_appearance and self._apps is not None and appearance is not None:
+            a = np.asarray(appearance, dtype=np.float64).reshape(-1)
+            if a.shape[0] == self._apps.shape[1]:
+                d = np.abs(self._apps - a[None, :]).sum(axis=1)
+                k = min(n, int(self.shortlist_appearance) + 1)
+                picked.append(np.argpartition(d, k - 1)[:k])
+        if not picked:
+            return np.arange(n, dtype=np.int64)
+        return np.unique(np.concatenate(picked)).astype(np.int64)
 
     def checks(self, query: Keypoints, views: IArray | None = None) -> list[PairCheck]:
         """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised)."""
@@ -457,19 +527,22 @@ class KeypointTerm(IndexedTerm[Keypoints]):
             out.append(got)
         return out
 
-    def inliers(self, query: Keypoints) -> IArray:
+    def inliers(self, query: Keypoints, appearance: FArray | None = None) -> IArray:
         """Verified inliers of ``query`` against every stored view, shape ``(m,)`` (0 outside the shortlist)."""
-        cand = self.candidates(query)
+        cand = self.candidates(query, appearance)
         out = np.zeros(len(self._units), dtype=np.int64)
         out[cand] = [c.inliers for c in self.checks(query, cand)]
         return out
 
-    def _view_distances(self, query: Keypoints) -> FArray:
-        return keypoint_distance(self.inliers(query), len(query), self.sizes_)
+    def _view_distances(self, query: _View) -> FArray:
+        return keypoint_distance(self.inliers(query.kp, query.app), len(query.kp), self.sizes_)
 
     # -- headings ----------------------------------------------------------------
     def heading_at(self, observation: Observation, place: int) -> tuple[float | None, int, int]:
         """Heading of ``observation`` against the best-verified training view of place index ``place``.
+
+        The views looked at are the place's views in the query's shortlist
+        (:meth:`candidates`), or all of them when the shortlist holds none.
 
         Returns ``(heading_deg, view, inliers)``: a feature at bearing ``b``
         in the observation is at bearing ``b + heading_deg`` in that view
@@ -483,7 +556,10 @@ class KeypointTerm(IndexedTerm[Keypoints]):
         sel = np.flatnonzero(self.owner_ == place)
         if f is None or sel.size == 0:
             return None, -1, 0
-        checks = self.checks(f, sel)
+        # the views the likelihood verified (its memo answers at once); every view of the place if none of them was
+        short = np.intersect1d(sel, self.candidates(f.kp, f.app))
+        sel = short if short.size else sel
+        checks = self.checks(f.kp, sel)
         k = int(np.argmax([c.inliers for c in checks]))
         best = checks[k]
         view = int(self.view_[sel[k]])
@@ -500,6 +576,7 @@ class KeypointTerm(IndexedTerm[Keypoints]):
             "model": str(self.model),
             "max_tilt_deg": float(self.max_tilt_deg),
             "shortlist": int(self.shortlist),
+            "shortlist_appearance": int(self.shortlist_appearance),
             "min_inliers": int(self.min_inliers),
             "fitted_model": self.model_,
             "tilt_deg": self.tilt_deg_,
@@ -508,7 +585,7 @@ class KeypointTerm(IndexedTerm[Keypoints]):
     def _params_from_state(self, state: dict[str, Any]) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for key, cast in (("ratio", float), ("threshold_deg", float), ("model", str), ("max_tilt_deg", float),
-                          ("shortlist", int), ("min_inliers", int)):  # fmt: skip
+                          ("shortlist", int), ("shortlist_appearance", int), ("min_inliers", int)):  # fmt: skip
             if key in state:
                 out[key] = cast(state[key])
         fitted = state.get("fitted_model")
