@@ -5,7 +5,7 @@ examples (minutes; see docs/ROBUSTNESS.md); the default ``ci`` profile keeps
 the whole fuzz battery under a minute.
 
 numba compiles a kernel on its first call and keeps it on disk (``cache=True``);
-on a fresh clone that first call takes seconds. The session compiles the
+on a fresh clone that first call takes seconds. The test run compiles the
 alignment and mixture kernels once before the first test, so that a test's time
 is its own work; ``FINGERLOC_TEST_NO_WARMUP=1`` skips that.
 """
