@@ -96,3 +96,23 @@ def test_the_pose_is_the_mode_of_the_answered_place_and_the_covariance_its_error
     np.testing.assert_allclose([xa, ya], w @ parts[:, :2], atol=1e-12)
     (xn, _, _), _ = _pose_estimate(parts, lw, centre=(50.0, 50.0), reach=2.0)  # nothing near: every particle
     assert xn == xa
+
+
+def test_a_steps_row_and_headings_are_the_calibrations_functions(rooms):
+    """The tracker's per-step likelihood row and implied headings (lookups kept across steps) equal
+    ``posterior_columns`` and ``implied_headings``, which the map's calibration uses, at every place and on a subset."""
+    from fingerloc.features.laser import observation_from_scan
+    from fingerloc.pipeline.calibration import implied_headings, posterior_columns
+
+    run, pm = rooms
+    tr = pm.tracker(filter="pose", seed=0)
+    n = len(pm.labels)
+    rng = np.random.default_rng(4)
+    for s in run.scans[pm.runs[0]["n_mapping"] :: 7]:
+        obs = observation_from_scan(s, **tr.features)
+        np.testing.assert_array_equal(tr._posterior_columns(obs), posterior_columns(pm.model, [obs], n, pm.labels))
+        np.testing.assert_array_equal(tr._implied_headings(obs, None), implied_headings(pm.model, [obs], pm.labels)[0])
+        cols = rng.choice(n, size=max(1, n // 3), replace=False)
+        want = implied_headings(pm.model, [obs], pm.labels, cols)[0]
+        np.testing.assert_array_equal(tr._implied_headings(obs, cols), want)
+        assert np.isfinite(want).any()
