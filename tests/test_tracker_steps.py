@@ -98,9 +98,10 @@ def test_the_pose_is_the_mode_of_the_answered_place_and_the_covariance_its_error
     assert xn == xa
 
 
-def test_a_steps_row_and_headings_are_the_calibrations_functions(rooms):
-    """The tracker's per-step likelihood row and implied headings (lookups kept across steps) equal
-    ``posterior_columns`` and ``implied_headings``, which the map's calibration uses, at every place and on a subset."""
+def test_a_steps_row_and_headings_are_those_of_many_observations(rooms):
+    """The tracker's per-step likelihood row and implied headings (one observation: one model call over every
+    place, the lookups kept across steps) equal the rows of ``posterior_columns`` and ``implied_headings`` over
+    many observations at once (the map's calibration and offline ``track``), at every place and on a subset."""
     from fingerloc.features.laser import observation_from_scan
     from fingerloc.pipeline.calibration import implied_headings, posterior_columns
 
@@ -108,11 +109,14 @@ def test_a_steps_row_and_headings_are_the_calibrations_functions(rooms):
     tr = pm.tracker(filter="pose", seed=0)
     n = len(pm.labels)
     rng = np.random.default_rng(4)
-    for s in run.scans[pm.runs[0]["n_mapping"] :: 7]:
-        obs = observation_from_scan(s, **tr.features)
-        np.testing.assert_array_equal(tr._posterior_columns(obs), posterior_columns(pm.model, [obs], n, pm.labels))
-        np.testing.assert_array_equal(tr._implied_headings(obs, None), implied_headings(pm.model, [obs], pm.labels)[0])
+    scans = run.scans[pm.runs[0]["n_mapping"] :: 7]
+    many = [observation_from_scan(s, **tr.features) for s in scans]
+    rows = posterior_columns(pm.model, many, n, pm.labels)
+    every = implied_headings(pm.model, many, pm.labels)
+    for i, obs in enumerate(many):
+        np.testing.assert_array_equal(tr.columns.posterior([obs]), rows[i : i + 1])
+        np.testing.assert_array_equal(tr.columns.headings([obs])[0], every[i])
         cols = rng.choice(n, size=max(1, n // 3), replace=False)
-        want = implied_headings(pm.model, [obs], pm.labels, cols)[0]
-        np.testing.assert_array_equal(tr._implied_headings(obs, cols), want)
+        want = implied_headings(pm.model, [obs, many[(i + 1) % len(many)]], pm.labels, cols)[0]
+        np.testing.assert_array_equal(tr.columns.headings([obs], cols)[0], want)
         assert np.isfinite(want).any()

@@ -47,6 +47,7 @@ __all__ = [
     "FitHeadings",
     "FitScore",
     "HeldOut",
+    "PlaceColumns",
     "calibrate_labelled",
     "fit_scale",
     "held_out_calibration",
@@ -396,23 +397,103 @@ def model_fit_score(options: Mapping[str, Any], observations: Sequence[Observati
     return fit_score
 
 
+class PlaceColumns:
+    """A model's places in a given column order, looked up once for many calls.
+
+    Parameters
+    ----------
+    model : PlaceModel
+        Fitted; its ``classes_`` name the places.
+    labels : sequence of str, optional
+        ``labels[j]``: the place of column ``j`` (default ``str(j)`` for ``j < n_places``).
+    n_places : int, optional
+        Number of columns (default ``len(labels)``).
+
+    :meth:`posterior` is :func:`posterior_columns` and :meth:`headings` is
+    :func:`implied_headings`; the column of each of the model's places and
+    each place's views with their recorded headings are found once (the
+    streaming tracker keeps one for every step).
+    """
+
+    def __init__(self, model: Any, labels: Sequence[str] | None = None, n_places: int | None = None) -> None:
+        if labels is None:
+            if n_places is None:
+                raise InvalidParameterError("PlaceColumns needs labels or n_places")
+            labels = [str(j) for j in range(n_places)]
+        self.model = model
+        self.labels = [str(x) for x in labels]
+        self.n_places = len(self.labels) if n_places is None else int(n_places)
+        col = {lab: j for j, lab in enumerate(self.labels)}
+        last: dict[int, int] = {}  # column -> the model's index of its place (a column named twice: the later)
+        for k, c in enumerate(model.classes_):
+            j = col.get(str(c))
+            if j is not None:
+                last[j] = k
+        self._cols = np.fromiter(last.keys(), dtype=np.int64, count=len(last))
+        self._classes = np.fromiter(last.values(), dtype=np.int64, count=len(last))
+        self._views: list[tuple[Any, FArray]] | None = None
+
+    def posterior(self, observations: Sequence[Observation]) -> FArray:
+        """``log P(place | observation)``, shape (n, n_places); places the model does not hold score ``-inf``."""
+        out = np.full((len(observations), self.n_places), -np.inf)
+        if not observations:
+            return out
+        lp = np.asarray(self.model.predict_log_proba(list(observations)), dtype=np.float64)
+        out[:, self._cols] = lp[:, self._classes]
+        return out
+
+    def _place_views(self) -> list[tuple[Any, FArray]]:
+        """Per column: the model's key of its place (None when unknown) and its views' recorded headings (rad)."""
+        if self._views is None:
+            places = getattr(self.model, "places_", {})
+            by_name = {str(k): k for k in places}
+            views: list[tuple[Any, FArray]] = []
+            for lab in self.labels:
+                key = by_name.get(lab)
+                obs = [] if key is None else places[key].observations
+                views.append((key, np.array([np.nan if o.pose is None else float(o.pose[2]) for o in obs])))
+            self._views = views
+        return self._views
+
+    def headings(self, observations: Sequence[Observation], columns: Any = None) -> FArray:
+        """The heading each observation implies at each place, radians, shape (n, len(labels)) (:func:`implied_headings`)."""
+        obs = list(observations)
+        out = np.full((len(obs), len(self.labels)), np.nan)
+        if not obs:
+            return out
+        views = self._place_views()
+        cols = range(len(self.labels)) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
+        known = [j for j in cols if views[j][0] is not None]
+        if len(obs) == 1:  # one call for every place: the model's loop over (observation, place) pairs
+            if known:
+                h, v = self.model.headings_with_reference(obs * len(known), [views[j][0] for j in known])
+                for i, j in enumerate(known):
+                    _absolute(out[:, j], views[j][1], h[i : i + 1], v[i : i + 1])
+            return out
+        prepare = getattr(self.model, "prepare_headings", None)
+        if prepare is not None and len(cols) > 1:
+            prepare(obs)  # one batch of alignments for every place below (the same headings)
+        for j in known:
+            key, theta = views[j]
+            h, v = self.model.headings_with_reference(obs, [key] * len(obs))
+            _absolute(out[:, j], theta, h, v)
+        return out
+
+
+def _absolute(out: FArray, theta: FArray, h: FArray, v: IArray) -> None:
+    """``out[i] = theta[v[i]] - h[i]`` (h in degrees), wrapped to [-pi, pi), where view ``v[i]`` and ``h[i]`` exist."""
+    ok = (v >= 0) & (v < theta.size) & np.isfinite(h)
+    if np.any(ok):
+        out[ok] = np.mod(theta[v[ok]] - np.radians(h[ok]) + math.pi, 2 * math.pi) - math.pi
+
+
 def posterior_columns(model: Any, observations: Sequence[Observation], n_places: int, labels: Sequence[str] | None = None) -> FArray:
     """``log P(place | observation)`` with columns in a given place order, shape (n, n_places).
 
     ``labels[j]`` is the label of column ``j`` (default ``str(j)``); places
     the model does not hold score ``-inf``.
     """
-    out = np.full((len(observations), n_places), -np.inf)
-    if not observations:
-        return out
-    names = [str(j) for j in range(n_places)] if labels is None else [str(x) for x in labels]
-    col = {lab: j for j, lab in enumerate(names)}
-    lp = np.asarray(model.predict_log_proba(list(observations)), dtype=np.float64)
-    for k, c in enumerate(model.classes_):
-        j = col.get(str(c))
-        if j is not None:
-            out[:, j] = lp[:, k]
-    return out
+    return PlaceColumns(model, labels, n_places).posterior(observations)
 
 
 def implied_headings(
@@ -433,28 +514,7 @@ def implied_headings(
     its view has no pose. ``columns`` (indices into ``labels``): only those places are
     computed, the others are NaN (the same values where computed).
     """
-    obs = list(observations)
-    out = np.full((len(obs), len(labels)), np.nan)
-    if not obs:
-        return out
-    places = getattr(model, "places_", {})
-    by_name = {str(k): k for k in places}
-    cols = range(len(labels)) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
-    prepare = getattr(model, "prepare_headings", None)
-    if prepare is not None and len(obs) > 1 and len(cols) > 1:
-        prepare(obs)  # one batch of alignments for every place below (the same headings)
-    for j in cols:
-        lab = labels[j]
-        key = by_name.get(str(lab))
-        if key is None:
-            continue
-        views = places[key].observations
-        theta = np.array([np.nan if o.pose is None else float(o.pose[2]) for o in views])
-        h, v = model.headings_with_reference(obs, [key] * len(obs))
-        ok = (v >= 0) & (v < theta.size) & np.isfinite(h)
-        if np.any(ok):
-            out[ok, j] = np.mod(theta[v[ok]] - np.radians(h[ok]) + math.pi, 2 * math.pi) - math.pi
-    return out
+    return PlaceColumns(model, labels).headings(observations, columns)
 
 
 def model_fit_headings(fit_model: Callable[[IArray, IArray], Any], observations: Sequence[Observation]) -> FitHeadings:

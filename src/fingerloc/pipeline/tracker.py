@@ -61,7 +61,7 @@ from ..map.filter import MarkovFilter, TransitionModel, entropy_bits
 from ..map.motion import OdometrySimulator, odometry_increments
 from ..observation import Observation
 from ..sensors import Scan
-from .calibration import Calibration
+from .calibration import Calibration, PlaceColumns
 from .filters import place_transition_of, pose_filter_of, pose_tracking, transition_of
 
 if TYPE_CHECKING:
@@ -314,8 +314,7 @@ class Tracker:
         self.heading_budget = heading_budget
         self._grid: Any = None
         self._heading_set: tuple[int, Any, IArray | None] | None = None
-        self._columns: tuple[IArray, IArray] | None = None
-        self._views: list[tuple[Any, FArray | None]] | None = None
+        self.columns = PlaceColumns(model, self.labels)  # the places' columns and views, looked up once
         self.scan_map = scan_map if filter == "pose" else None
         self._pose: PoseTracking | None = None
         self._places: MarkovFilter | None = None
@@ -414,46 +413,6 @@ class Tracker:
 
     # -- one step from raw data ---------------------------------------------------------------------
 
-    def _posterior_columns(self, obs: Observation) -> FArray:
-        """:func:`~fingerloc.pipeline.calibration.posterior_columns` of one observation, shape (1, P), with the
-        model's column of each place found once."""
-        if self._columns is None:
-            col = {lab: j for j, lab in enumerate(self.labels)}
-            pairs = [(k, col[str(c)]) for k, c in enumerate(self.model.classes_) if str(c) in col]
-            pairs = list({j: (k, j) for k, j in pairs}.values())  # a column written twice keeps its last class
-            self._columns = (np.array([k for k, _ in pairs], dtype=np.int64), np.array([j for _, j in pairs], dtype=np.int64))
-        out = np.full((1, self.n_places), -np.inf)
-        lp = np.asarray(self.model.predict_log_proba([obs]), dtype=np.float64)
-        ks, js = self._columns
-        out[:, js] = lp[:, ks]
-        return out
-
-    def _implied_headings(self, obs: Observation, columns: IArray | None) -> FArray:
-        """:func:`~fingerloc.pipeline.calibration.implied_headings` of one observation, shape (P,), with each
-        place's model key and its views' recorded headings found once."""
-        if self._views is None:
-            places = getattr(self.model, "places_", {})
-            by_name = {str(k): k for k in places}
-            keys = [by_name.get(lab) for lab in self.labels]
-            self._views = [
-                (None, None) if key is None
-                else (key, np.array([np.nan if o.pose is None else float(o.pose[2]) for o in places[key].observations]))
-                for key in keys
-            ]  # fmt: skip
-        out = np.full(self.n_places, np.nan)
-        cols = range(self.n_places) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
-        cols = [j for j in cols if self._views[j][0] is not None]
-        if not cols:
-            return out
-        # one call for every place: the model's loop over (observation, place) pairs, the same headings
-        h, v = self.model.headings_with_reference([obs] * len(cols), [self._views[j][0] for j in cols])
-        for i, j in enumerate(cols):
-            theta = self._views[j][1]
-            assert theta is not None
-            if v[i] >= 0 and v[i] < theta.size and math.isfinite(h[i]):
-                out[j] = np.mod(theta[v[i : i + 1]] - np.radians(h[i : i + 1]) + math.pi, 2 * math.pi)[0] - math.pi
-        return out
-
     def observe(self, item: Scan | Observation) -> tuple[FArray, FArray | None, FArray | None, float | None]:
         """What one item brings to the filter: its scaled log-likelihood row (P,), implied headings (P,) or None,
         laser end points (m, 2) or None, and the unknown-place probability or None."""
@@ -464,10 +423,10 @@ class Tracker:
             obs = observation_from_scan(item, **self.features)
         if not isinstance(obs, Observation):
             raise InvalidParameterError(f"a tracker step takes a Scan or an Observation, got {type(item).__name__}")
-        row = scaled(self._posterior_columns(obs), self.calibration.beta)[0]
+        row = scaled(self.columns.posterior([obs]), self.calibration.beta)[0]
         hd = None
         if self.heading:
-            hd = self._implied_headings(obs, self.heading_places(row))
+            hd = self.columns.headings([obs], self.heading_places(row))[0]
         pts = end_points_of(item) if self.uses_scan else None
         unknown = None
         if getattr(self.model, "unknown_prior", 0) > 0:
