@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from .html import Page
-from .staging import staged_folder
+from .staging import staged_report
 
 __all__ = ["draw_fingerprint_places", "draw_pr_curves", "write_loops_report", "write_places_report"]
 
@@ -150,6 +150,7 @@ def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
+@staged_report
 def write_loops_report(
     out_dir: str | Path,
     logs: Sequence[Mapping[str, Any]],
@@ -178,10 +179,9 @@ def write_loops_report(
     Path
         ``index.html``.
     """
-    target = Path(out_dir)
-    with staged_folder(target) as out:
-        _loops_files(out, logs, pooled=pooled, protocol=protocol)
-    return target / "index.html"
+    out = Path(out_dir)  # a staged folder (staged_report)
+    _loops_files(out, logs, pooled=pooled, protocol=protocol)
+    return out / "index.html"
 
 
 def _loops_files(
@@ -259,6 +259,7 @@ def _loops_files(
     page.write(out)
 
 
+@staged_report
 def write_places_report(
     out_dir: str | Path,
     *,
@@ -299,11 +300,10 @@ def write_places_report(
     Path
         ``index.html``.
     """
-    target = Path(out_dir)
-    with staged_folder(target) as out:
-        _places_files(out, labels=labels, assignment=assignment, keyframes=keyframes, closures=closures,
-                      consensus=consensus, trajectory=trajectory, notes=notes, figures=figures)  # fmt: skip
-    return target / "index.html"
+    out = Path(out_dir)  # a staged folder (staged_report)
+    _places_files(out, labels=labels, assignment=assignment, keyframes=keyframes, closures=closures,
+                  consensus=consensus, trajectory=trajectory, notes=notes, figures=figures)  # fmt: skip
+    return out / "index.html"
 
 
 def _places_files(
