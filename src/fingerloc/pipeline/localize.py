@@ -154,12 +154,18 @@ def answer_chunk(
         for i, o in enumerate(obs):
             order = np.argsort(-logp[i], kind="stable")[:top]
             topk = ", ".join(f"{classes[j]} {post[i, j]:.3f}" for j in order)
-            r = rank_of_true[i]
-            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if with_heading:
-                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
-            out.rows.append(row)
+            out.rows.append(_table_row(start + i, o, classes[int(best_cols[i])], topk, int(rank_of_true[i]),
+                                       headings[i] if with_heading else None))  # fmt: skip
     return out
+
+
+def _table_row(n: int, o: Any, best: str, topk: str, rank: int, heading: float | None) -> list[str]:
+    """A row of ``localize``'s table: number, label, best place, the top places with their probabilities, the
+    true place's rank (``-`` when unlabelled) and, with ``heading`` (degrees; None: no column), the heading."""
+    row = [str(n), o.label or "-", best, topk, "-" if rank <= 0 else str(rank)]
+    if heading is not None:
+        row.append("-" if np.isnan(heading) else f"{heading:.1f}")
+    return row
 
 
 def _answer_indexed(index: Any, model: Any, obs: list[Any], start: int, top: int, *, table: bool) -> ChunkAnswers:
@@ -186,9 +192,6 @@ def _answer_indexed(index: Any, model: Any, obs: list[Any], start: int, top: int
         post = np.exp(res.log_posterior)
         for i, o in enumerate(obs):
             topk = ", ".join(f"{classes[int(j)]} {post[i, c]:.3f}" for c, j in enumerate(res.places[i][:top]))
-            r = rank_of_true[i]
-            row = [str(start + i), o.label or "-", classes[int(best_cols[i])], topk, "-" if r <= 0 else str(r)]
-            if with_heading:
-                row.append("-" if np.isnan(headings[i]) else f"{headings[i]:.1f}")
-            out.rows.append(row)
+            out.rows.append(_table_row(start + i, o, classes[int(best_cols[i])], topk, int(rank_of_true[i]),
+                                       headings[i] if with_heading else None))  # fmt: skip
     return out
