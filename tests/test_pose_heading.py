@@ -278,3 +278,27 @@ def test_prepared_headings_are_those_aligned_place_by_place():
         h1, v1 = model.headings_with_reference(obs, [lab] * len(obs))
         np.testing.assert_array_equal(h1, h0)
         np.testing.assert_array_equal(v1, v0)
+
+
+def test_headings_at_each_views_own_place_equal_that_column_of_every_place():
+    """``own``: one heading a view at its own place, the same value as the full matrix's, NaN elsewhere."""
+    from fingerloc.experiments.carmen import FingerprintMethod, best_fingerprint_params
+    from fingerloc.pipeline.calibration import implied_headings
+
+    from ._logs import box_scan
+
+    train = [box_scan(5, 12, 2.5, 6, 0.0, noise=0.005), box_scan(5, 12, 2.5, 6.2, 0.05, noise=0.005),
+             box_scan(8, 3, 3, 1.5, 0.0), box_scan(8, 3, 3.2, 1.5, 0.0), box_scan(4, 4, 2, 2, 0.0)]  # fmt: skip
+    fm = FingerprintMethod(**best_fingerprint_params()).fit(train, np.array([0, 0, 1, 1, 2]))
+    queries = fm._observations([box_scan(8, 3, 3.1, 1.5, 0.3, noise=0.005), box_scan(5, 12, 2.4, 6.1, -0.4, noise=0.005),
+                                box_scan(4, 4, 2.1, 2, 1.0, noise=0.005), box_scan(8, 3, 2.9, 1.4, -1.0, noise=0.005)])  # fmt: skip
+    own = np.array([1, 0, 2, -1])
+    full = implied_headings(fm.model_, queries, ["0", "1", "2"])
+    mine = implied_headings(fm.model_, queries, ["0", "1", "2"], own=own)
+    assert np.isfinite(full[[0, 1, 2], [1, 0, 2]]).all()
+    for i, j in enumerate(own.tolist()):
+        for c in range(3):
+            if c == j:
+                assert mine[i, c] == full[i, c]
+            else:
+                assert np.isnan(mine[i, c])

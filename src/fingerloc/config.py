@@ -130,6 +130,13 @@ class CalibrationConfig:
         ``1 / (n_train + 2)`` (Laplace's rule over the mapping part's observations).
     share_draws : bool, default True
         The tuning runs replay one record of random draws (the same results, faster).
+    max_steps : int, optional, default 1000
+        A mapping part longer than this many steps is calibrated on a sample of it:
+        ``windows`` stretches spread evenly along it, together this long (their
+        training views held out and scored by models of every other-fold view,
+        the tuning runs along each stretch, pooled). ``None``: always all of it.
+    windows : int, default 4
+        The number of those stretches.
     """
 
     enabled: bool = True
@@ -153,9 +160,14 @@ class CalibrationConfig:
     odometry_error: float | None = None
     kidnap: float | None = None
     share_draws: bool = True
+    max_steps: int | None = 1000
+    windows: int = 4
 
     def __post_init__(self) -> None:
         _count("calibration", "min_rows", self.min_rows, 1)
+        if self.max_steps is not None:
+            _count("calibration", "max_steps", self.max_steps, 2)
+        _count("calibration", "windows", self.windows, 1)
         _positive("calibration", "heading_temper_m", self.heading_temper_m, zero=True)
         for v in self.outliers:
             _probability("calibration", "outliers", v)

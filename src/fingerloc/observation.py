@@ -430,8 +430,14 @@ class Observation:
         )
 
     def with_label(self, label: str | None) -> Observation:
-        """A copy with another place label."""
-        return replace(self, label=label)
+        """A copy with another place label (the checked arrays shared, read-only as they are)."""
+        if label is not None and not isinstance(label, str):
+            raise InvalidParameterError(f"label: must be a string or None, got {label!r}")
+        obs = object.__new__(type(self))
+        for name in self.__slots__:
+            object.__setattr__(obs, name, getattr(self, name))
+        object.__setattr__(obs, "label", label)
+        return obs
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Observation):

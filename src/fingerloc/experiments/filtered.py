@@ -156,11 +156,12 @@ class FilteredMethod:
         if cc.heading and hasattr(base, "_observations"):  # a fingerprint method: a model with headings
             observations = base._observations(train)
 
-            def fit_headings(tr: IArray, yy: IArray, te: IArray) -> FArray:
+            def fit_headings(tr: IArray, yy: IArray, te: IArray, own: Any = None) -> FArray:
                 m = factory()
                 m.fit([train[i] for i in tr.tolist()], yy)
                 model = getattr(m, "model_", None)
-                return implied_headings(model, [observations[i] for i in te.tolist()], [str(k) for k in range(int(yy.max()) + 1)])
+                labels = [str(k) for k in range(int(yy.max()) + 1)]
+                return implied_headings(model, [observations[i] for i in te.tolist()], labels, own=own)
 
         points = None
         if cc.scan:

@@ -307,7 +307,7 @@ class PoseFilter:
         return self
 
     def _nearest(self, xy: FArray) -> tuple[FArray, IArray]:
-        if self.centres.shape[0] > 256:  # many places: the candidates of a grid cell
+        if self.centres.shape[0] > 32:  # beyond a few dozen places a grid cell's candidates are faster (the same answer)
             if self._grid is None:
                 from ._nearest import CentreGrid
 

@@ -127,7 +127,8 @@ class MapCalibration:
     held : HeldOut or None
         The held-out scores ``beta`` was fit on (``None``: not calibrated).
     headings : ndarray, shape (n_held, P), optional
-        The held-out rows' implied headings (``None``: no heading model).
+        The held-out rows' implied headings (``None``: no heading model); at each row's own
+        place only (NaN elsewhere) unless ``config.calibration.tune_with_heading``.
     tuning : list of dict
         Every (rho, tempering[, scan power]) tried along the mapping part, with its top-1.
     """
@@ -189,9 +190,16 @@ def calibrate_map(
         note(f"mapping the laser end points of {m.poses.shape[0]} scans")
         scan_map = ScanMap.from_scans(m.points, m.poses)
     held = None
+    windows = calibration_windows(m.poses.shape[0], cc.max_steps, cc.windows)
+    scored = None
+    if len(windows) > 1:
+        scored = np.zeros(m.train_idx.size, dtype=bool)
+        for a, b in windows:
+            scored |= (m.train_idx >= a) & (m.train_idx < b)
     if cc.enabled:
-        note("calibrating the filters on the mapping part")
-        held = held_out_calibration(fit_score, m.train_idx, m.labels, m.n_places, min_rows=cc.min_rows)
+        sample = "" if scored is None else f" ({len(windows)} stretches of {windows[0][1] - windows[0][0]} of its {m.poses.shape[0]} steps)"
+        note(f"calibrating the filters on the mapping part{sample}")
+        held = held_out_calibration(fit_score, m.train_idx, m.labels, m.n_places, min_rows=cc.min_rows, scored=scored)
     n_train = int(m.train_idx.size)
     outlier, off_place = 0.1, 0.1
     if cc.outlier_fit and held is not None and held.labels.size:
@@ -212,7 +220,7 @@ def calibrate_map(
     headings = None
     if held is not None and observe and cc.heading and fit_headings is not None and held.labels.size:
         note("fitting the heading model on the mapping part")
-        headings = held_out_headings(fit_headings, m.labels, held, m.n_places)
+        headings = held_out_headings(fit_headings, m.labels, held, m.n_places, own_only=not cc.tune_with_heading)
         if headings is not None:
             cal = with_heading_model(
                 cal, held, headings, m.poses[m.train_idx[held.index], 2], reverse=cc.heading_reverse,
@@ -228,21 +236,50 @@ def calibrate_map(
         tuned_on = held if observe else replace(held, scores=np.zeros_like(held.scores))
         cal, tried = tune_pose_filter(
             cal, config, m.centres, graph, tuned_on, m.train_idx, m.poses, odometry_error=odometry_error, seed=seed,
-            headings=headings if cc.tune_with_heading else None, lost=cc.lost and observe, **scan_args,
+            headings=headings if cc.tune_with_heading else None, lost=cc.lost and observe, windows=windows, **scan_args,
         )  # fmt: skip
     if scan_map is not None and cc.scan_gamma is not None:
         cal = replace(cal, scan_gamma=float(cc.scan_gamma))
     if held is not None and observe and held.labels.size:
-        cal = with_place_check(cal, config, graph, m, held)
+        cal = with_place_check(cal, config, graph, m, held, windows=windows)
     return MapCalibration(cal, graph, scan_map, held, headings, tried)
 
 
-def with_place_check(calibration: Calibration, config: Config, graph: PlaceGraph, mapping: MappingPart, held: HeldOut) -> Calibration:
+def calibration_windows(n_steps: int, max_steps: int | None, windows: int = 4) -> list[tuple[int, int]]:
+    """The stretches ``[a, b)`` of a mapping part of ``n_steps`` steps its calibration runs along.
+
+    All of it (one stretch) up to ``max_steps`` steps (``None``: always);
+    beyond, ``windows`` stretches of ``max_steps // windows`` steps, the first
+    at the start, the last at the end, the others evenly between
+    (:attr:`CalibrationConfig.max_steps <fingerloc.config.CalibrationConfig>`).
+    """
+    n = int(n_steps)
+    if max_steps is None or n <= int(max_steps):
+        return [(0, n)]
+    k = max(1, min(int(windows), int(max_steps)))
+    length = int(max_steps) // k
+    if k == 1:
+        a = (n - length) // 2
+        return [(a, a + length)]
+    starts = [(i * (n - length)) // (k - 1) for i in range(k)]
+    return [(a, a + length) for a in starts]
+
+
+def with_place_check(
+    calibration: Calibration,
+    config: Config,
+    graph: PlaceGraph,
+    mapping: MappingPart,
+    held: HeldOut,
+    *,
+    windows: Sequence[tuple[int, int]] | None = None,
+) -> Calibration:
     """The calibration with the place filter's and the single shot's top-1 on the mapping part's held-out views.
 
     The filter over places (:func:`~fingerloc.pipeline.filters.place_transition_of`, the places' positions
     known) runs along the mapping part with each held-out view (``beta`` times its held-out score) as an
-    observation at its step (:func:`~fingerloc.map.filter.check_place_filter`).
+    observation at its step (:func:`~fingerloc.map.filter.check_place_filter`); with ``windows``
+    (:func:`calibration_windows`) along each stretch, the top-1 pooled over them.
     """
     from ..map.filter import check_place_filter
     from .filters import place_transition_of
@@ -254,8 +291,18 @@ def with_place_check(calibration: Calibration, config: Config, graph: PlaceGraph
     labels = np.full(m.poses.shape[0], -1, dtype=np.int64)
     labels[rows] = held.labels
     transition = place_transition_of(graph, calibration, config, m.centres)
-    chk = check_place_filter(ll, transition, labels, distances=step_distances(m.poses[:, :2]))
-    return replace(calibration, place_filter_top1=chk.filter_top1, place_single_top1=chk.single_top1)
+    dist = step_distances(m.poses[:, :2])
+    wins = [(0, m.poses.shape[0])] if windows is None else list(windows)
+    if len(wins) == 1:
+        a, b = wins[0]
+        chk = check_place_filter(ll[a:b], transition, labels[a:b], distances=dist[a:b])
+        return replace(calibration, place_filter_top1=chk.filter_top1, place_single_top1=chk.single_top1)
+    filt = single = 0.0
+    n = 0
+    for a, b in wins:
+        chk = check_place_filter(ll[a:b], transition, labels[a:b], distances=dist[a:b])
+        filt, single, n = filt + chk.filter_top1 * chk.rows, single + chk.single_top1 * chk.rows, n + chk.rows
+    return replace(calibration, place_filter_top1=filt / max(n, 1), place_single_top1=single / max(n, 1))
 
 
 def scan_folds(train_idx: Any, labels: Any) -> IArray:
@@ -396,6 +443,7 @@ def tune_pose_filter(
     scan_maps: Sequence[ScanMap] | None = None,
     scan_fold: Any = None,
     lost: bool | None = None,
+    windows: Sequence[tuple[int, int]] | None = None,
 ) -> tuple[Calibration, list[dict[str, float]]]:
     """Choose the pose filter's ``outlier`` (rho) and tempering distance along the **mapping** part, then its scan power.
 
@@ -433,6 +481,12 @@ def tune_pose_filter(
     0 chosen, the lost rule's threshold and re-draw probability are
     calibrated on the chosen power's run (:func:`calibrate_lost`).
 
+    ``windows`` (:func:`calibration_windows`, steps ``[a, b)`` of the mapping
+    part; default all of it): every run goes along each stretch from its
+    start (the scan powers' from its first held-out row) and the top-1 is
+    pooled over the stretches' held-out rows; the lost rule is calibrated on
+    the stretches' runs one after the other.
+
     Returns
     -------
     Calibration
@@ -457,28 +511,35 @@ def tune_pose_filter(
         hd = np.full(ll.shape, np.nan)
         hd[rows] = np.asarray(headings, dtype=np.float64).reshape(rows.size, -1)
     inc = np.vstack([np.zeros((1, 3)), wheel_odometry(poses, odometry_error, random_state=seed + 2)])
-    shared = SharedDraws(seed + 2) if cc.share_draws else None
-    steps = SharedPlaceSteps() if cc.share_draws else None
+    wins = [(0, poses.shape[0])] if windows is None else [(int(a), int(b)) for a, b in windows]
+    # one record of draws and place-filter beliefs a stretch: runs along one stretch draw the same numbers
+    shared = [SharedDraws(seed + 2) if cc.share_draws else None for _ in wins]
+    steps = [SharedPlaceSteps() if cc.share_draws else None for _ in wins]
     transition = transition_of(graph, cal, config)
 
-    def run(trial: Calibration, start: int = 0, scan_map: ScanMap | None = None, pts: Any = None, maps: Any = None) -> Any:
-        f = pose_filter_of(centres, trial, config, seed=seed + 2, rng=None if shared is None else shared.generator(),
+    def run(trial: Calibration, w: int, start: int, scan_map: ScanMap | None = None, pts: Any = None, maps: Any = None) -> Any:
+        sh, stop = shared[w], wins[w][1]
+        f = pose_filter_of(centres, trial, config, seed=seed + 2, rng=None if sh is None else sh.generator(),
                            scan_map=scan_map)  # fmt: skip
         res = run_pose_filter(
-            ll[start:], inc[start:], pose_tracking(f, transition, trial, config, place_steps=steps),
-            headings=None if hd is None else hd[start:], points=None if pts is None else pts[start:],
-            scan_maps=None if maps is None else maps[start:],
+            ll[start:stop], inc[start:stop], pose_tracking(f, transition, trial, config, place_steps=steps[w]),
+            headings=None if hd is None else hd[start:stop], points=None if pts is None else pts[start:stop],
+            scan_maps=None if maps is None else maps[start:stop],
         )  # fmt: skip
         return res, f
 
+    in_win = [(rows >= a) & (rows < b) for a, b in wins]
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
     best = (-1.0, cal)
     for rho in (*cc.outliers, fitted):
         for metres in cc.temper_m:  # these runs have no scan map: their scan power is 0
             trial = replace(cal, outlier=float(rho), temper_metres=float(metres), scan_gamma=0.0)
-            res, _ = run(trial)
-            top1 = float(np.mean(res.best[rows] == truth))
+            right = 0
+            for w, (a, _) in enumerate(wins):
+                res, _f = run(trial, w, a)
+                right += int(np.sum(res.best[rows[in_win[w]] - a] == truth[in_win[w]]))
+            top1 = right / max(sum(int(np.sum(x)) for x in in_win), 1)
             tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
             if top1 > best[0]:
                 best = (top1, trial)
@@ -497,30 +558,39 @@ def tune_pose_filter(
         pts[r] = sp[k]
         maps[r] = scan_maps[int(row_fold[k])]
     chosen = replace(best[1], lost_fit=None, lost_kidnap=0.0)
-    n_starts = cc.scan_starts
-    starts = [int(rows[(k * rows.size) // n_starts]) for k in range(n_starts)]
-    if n_starts > 1:  # the chosen pair without the scan evidence, from every start (start 0: the run above)
+    # (stretch, start): one stretch: ``scan_starts`` starts spread over its held-out rows; several: each from its first
+    if len(wins) == 1:
+        n_starts = cc.scan_starts
+        starts = [(0, int(rows[(k * rows.size) // n_starts])) for k in range(n_starts)]
+    else:
+        starts = [(w, int(rows[in_win[w]][0])) for w in range(len(wins)) if np.any(in_win[w])]
+    if len(starts) > 1:  # the chosen pair without the scan evidence, from every start (one start: the run above)
         best = (-1.0, chosen)
-    traces: dict[float, tuple[list[float], Any]] = {}
-    for gamma in ((0.0,) if n_starts > 1 else ()) + tuple(cc.scan_gammas):
+    traces: dict[float, tuple[list[float], list[Any]]] = {}
+    for gamma in ((0.0,) if len(starts) > 1 else ()) + tuple(cc.scan_gammas):
         trial = replace(chosen, scan_gamma=float(gamma))
         right = counted = 0
-        for s0 in starts:
-            res, f = run(trial, s0, scan_maps[0], pts, maps)
-            after = rows >= s0
-            if s0 == starts[0]:
-                traces[float(gamma)] = (list(f.fit_trace_), res.best[rows - s0] == truth)
+        fits: list[float] = []
+        oks: list[Any] = []
+        for k, (w, s0) in enumerate(starts):
+            res, f = run(trial, w, s0, scan_maps[0], pts, maps)
+            after = (rows >= s0) & in_win[w]
+            if len(wins) > 1 or k == 0:
+                fits += list(f.fit_trace_)
+                oks.append(res.best[rows[after] - s0] == truth[after])
             right += int(np.sum(res.best[rows[after] - s0] == truth[after]))
             counted += int(np.sum(after))
+        traces[float(gamma)] = (fits, oks)
         top1 = right / counted
         tried.append({"outlier": chosen.outlier, "temper_metres": chosen.temper_metres, "scan_gamma": float(gamma), "top1": top1})
         if top1 > best[0]:
             best = (top1, trial)
     use_lost = cc.lost if lost is None else lost
-    if use_lost and best[1].scan_gamma > 0 and starts[0] == int(rows[0]):
+    if use_lost and best[1].scan_gamma > 0 and (len(wins) > 1 or starts[0][1] == int(rows[0])):
         trace, ok = traces[float(best[1].scan_gamma)]
-        if len(trace) == rows.size:
-            thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), ok, cc.lost_quantile,
+        right_rows = np.concatenate(ok) if ok else np.zeros(0, dtype=bool)
+        if len(trace) == right_rows.size == int(sum(int(np.sum(x)) for x in in_win)):
+            thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), right_rows, cc.lost_quantile,
                                       after=config.pose_filter.lost_after)  # fmt: skip
             if thr is not None:
                 best = (best[0], replace(best[1], lost_fit=thr, lost_kidnap=kap))

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .._types import FArray, IArray
 from ..config import Config
@@ -68,9 +69,10 @@ __all__ = [
 #: ``fit_score(train_rows, train_labels, test_rows) -> scores (n_test, k)``: fit a place
 #: recogniser on rows with labels ``0 .. k - 1`` (every one used) and score the test rows.
 FitScore = Callable[[IArray, IArray, IArray], FArray]
-#: ``fit_headings(train_rows, train_labels, test_rows) -> headings (n_test, k)``: the same fit, and the
-#: heading (radians, NaN = none) each test row implies at each place (:func:`implied_headings`).
-FitHeadings = Callable[[IArray, IArray, IArray], FArray]
+#: ``fit_headings(train_rows, train_labels, test_rows, own=None) -> headings (n_test, k)``: the same fit,
+#: and the heading (radians, NaN = none) each test row implies at each place (:func:`implied_headings`);
+#: with ``own`` (shape (n_test,), a column per test row) only ``[i, own[i]]`` is computed, the rest NaN.
+FitHeadings = Callable[..., FArray]
 
 _HEADING_KEYS = ("heading_kappa", "heading_intercept", "heading_slope", "heading_reverse", "heading_cap")
 
@@ -279,19 +281,22 @@ def mapping_graph(positions: Any, centres: Any, labels: Sequence[str] | None = N
     return g, _metres_per_move(pos, near) if pos.shape[0] > 1 else 1.0
 
 
-def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int) -> tuple[FArray, IArray]:
+def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int, scored: Any = None) -> tuple[FArray, IArray]:
     """Scores of each fold's rows by a recogniser fit on the other fold, shape (n_rows, n_places).
 
     Places absent from a training fold score ``-inf``. Rows come fold 0
     first, then fold 1 (:func:`held_out_rows` gives their positions).
+    ``scored`` (bool, one per row): only those rows are scored (each fold's
+    recogniser is still fit on every row of the other fold).
     """
     y = np.asarray(labels, dtype=np.int64).reshape(-1)
     f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
+    keep = _scored_mask(scored, f_.size)
     rows: list[FArray] = []
     ys: list[IArray] = []
     for f in (0, 1):
         tr = np.flatnonzero(f_ != f)
-        te = np.flatnonzero(f_ == f)
+        te = np.flatnonzero((f_ == f) & keep)
         if tr.size == 0 or te.size == 0:
             continue
         present = np.unique(y[tr])
@@ -307,13 +312,22 @@ def held_out_scores(fit_score: FitScore, labels: Any, fold: Any, n_places: int) 
     return np.concatenate(rows), np.concatenate(ys)
 
 
-def held_out_rows(fold: Any) -> IArray:
+def held_out_rows(fold: Any, scored: Any = None) -> IArray:
     """Positions of :func:`held_out_scores`' rows among the training rows (fold 0's, then fold 1's)."""
     f_ = np.asarray(fold, dtype=np.int64).reshape(-1)
-    parts = [np.flatnonzero(f_ == f) for f in (0, 1)]
-    if any(p.size == 0 for p in parts):  # a fold without training rows scores nothing
+    if any(not np.any(f_ == f) for f in (0, 1)):  # a fold without training rows scores nothing
         return np.zeros(0, np.int64)
-    return np.concatenate(parts)
+    keep = _scored_mask(scored, f_.size)
+    return np.concatenate([np.flatnonzero((f_ == f) & keep) for f in (0, 1)])
+
+
+def _scored_mask(scored: Any, n: int) -> NDArray[np.bool_]:
+    if scored is None:
+        return np.ones(n, dtype=bool)
+    keep = np.asarray(scored, dtype=bool).reshape(-1)
+    if keep.size != n:
+        raise InvalidParameterError(f"scored must have one entry per training row ({n}), got {keep.size}")
+    return keep
 
 
 @dataclass(frozen=True, slots=True)
@@ -343,23 +357,33 @@ class HeldOut:
 
 
 def held_out_calibration(
-    fit_score: FitScore, train_idx: Any, labels: Any, n_places: int, *, by_visits: bool = True, min_rows: int = 10
+    fit_score: FitScore,
+    train_idx: Any,
+    labels: Any,
+    n_places: int,
+    *,
+    by_visits: bool = True,
+    min_rows: int = 10,
+    scored: Any = None,
 ) -> HeldOut:
     """``beta`` from held-out scores of the training rows, with the scores themselves (module docstring).
 
     Folds by alternate visits (``by_visits``); fewer than ``min_rows`` usable
     rows (:attr:`CalibrationConfig.min_rows <fingerloc.config.CalibrationConfig>`): alternate rows.
+    ``scored`` (bool, one per training row): only those rows are held out and
+    scored, by recognisers fit on every row of the other fold (a sample of a
+    long mapping part: the cost grows with the rows scored times the rows).
     """
     y = np.asarray(labels, dtype=np.int64).reshape(-1)
     fold = visit_folds(train_idx, y) if by_visits else np.arange(y.size) % 2
-    s, yy = held_out_scores(fit_score, y, fold, n_places)
+    s, yy = held_out_scores(fit_score, y, fold, n_places, scored)
     usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
     if usable < min_rows:
         fold = np.arange(y.size) % 2
-        s, yy = held_out_scores(fit_score, y, fold, n_places)
+        s, yy = held_out_scores(fit_score, y, fold, n_places, scored)
         usable = int(np.sum(np.isfinite(s[np.arange(yy.size), yy]))) if yy.size else 0
     beta = fit_likelihood_scale(s, yy) if usable else 1.0
-    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold) if yy.size else np.zeros(0, np.int64), fold)
+    return HeldOut(float(beta), usable, s, yy, held_out_rows(fold, scored) if yy.size else np.zeros(0, np.int64), fold)
 
 
 def fit_scale(
@@ -455,13 +479,15 @@ class PlaceColumns:
             self._views = views
         return self._views
 
-    def headings(self, observations: Sequence[Observation], columns: Any = None) -> FArray:
+    def headings(self, observations: Sequence[Observation], columns: Any = None, own: Any = None) -> FArray:
         """The heading each observation implies at each place, radians, shape (n, len(labels)) (:func:`implied_headings`)."""
         obs = list(observations)
         out = np.full((len(obs), len(self.labels)), np.nan)
         if not obs:
             return out
         views = self._place_views()
+        if own is not None:
+            return self._own_headings(obs, own, out)
         cols = range(len(self.labels)) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
         known = [j for j in cols if views[j][0] is not None]
         if len(obs) == 1:  # one call for every place: the model's loop over (observation, place) pairs
@@ -477,6 +503,21 @@ class PlaceColumns:
             key, theta = views[j]
             h, v = self.model.headings_with_reference(obs, [key] * len(obs))
             _absolute(out[:, j], theta, h, v)
+        return out
+
+
+    def _own_headings(self, obs: list[Observation], own: Any, out: FArray) -> FArray:
+        """``out[i, own[i]]``: observation ``i``'s heading at its one place (column ``own[i]``; -1: none), one model call."""
+        cols = np.asarray(own, dtype=np.int64).reshape(-1)
+        if cols.size != len(obs):
+            raise InvalidParameterError(f"own must give one column per observation ({len(obs)}), got {cols.size}")
+        views = self._place_views()
+        sel = [i for i, j in enumerate(cols.tolist()) if 0 <= j < len(views) and views[j][0] is not None]
+        if sel:
+            h, v = self.model.headings_with_reference([obs[i] for i in sel], [views[int(cols[i])][0] for i in sel])
+            for k, i in enumerate(sel):
+                j = int(cols[i])
+                _absolute(out[i : i + 1, j], views[j][1], h[k : k + 1], v[k : k + 1])
         return out
 
 
@@ -497,7 +538,7 @@ def posterior_columns(model: Any, observations: Sequence[Observation], n_places:
 
 
 def implied_headings(
-    model: Any, observations: Sequence[Observation], labels: Sequence[str], columns: Any = None
+    model: Any, observations: Sequence[Observation], labels: Sequence[str], columns: Any = None, own: Any = None
 ) -> FArray:
     """The robot's heading each observation implies at each place, radians in the views' frame, shape (n, P).
 
@@ -512,9 +553,11 @@ def implied_headings(
     at the true place on aces and intel with this sign, 25-37 deg with the
     other; docs/RESULTS.md). NaN where a place is unknown to the model, has no estimate, or
     its view has no pose. ``columns`` (indices into ``labels``): only those places are
-    computed, the others are NaN (the same values where computed).
+    computed, the others are NaN (the same values where computed). ``own`` (shape (n,), an
+    index into ``labels`` per observation, -1 for none): only each observation's own
+    place is computed (one model call for all), the others are NaN.
     """
-    return PlaceColumns(model, labels).headings(observations, columns)
+    return PlaceColumns(model, labels).headings(observations, columns, own)
 
 
 def model_fit_headings(fit_model: Callable[[IArray, IArray], Any], observations: Sequence[Observation]) -> FitHeadings:
@@ -524,34 +567,42 @@ def model_fit_headings(fit_model: Callable[[IArray, IArray], Any], observations:
     and training views that carry their poses (:func:`implied_headings`).
     """
 
-    def fit_headings(tr: IArray, y: IArray, te: IArray) -> FArray:
+    def fit_headings(tr: IArray, y: IArray, te: IArray, own: Any = None) -> FArray:
         model = fit_model(tr, y)
-        return implied_headings(model, [observations[i] for i in te.tolist()], [str(k) for k in range(int(y.max()) + 1)])
+        return implied_headings(model, [observations[i] for i in te.tolist()], [str(k) for k in range(int(y.max()) + 1)], own=own)
 
     return fit_headings
 
 
-def held_out_headings(fit_headings: FitHeadings, labels: Any, held: HeldOut, n_places: int) -> FArray | None:
+def held_out_headings(
+    fit_headings: FitHeadings, labels: Any, held: HeldOut, n_places: int, *, own_only: bool = False
+) -> FArray | None:
     """Implied headings (:func:`implied_headings`) of the held-out rows of ``held``, rows as ``held.scores``; None without folds.
 
-    ``fit_headings(train_rows, train_labels, test_rows)`` fits the same
+    ``fit_headings(train_rows, train_labels, test_rows, own=None)`` fits the same
     recogniser as the calibration's ``fit_score`` on those training rows
     (labels ``0 .. k - 1``, as :func:`held_out_scores` remaps them) and
     gives the test rows' implied headings at each of the ``k`` places.
+    ``own_only``: only at each row's own place (what the heading model is
+    fitted on; the other entries NaN): one heading a row instead of one a
+    row and place.
     """
     if held.fold is None or held.index.size == 0:
         return None
     y = np.asarray(labels, dtype=np.int64).reshape(-1)
     parts: list[FArray] = []
     for f in (0, 1):
-        tr, te = np.flatnonzero(held.fold != f), np.flatnonzero(held.fold == f)
+        tr, te = np.flatnonzero(held.fold != f), held.index[held.fold[held.index] == f]
         if tr.size == 0 or te.size == 0:
             continue
         present = np.unique(y[tr])
         remap = np.full(n_places, -1, dtype=np.int64)
         remap[present] = np.arange(present.size)
         full = np.full((te.size, n_places), np.nan)
-        full[:, present] = fit_headings(tr, remap[y[tr]], te)
+        if own_only:
+            full[:, present] = fit_headings(tr, remap[y[tr]], te, own=remap[y[te]])
+        else:
+            full[:, present] = fit_headings(tr, remap[y[tr]], te)
         parts.append(full)
     return np.concatenate(parts) if parts else None
 

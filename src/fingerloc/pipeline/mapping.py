@@ -26,7 +26,7 @@ import numpy as np
 from ..config import Config
 from ..errors import InvalidParameterError
 from .calibrate import MappingPart, calibrate_map
-from .calibration import model_fit_headings, model_fit_score
+from .calibration import model_fit_headings, posterior_columns
 from .placemap import PlaceMap
 from .places import place_label, places_from_trajectory
 from .presets import model_from_options, resolve_preset
@@ -139,13 +139,18 @@ def make_map(
     note(f"learning {split.n_places} places ({resolved.name})")
     model = resolved.model().fit(training)
     opts = resolved.options
-    fit_headings = None
-    if all(o.pose is not None for o in raw):
+    folds: dict[bytes, Any] = {}  # the held-out folds' models: fit once for their scores and their headings
 
-        def fit_model(tr: Any, y: Any) -> Any:
-            return model_from_options(opts).fit([raw[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
+    def fit_model(tr: Any, y: Any) -> Any:
+        key = np.asarray(tr, dtype=np.int64).tobytes() + b"|" + np.asarray(y, dtype=np.int64).tobytes()
+        if key not in folds:
+            folds[key] = model_from_options(opts).fit([raw[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
+        return folds[key]
 
-        fit_headings = model_fit_headings(fit_model, raw)
+    def fit_score(tr: Any, y: Any, te: Any) -> Any:
+        return posterior_columns(fit_model(tr, y), [raw[i] for i in te.tolist()], int(y.max()) + 1)
+
+    fit_headings = model_fit_headings(fit_model, raw) if all(o.pose is not None for o in raw) else None
     mapping = MappingPart(
         split.train_idx, split.train_labels, split.centres, poses[: split.n_mapping], run.field_of_view(np.arange(split.n_mapping)),
         labels, run_end_points(run, np.arange(split.n_mapping)) if cc.scan else None,
@@ -153,8 +158,8 @@ def make_map(
     factor = cc.odometry_error
     if factor is None:  # CARMEN logs hold corrected poses: their increments are an odometry without error
         factor = 1.0 if run.kind == "carmen" else 0.0
-    mc = calibrate_map(model_fit_score(opts, raw), mapping, cfg, fit_headings=fit_headings, odometry_error=factor,
-                       on_step=note)  # fmt: skip
+    mc = calibrate_map(fit_score, mapping, cfg, fit_headings=fit_headings, odometry_error=factor, on_step=note)
+    folds.clear()
     from ..map.database import observation_hash
 
     name = " ".join(str(p) for p in run.paths)
