@@ -235,3 +235,36 @@ def test_tuning_with_scan_evidence_shares_draws_exactly(starts):
     b = tune_pose_filter(cal, _cfg(300, scan_starts=starts, share_draws=False), centres, g, held, rows, poses, **kw)
     assert a == b
     assert len({t["top1"] for t in a[1] if "scan_gamma" in t}) > 1  # the powers' runs differ
+
+
+def test_the_lost_rule_pairs_each_fit_with_its_own_rows_answer(monkeypatch):
+    """Held-out rows come fold by fold, the filter's fit trace in time order: the lost rule sees them paired in time order."""
+    import fingerloc.pipeline.calibrate as calibrate_module
+
+    poses, centres, _truth, rows, held, points, g, sfold, maps = _tuning_inputs(9, 0)
+    seen = []
+    real = calibrate_module.calibrate_lost
+
+    def spy(fits, right, quantile=None, *, after=1):
+        seen.append((np.asarray(fits, dtype=np.float64).copy(), np.asarray(right, dtype=bool).copy()))
+        return real(fits, right, quantile, after=after)
+
+    monkeypatch.setattr(calibrate_module, "calibrate_lost", spy)
+    cal = Calibration(radius=0.6, kidnap=0.01, metres_per_move=SPACING, **HEADING)
+    cfg = _cfg(1500)
+    hd = _headings(poses, rows, 9, np.random.default_rng(3))
+    labels = held.labels.copy()
+    labels[::7] = (labels[::7] + 4) % 9  # rows whose "truth" is another place: answers there count as wrong
+    held = HeldOut(beta=1.0, rows=rows.size, scores=held.scores, labels=labels, index=held.index)
+    order = np.concatenate([np.flatnonzero(sfold == 0), np.flatnonzero(sfold == 1)])  # the folds' order, as held-out rows come
+    assert not np.all(np.diff(rows[order]) > 0)
+    fold_held = HeldOut(beta=1.0, rows=rows.size, scores=held.scores[order], labels=held.labels[order], index=order)
+    kw = {"odometry_error": 1.0, "seed": 2, "scan_maps": maps, "scan_fold": sfold}
+    a, _ = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, headings=hd, scan_points=[points[i] for i in rows], **kw)
+    b, _ = tune_pose_filter(cal, cfg, centres, g, fold_held, rows, poses, headings=hd[order],
+                            scan_points=[points[i] for i in rows[order]], **kw)  # fmt: skip
+    assert len(seen) == 2 and a.scan_gamma == b.scan_gamma > 0
+    np.testing.assert_array_equal(seen[0][1], seen[1][1])  # the same right / wrong sequence either way
+    assert np.array_equal(seen[0][0], seen[1][0], equal_nan=True)
+    assert (a.lost_fit, a.lost_kidnap) == (b.lost_fit, b.lost_kidnap)
+    assert 0 < int(np.sum(~seen[0][1])), "every answer right: the pairing would not show"

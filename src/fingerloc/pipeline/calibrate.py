@@ -563,7 +563,7 @@ def tune_pose_filter(
         n_starts = cc.scan_starts
         starts = [(0, int(rows[(k * rows.size) // n_starts])) for k in range(n_starts)]
     else:
-        starts = [(w, int(rows[in_win[w]][0])) for w in range(len(wins)) if np.any(in_win[w])]
+        starts = [(w, int(np.min(rows[in_win[w]]))) for w in range(len(wins)) if np.any(in_win[w])]
     if len(starts) > 1:  # the chosen pair without the scan evidence, from every start (one start: the run above)
         best = (-1.0, chosen)
     traces: dict[float, tuple[list[float], list[Any]]] = {}
@@ -574,12 +574,14 @@ def tune_pose_filter(
         oks: list[Any] = []
         for k, (w, s0) in enumerate(starts):
             res, f = run(trial, w, s0, scan_maps[0], pts, maps)
-            after = (rows >= s0) & in_win[w]
+            after = np.flatnonzero((rows >= s0) & in_win[w])
+            after = after[np.argsort(rows[after], kind="stable")]  # in time order, as the filter's fit trace
+            got = res.best[rows[after] - s0] == truth[after]
             if len(wins) > 1 or k == 0:
                 fits += list(f.fit_trace_)
-                oks.append(res.best[rows[after] - s0] == truth[after])
-            right += int(np.sum(res.best[rows[after] - s0] == truth[after]))
-            counted += int(np.sum(after))
+                oks.append(got)
+            right += int(np.sum(got))
+            counted += int(after.size)
         traces[float(gamma)] = (fits, oks)
         top1 = right / counted
         tried.append({"outlier": chosen.outlier, "temper_metres": chosen.temper_metres, "scan_gamma": float(gamma), "top1": top1})
