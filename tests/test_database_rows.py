@@ -13,35 +13,13 @@ from fingerloc.map._records import decode_observation, encode_observation
 from fingerloc.map.database import _observation_blob, _observation_blobs
 from fingerloc.map.database_rows import decode_rows
 
+from ._observations import observations as _observations
+
 _FOV = ((-1.0, 4.0),)
-_angles = st.floats(-10.0, 10.0, allow_nan=False)
-_pos = st.floats(0.01, 50.0, allow_nan=False)
 
 
-@st.composite
-def observations(draw):
-    """Observations of every kind a record holds (an optional scan, field of view, pose, timestamp, appearance)."""
-    n = st.integers(0, 6)
-    kw = {k: draw(st.lists(_angles, max_size=draw(n))) for k in ("ve", "ex", "c", "b")}
-    ncp, nw = draw(n), draw(n)
-    kw["cp"] = draw(st.lists(st.sampled_from([0.5, -2.0]) | _angles, min_size=ncp, max_size=ncp))  # ties: sorted by hue
-    kw["cp_hue"] = draw(st.lists(st.floats(0.0, 359.9), min_size=ncp, max_size=ncp))
-    kw["w"] = draw(st.lists(_angles, min_size=nw, max_size=nw))
-    kw["w_length"] = draw(st.lists(_pos, min_size=nw, max_size=nw))
-    kw["w_range"] = draw(st.lists(_pos, min_size=nw, max_size=nw))
-    if draw(st.booleans()):
-        nb = draw(st.sampled_from([2, 5, 300]))
-        kw["ranges"] = draw(st.lists(st.one_of(_pos, st.just(float("inf"))), min_size=nb, max_size=nb))
-        kw["range_bearings"] = np.linspace(-1.5, 1.5, nb)
-    if draw(st.booleans()):
-        kw["fov"] = draw(st.sampled_from([_FOV, ((0.5, 1.0), (2.0, 1.5))]))
-    if draw(st.booleans()):
-        kw["pose"] = (draw(_pos), draw(_angles), draw(_angles))
-    if draw(st.booleans()):
-        kw["timestamp"] = draw(st.floats(-1e9, 1e9))
-    if draw(st.booleans()):
-        kw["appearance"] = draw(st.lists(_pos, min_size=1, max_size=40))
-    return Observation(**kw, label="p", source=draw(st.none() | st.just("a.png")))
+def observations():
+    return _observations(cp_ties=True, fovs=st.sampled_from([_FOV, ((0.5, 1.0), (2.0, 1.5))]), max_appearance=40)
 
 
 def _identical(a: Observation, b: Observation) -> bool:

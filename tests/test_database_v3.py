@@ -32,6 +32,7 @@ from fingerloc.model import PlaceModel
 from fingerloc.pipeline.placemap import load_map
 from fingerloc.pipeline.readers import read_run
 
+from ._observations import observations
 from ._places import dataset
 
 DATA = Path(__file__).parent / "data"
@@ -119,35 +120,6 @@ def test_version_3_round_trip_is_exact(tmp_path, rooms_log):
     m.add_places(extra)
     save_model(m2, tmp_path / "m2.sqlite")
     np.testing.assert_array_equal(load_model(tmp_path / "m2.sqlite").predict_log_proba(q), m.predict_log_proba(q))
-
-
-_angles = st.floats(-10.0, 10.0, allow_nan=False)
-_pos = st.floats(0.01, 50.0, allow_nan=False)
-
-
-@st.composite
-def observations(draw):
-    n = st.integers(0, 6)
-    kw = {k: draw(st.lists(_angles, max_size=draw(n))) for k in ("ve", "ex", "c", "b")}
-    ncp, nw = draw(n), draw(n)
-    kw["cp"] = draw(st.lists(_angles, min_size=ncp, max_size=ncp))
-    kw["cp_hue"] = draw(st.lists(st.floats(0.0, 359.9), min_size=ncp, max_size=ncp))
-    kw["w"] = draw(st.lists(_angles, min_size=nw, max_size=nw))
-    kw["w_length"] = draw(st.lists(_pos, min_size=nw, max_size=nw))
-    kw["w_range"] = draw(st.lists(_pos, min_size=nw, max_size=nw))
-    if draw(st.booleans()):
-        nb = draw(st.sampled_from([2, 5, 300]))
-        kw["ranges"] = draw(st.lists(st.one_of(_pos, st.just(float("inf"))), min_size=nb, max_size=nb))
-        kw["range_bearings"] = np.linspace(-1.5, 1.5, nb)
-    if draw(st.booleans()):
-        kw["fov"] = tuple(draw(st.lists(st.tuples(_angles, st.floats(0.1, 6.28)), min_size=1, max_size=3)))
-    if draw(st.booleans()):
-        kw["pose"] = (draw(_pos), draw(_angles), draw(_angles))
-    if draw(st.booleans()):
-        kw["timestamp"] = draw(st.floats(-1e9, 1e9))
-    if draw(st.booleans()):
-        kw["appearance"] = draw(st.lists(_pos, min_size=1, max_size=400))
-    return Observation(**kw, label="p", source=draw(st.none() | st.just("a.png")))
 
 
 @given(observations(), st.booleans(), st.booleans(), st.booleans())
