@@ -246,20 +246,27 @@ def _mutual_ratio(s: Any, r2: float) -> Any:  # pragma: no cover - compiled
     c2 = np.full(nb, -4.0, np.float32)
     ci = np.full(nb, -1, np.int64)
     for i in range(na):
+        top1 = np.float32(-4.0)
+        top2 = np.float32(-4.0)
+        top_j = -1
         for j in range(nb):
             v = s[i, j]
-            if v > b1[i]:
-                b2[i] = b1[i]
-                b1[i] = v
-                bj[i] = j
-            elif v > b2[i]:
-                b2[i] = v
-            if v > c1[j]:
-                c2[j] = c1[j]
-                c1[j] = v
-                ci[j] = i
-            elif v > c2[j]:
-                c2[j] = v
+            if v > top1:
+                top2 = top1
+                top1 = v
+                top_j = j
+            elif v > top2:
+                top2 = v
+            if v > c2[j]:  # c1 >= c2: the rare case first
+                if v > c1[j]:
+                    c2[j] = c1[j]
+                    c1[j] = v
+                    ci[j] = i
+                else:
+                    c2[j] = v
+        b1[i] = top1
+        b2[i] = top2
+        bj[i] = top_j
     out = np.empty((na, 2), np.int64)
     m = 0
     for i in range(na):

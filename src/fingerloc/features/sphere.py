@@ -396,11 +396,16 @@ def refine_pose(
             t = t / np.linalg.norm(t)
         return r, t
 
+    def cross(t: FArray, g: FArray) -> FArray:  # np.cross(t, g) for one t, spelt out (its per-call cost dominated)
+        return np.stack(
+            [t[1] * g[:, 2] - t[2] * g[:, 1], t[2] * g[:, 0] - t[0] * g[:, 2], t[0] * g[:, 1] - t[1] * g[:, 0]], axis=1
+        )
+
     def residuals(x: FArray) -> FArray:
         r, t = pose(x)
         g = f1 @ r.T
-        n1 = np.cross(t, g)  # normal of the epipolar plane of f1 in view 2
-        n2 = np.cross(t, f2)
+        n1 = cross(t, g)  # normal of the epipolar plane of f1 in view 2
+        n2 = cross(t, f2)
         num = np.einsum("ni,ni->n", f2, n1)
         return np.concatenate([num / np.maximum(np.linalg.norm(n1, axis=1), 1e-12),
                                num / np.maximum(np.linalg.norm(n2, axis=1), 1e-12)])  # fmt: skip

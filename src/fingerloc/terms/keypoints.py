@@ -330,11 +330,11 @@ class KeypointTerm(IndexedTerm[_View]):
         The relative-pose model; ``"auto"`` chooses it on the training views.
     max_tilt_deg : float, default 1.0
         ``"auto"``: the median tilt above which the general model is used.
-    shortlist : int, default 10
+    shortlist : int, default 8
         With more stored views than ``shortlist + shortlist_appearance``, only
         the ``shortlist`` best-ranked by the bag of words are verified, with
         the ``shortlist_appearance`` nearest by appearance (0 and 0: verify every view).
-    shortlist_appearance : int, default 10
+    shortlist_appearance : int, default 5
         Views nearest to the query by their appearance descriptors (L1) added
         to the shortlist (when the query and every stored view carry one).
     min_inliers : int, default 8
@@ -368,8 +368,8 @@ class KeypointTerm(IndexedTerm[_View]):
         threshold_deg: float = 0.6,
         model: str = "auto",
         max_tilt_deg: float = 1.0,
-        shortlist: int = 10,
-        shortlist_appearance: int = 10,
+        shortlist: int = 8,
+        shortlist_appearance: int = 5,
         min_inliers: int = 8,
         max_queries: int = 200,
     ) -> None:
@@ -497,8 +497,12 @@ class KeypointTerm(IndexedTerm[_View]):
             return np.arange(n, dtype=np.int64)
         return np.unique(np.concatenate(picked)).astype(np.int64)
 
-    def checks(self, query: Keypoints, views: IArray | None = None) -> list[PairCheck]:
-        """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised)."""
+    def checks(self, query: Keypoints, views: IArray | None = None, *, refine: bool = True) -> list[PairCheck]:
+        """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised).
+
+        ``refine``: headings from the rotation refined on the inliers (:func:`check_pair`); False
+        skips that refinement (the inliers and matches are the same; what the likelihood needs).
+        """
         self._check_fitted()
         if query.dim != self.dim_ and len(query) and len(self._units):
             raise InvalidParameterError(
@@ -511,14 +515,19 @@ class KeypointTerm(IndexedTerm[_View]):
         out: list[PairCheck] = []
         for v in idx:
             dr = self._digests[int(v)]
-            key = (dq, dr, *params) if dq <= dr else (dr, dq, *params)
+            pair = (dq, dr) if dq <= dr else (dr, dq)
+            key = (*pair, *params, True)
             got = _CACHE.get(key)
+            if got is None and not refine:
+                key = (*pair, *params, False)
+                got = _CACHE.get(key)
             if got is None:
                 if uq is None:
                     uq, vq = query.unit_descriptors(), query.vectors()
                 assert vq is not None
                 got = check_pair(uq, vq, self._units[int(v)], self._vecs[int(v)], ratio=float(self.ratio),
-                                 model=self.model_, threshold_deg=float(self.threshold_deg))  # fmt: skip
+                                 model=self.model_, threshold_deg=float(self.threshold_deg),
+                                 refine_min_inliers=8 if refine else None)  # fmt: skip
                 _CACHE[key] = got if dq <= dr else got.swapped()
                 while len(_CACHE) > CACHE_SIZE:
                     _CACHE.popitem(last=False)
@@ -531,7 +540,7 @@ class KeypointTerm(IndexedTerm[_View]):
         """Verified inliers of ``query`` against every stored view, shape ``(m,)`` (0 outside the shortlist)."""
         cand = self.candidates(query, appearance)
         out = np.zeros(len(self._units), dtype=np.int64)
-        out[cand] = [c.inliers for c in self.checks(query, cand)]
+        out[cand] = [c.inliers for c in self.checks(query, cand, refine=False)]
         return out
 
     def _view_distances(self, query: _View) -> FArray:
@@ -559,9 +568,9 @@ class KeypointTerm(IndexedTerm[_View]):
         # the views the likelihood verified (its memo answers at once); every view of the place if none of them was
         short = np.intersect1d(sel, self.candidates(f.kp, f.app))
         sel = short if short.size else sel
-        checks = self.checks(f.kp, sel)
+        checks = self.checks(f.kp, sel, refine=False)
         k = int(np.argmax([c.inliers for c in checks]))
-        best = checks[k]
+        best = self.checks(f.kp, sel[k : k + 1])[0]  # the rotation refined for this view only
         view = int(self.view_[sel[k]])
         if best.inliers < max(1, int(self.min_inliers)) or not math.isfinite(best.heading):
             return None, view, best.inliers
