@@ -131,3 +131,14 @@ def test_compiled_hsv_matches_numpy_exactly():
 def test_rgb_to_hsv_refuses_non_triples():
     with pytest.raises(InvalidParameterError):
         rgb_to_hsv(np.zeros((4, 6)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_closing_is_scipys_binary_closing(seed):
+    rng = np.random.default_rng(seed)
+    m = rng.random((60, 90)) < (0.3 + 0.2 * seed)
+    m[:, :3] = True  # runs touching the border: the empty outside erodes them
+    m[0] = True
+    want = ndimage.binary_closing(m, structure=np.ones((3, 3)))
+    got = vision._close3(m)
+    assert got.dtype == bool and np.array_equal(got, want) and want.sum() > m.sum() // 2

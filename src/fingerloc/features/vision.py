@@ -454,6 +454,20 @@ def _bearing_extent(pano: Any, cols: NDArray[np.int64], w: int) -> tuple[float, 
     return centre, float(np.abs(wrap(cb - centre)).max()) + np.pi / w
 
 
+def _close3(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Binary closing by a 3x3 square, outside the array counting as empty for both steps.
+
+    :func:`scipy.ndimage.binary_closing` with ``structure=np.ones((3, 3))`` (its
+    default ``border_value=0``), through OpenCV's morphology (exact on binary images).
+    """
+    import cv2
+
+    u8 = mask.astype(np.uint8)
+    k = np.ones((3, 3), dtype=np.uint8)
+    grown = cv2.dilate(u8, k, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(cv2.erode(grown, k, borderType=cv2.BORDER_CONSTANT, borderValue=0), dtype=bool)
+
+
 def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
     """Saturated colour regions of a panorama: their bearings and hues.
 
@@ -497,7 +511,7 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         # close pin holes (JPEG, text), circularly in columns; rows keep their border
         padded = np.pad(m, ((1, 1), (2, 2)), mode="wrap")
         padded[0], padded[-1] = padded[1], padded[-2]
-        m = ndimage.binary_closing(padded, structure=np.ones((3, 3)))[1:-1, 2:-2] | m
+        m = _close3(padded)[1:-1, 2:-2] | m
         lab, nlab = ndimage.label(m)
         if nlab == 0:
             continue
