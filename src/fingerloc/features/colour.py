@@ -55,4 +55,5 @@ def white_balance(img: FArray, mode: str = "bright") -> FArray:
     if np.any(med <= 1e-3):
         return img
     gain = med.mean() / med
-    return np.clip(img * gain, 0.0, 1.0)
+    out = img * gain
+    return np.clip(out, 0.0, 1.0, out=out)

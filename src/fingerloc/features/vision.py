@@ -535,7 +535,8 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         regions: list[list[Any]] = []
         flat = lab.ravel()
         counts = np.bincount(flat)
-        order = np.argsort(flat, kind="stable")
+        # stable: pixels of a region in raster order (16-bit labels sort by radix, much faster)
+        order = np.argsort(flat.astype(np.uint16) if nlab < 65536 else flat, kind="stable")
         starts = np.r_[0, np.cumsum(counts)]
         min_pixels = p.min_fill * min_rows * min_cols
         for r in np.flatnonzero(counts):
