@@ -223,3 +223,15 @@ def test_inlier_mask_matches_the_epipolar_errors():
         differ = got != want
         assert np.all(np.abs(err[differ] - thr) < 1e-12)
         assert np.array_equal(inlier_mask(es[2], f1, f2, thr), got[2])
+
+
+def test_null_vector_of_a_tall_system_is_the_full_svds():
+    from fingerloc.features.sphere import _null_vectors
+
+    rng = np.random.default_rng(4)
+    for rows, cols in ((900, 9), (40, 4), (9, 9), (3, 4)):
+        a = rng.normal(size=(rows, cols))
+        full = np.linalg.svd(np.vstack([a, np.zeros((max(0, cols - rows), cols))]))[2][-1]
+        got = _null_vectors(a)
+        assert got.shape == (cols,)
+        np.testing.assert_allclose(np.abs(got @ full), 1.0, atol=1e-12)

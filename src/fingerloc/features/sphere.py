@@ -191,7 +191,7 @@ def _null_vectors(a: FArray) -> FArray:
     if a.shape[-2] < a.shape[-1]:  # pad with zero rows: svd's last row of vh is then the null vector
         pad = np.zeros((*a.shape[:-2], a.shape[-1] - a.shape[-2], a.shape[-1]))
         a = np.concatenate([a, pad], axis=-2)
-    _, _, vh = np.linalg.svd(a)
+    _, _, vh = np.linalg.svd(a, full_matrices=False)  # m >= k rows: vh is (k, k); no (m, m) u for many matches
     return np.asarray(vh[..., -1, :])
 
 
