@@ -142,3 +142,16 @@ def test_closing_is_scipys_binary_closing(seed):
     want = ndimage.binary_closing(m, structure=np.ones((3, 3)))
     got = vision._close3(m)
     assert got.dtype == bool and np.array_equal(got, want) and want.sum() > m.sum() // 2
+
+
+@pytest.mark.parametrize("shape", [(360, 1440), (512, 2048), (90, 720), (101, 1500), (40, 2900), (20, 2900)])
+def test_appearance_and_profile_together_are_the_separate_calls(shape):
+    from fingerloc.features.appearance import appearance_and_profile, appearance_descriptor, column_profile
+
+    rng = np.random.default_rng(shape[1])
+    img = ndimage.gaussian_filter(rng.random((*shape, 3)), (2.0, 3.0, 0.0), mode="wrap")
+    pano = Panorama(np.clip(img, 0, 1).astype(np.float32), bearing_offset=0.4, clockwise=True)
+    desc, prof = appearance_and_profile(pano, columns=36, strips=4)
+    assert np.array_equal(desc, appearance_descriptor(pano))
+    assert np.array_equal(prof, column_profile(pano, columns=36, strips=4))
+    assert prof.shape == (36, 20) and np.abs(prof).max() > 0.5

@@ -49,6 +49,7 @@ from .appearance import (
     PROFILE_CHANNELS,
     PROFILE_DECIMALS,
     AppearanceParams,
+    appearance_and_profile,
     appearance_descriptor,
     column_profile,
     profile_correlation,
@@ -704,9 +705,12 @@ def observation_from_views(
     prof: FArray | None = None
     if panorama is not None:
         vf = extract_vision_features(panorama, **e, **c)
-        if appearance:
+        if appearance and profile:  # the band's block means once for both
+            desc, prof = appearance_and_profile(panorama)
+            prof = np.round(prof, PROFILE_DECIMALS)
+        elif appearance:
             desc = appearance_descriptor(panorama)
-        if profile:
+        elif profile:
             prof = np.round(column_profile(panorama), PROFILE_DECIMALS)
         ve, cp, cp_hue = vf.edges, vf.patches, vf.patch_hues
         mp = panorama.meta.get("pose")
