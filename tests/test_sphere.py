@@ -235,3 +235,13 @@ def test_null_vector_of_a_tall_system_is_the_full_svds():
         got = _null_vectors(a)
         assert got.shape == (cols,)
         np.testing.assert_allclose(np.abs(got @ full), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("m,k", [(8, 8), (9, 8), (40, 3), (900, 8), (900, 3)])
+def test_samples_are_the_k_smallest_random_keys_in_order(m, k):
+    from fingerloc.features.sphere import _samples
+
+    got = _samples(np.random.default_rng(3), m, k, 64)
+    keys = np.random.default_rng(3).random((64, m))
+    assert np.array_equal(got, np.argsort(keys, axis=1)[:, :k])
+    assert all(len(set(row)) == k for row in got.tolist())

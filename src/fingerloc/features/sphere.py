@@ -419,8 +419,14 @@ def refine_pose(
 
 def _samples(rng: np.random.Generator, m: int, k: int, size: int) -> IArray:
     """``size`` random index sets of ``k`` distinct matches among ``m``, shape ``(size, k)``."""
-    # argsort of random keys: distinct indices per row
-    return np.argsort(rng.random((size, m)), axis=1)[:, :k].astype(np.int64)
+    # the k smallest of m random keys, in increasing order of key: distinct indices per row (the
+    # partition first: the order of a full argsort without sorting all m keys)
+    keys = rng.random((size, m))
+    if k >= m:
+        return np.argsort(keys, axis=1)[:, :k].astype(np.int64)
+    part = np.argpartition(keys, k - 1, axis=1)[:, :k]
+    order = np.argsort(np.take_along_axis(keys, part, axis=1), axis=1)
+    return np.take_along_axis(part, order, axis=1).astype(np.int64)
 
 
 def ransac_pose(
