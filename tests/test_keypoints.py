@@ -351,3 +351,21 @@ def test_features_learn_localize_with_keypoints(tmp_path, capsys, rooms):
             con.execute("UPDATE observations SET data = ? WHERE id = ?", (b"\x03" + data[1:], oid))
     code, _, err = run_cli(capsys, "localize", qj, "--db", db)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "fingerloc features` again" in err
+
+
+def test_heading_is_check_pairs_refined_rotation_with_or_without_the_memo(room_views):
+    from fingerloc.terms.keypoints import check_pair, clear_pair_cache
+
+    train, queries = room_views["train"], room_views["query"]
+    groups = [train[0:3], train[3:6], train[6:9]]
+    term = KeypointTerm().fit(groups)
+    for warm in (True, False):
+        clear_pair_cache()
+        for r, q in enumerate(queries):
+            if warm:  # the likelihood verified the views first (their fits kept): only the refinement runs
+                term.log_likelihood([q])
+            h, view, _ = term.heading_at(q, r)
+            ref = groups[r][view].keypoints
+            c = check_pair(q.keypoints.unit_descriptors(), q.keypoints.vectors(), ref.unit_descriptors(), ref.vectors(),
+                           model=term.model_, threshold_deg=term.threshold_deg)  # fmt: skip
+            assert h == pytest.approx(float(np.mod(np.degrees(c.heading), 360.0)), abs=1e-9)

@@ -16,6 +16,7 @@ from fingerloc.features.sphere import (
     epipolar_errors,
     essential_from_pose,
     heading_of_rotation,
+    inlier_mask,
     ransac_pose,
     refine_pose,
     rotation_about_z,
@@ -195,7 +196,6 @@ def test_refine_pose_recovers_the_pose_from_a_perturbed_guess():
     assert abs(math.degrees(heading_of_rotation(r)) + 120.0) < 1e-6 and abs(tt[2]) < 1e-12
 
 
-
 def test_many_matches_are_ranked_on_a_probe_and_still_fit():
     rng = np.random.default_rng(8)
     rot, t = _rotation(-65.0, 2.0, 1.0), np.array([0.2, 0.7, -0.1])
@@ -204,3 +204,44 @@ def test_many_matches_are_ranked_on_a_probe_and_still_fit():
     truth = np.arange(800) >= 240
     assert fit is not None and np.sum(fit.inliers & truth) >= 540 and np.sum(fit.inliers & ~truth) <= 10
     assert abs(math.degrees(fit.heading) + 65.0) < 0.3
+
+
+def test_inlier_mask_matches_the_epipolar_errors():
+    rng = np.random.default_rng(11)
+    f1 = bearing_vectors(rng.uniform(-np.pi, np.pi, 400), rng.uniform(-0.8, 0.8, 400))
+    f2 = bearing_vectors(rng.uniform(-np.pi, np.pi, 400), rng.uniform(-0.8, 0.8, 400))
+    es = rng.normal(size=(7, 3, 3))
+    es[0] = essential_from_pose(rotation_about_z(0.4), [1.0, 0.2, 0.0])
+    es[1] = 0.0  # degenerate: every error is 90 deg
+    f1[:3] = f2[:3] = [0.0, 0.0, 1.0]  # E f1 = 0 for an upright pose: an error of 90 deg
+    for thr in (0.01, 0.3, 1.0):
+        want = epipolar_errors(es, f1, f2) < thr
+        got = inlier_mask(es, f1, f2, thr)
+        assert got.shape == (7, 400) and want.sum() > 0
+        # equal except for errors within a last bit of the threshold
+        err = epipolar_errors(es, f1, f2)
+        differ = got != want
+        assert np.all(np.abs(err[differ] - thr) < 1e-12)
+        assert np.array_equal(inlier_mask(es[2], f1, f2, thr), got[2])
+
+
+def test_null_vector_of_a_tall_system_is_the_full_svds():
+    from fingerloc.features.sphere import _null_vectors
+
+    rng = np.random.default_rng(4)
+    for rows, cols in ((900, 9), (40, 4), (9, 9), (3, 4)):
+        a = rng.normal(size=(rows, cols))
+        full = np.linalg.svd(np.vstack([a, np.zeros((max(0, cols - rows), cols))]))[2][-1]
+        got = _null_vectors(a)
+        assert got.shape == (cols,)
+        np.testing.assert_allclose(np.abs(got @ full), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("m,k", [(8, 8), (9, 8), (40, 3), (900, 8), (900, 3)])
+def test_samples_are_the_k_smallest_random_keys_in_order(m, k):
+    from fingerloc.features.sphere import _samples
+
+    got = _samples(np.random.default_rng(3), m, k, 64)
+    keys = np.random.default_rng(3).random((64, m))
+    assert np.array_equal(got, np.argsort(keys, axis=1)[:, :k])
+    assert all(len(set(row)) == k for row in got.tolist())

@@ -293,9 +293,9 @@ def bench_panorama_cmd(
     spacing: float = typer.Option(0.03, "--spacing", help="Places by position: centres this far apart, map units."),
     components: int = typer.Option(3, "-k", "--components", help="Mixture components per place (VE, CP)."),
     width: int = typer.Option(1440, "--width", help="Photos are resampled to this many columns (one per 0.25 deg)."),
-    shortlist: int = typer.Option(10, "--shortlist", min=0, help="Views kept by the bag-of-words retrieval (recall)."),
+    shortlist: int = typer.Option(8, "--shortlist", min=0, help="Views kept by the bag-of-words retrieval (recall)."),
     shortlist_appearance: int = typer.Option(
-        10, "--shortlist-appearance", min=0, help="Views nearest by appearance added to the retrieval's shortlist."
+        5, "--shortlist-appearance", min=0, help="Views nearest by appearance added to the retrieval's shortlist."
     ),
     preset: str | None = typer.Option(
         None,

@@ -663,8 +663,8 @@ def run_panorama_bench(
     n_components: int = 3,
     width: int = DEFAULT_WIDTH,
     max_queries: int | None = None,
-    shortlist: int = 10,
-    shortlist_appearance: int = 10,
+    shortlist: int = 8,
+    shortlist_appearance: int = 5,
     on_step: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Leave-one-out top-1, mean rank and calibration per method, places by area and by position (module docstring).

@@ -28,6 +28,7 @@ __all__ = [
     "PROFILE_CHANNELS",
     "PROFILE_DECIMALS",
     "AppearanceParams",
+    "appearance_and_profile",
     "appearance_descriptor",
     "column_profile",
     "profile_correlation",
@@ -120,9 +121,7 @@ def _block_mean(img: FArray, width: int) -> FArray:
     f = w // width
     if f < 2:
         return img
-    fh = max(1, min(f, h // 8))
-    w2, h2 = (w // f) * f, (h // fh) * fh
-    return np.asarray(img[:h2, :w2].reshape(h2 // fh, fh, w2 // f, f, 3).mean(axis=(1, 3)), dtype=np.float64)
+    return _blocks(img, f, max(1, min(f, h // 8)))
 
 
 def _colour_shares(img: FArray, p: AppearanceParams) -> FArray:
@@ -220,7 +219,11 @@ def appearance_descriptor(pano: Panorama, **params: Any) -> FArray:
         (:data:`APPEARANCE_VERSIONS`: version 2).
     """
     p = _from_kwargs(AppearanceParams, params, "appearance")
-    img = _block_mean(np.asarray(pano.image, dtype=np.float64), _APPEARANCE_WIDTH)
+    return _appearance_of(_block_mean(np.asarray(pano.image, dtype=np.float64), _APPEARANCE_WIDTH), p)
+
+
+def _appearance_of(img: FArray, p: AppearanceParams) -> FArray:
+    """:func:`appearance_descriptor` of an image already block-averaged, ``(h, w, 3)`` float64."""
     if img.shape[0] < p.strips:
         raise InvalidParameterError(
             f"the panorama has {img.shape[0]} rows, fewer than the {p.strips} strips of its appearance"
@@ -294,11 +297,22 @@ def column_profile(pano: Panorama, *, columns: int = 36, strips: int = 4) -> FAr
     h, w, _ = img.shape
     if w > _PROFILE_WIDTH:  # the same cells whatever the image's resolution: block means down to ~720 columns
         f = w // _PROFILE_WIDTH
-        fh = max(1, min(f, h // max(strips, 1)))
-        w2, h2 = (w // f) * f, (h // fh) * fh
-        img = img[:h2, :w2].reshape(h2 // fh, fh, w2 // f, f, 3).mean(axis=(1, 3))
-        pano = Panorama(img, bearing_offset=pano.bearing_offset, clockwise=pano.clockwise)
-        h, w, _ = img.shape
+        img = _blocks(img, f, max(1, min(f, h // max(strips, 1))))
+    return _profile_of(img, pano, columns, strips)
+
+
+def _blocks(img: FArray, f: int, fh: int) -> FArray:
+    """Means of ``fh`` x ``f`` blocks of an ``(h, w, 3)`` image (the last partial rows and columns dropped)."""
+    h, w, _ = img.shape
+    w2, h2 = (w // f) * f, (h // fh) * fh
+    return np.asarray(img[:h2, :w2].reshape(h2 // fh, fh, w2 // f, f, 3).mean(axis=(1, 3)), dtype=np.float64)
+
+
+def _profile_of(img: FArray, pano: Panorama, columns: int, strips: int) -> FArray:
+    """:func:`column_profile` of ``img`` (float64, block-averaged or not), the bearings of ``pano``."""
+    h, w, _ = img.shape
+    if w != pano.width:  # block-averaged: the same bearings on fewer columns (only its bearings are used)
+        pano = Panorama(img, bearing_offset=pano.bearing_offset, clockwise=pano.clockwise)  # type: ignore[arg-type]
     if h < strips:
         raise InvalidParameterError(f"the panorama has {h} rows, fewer than the {strips} strips of its profile")
     lum = img @ np.array([0.299, 0.587, 0.114])
@@ -319,6 +333,26 @@ def column_profile(pano: Panorama, *, columns: int = 36, strips: int = 4) -> FAr
     sd = prof.std(axis=0)
     prof = np.where(sd > 1e-9, prof / np.where(sd > 1e-9, sd, 1.0), 0.0)
     return np.asarray(prof, dtype=np.float64)
+
+
+def appearance_and_profile(
+    pano: Panorama, *, columns: int = 36, strips: int = 4, **params: Any
+) -> tuple[FArray, FArray]:
+    """``(appearance_descriptor(pano, **params), column_profile(pano, columns=columns, strips=strips))``.
+
+    The same numbers, with the block means of a wide panorama computed once when both use the same blocks.
+    """
+    p = _from_kwargs(AppearanceParams, params, "appearance")
+    if isinstance(strips, bool) or not isinstance(strips, (int, np.integer)) or strips < 1:
+        raise InvalidParameterError(f"strips must be an integer >= 1, got {strips!r}")
+    h, w = pano.image.shape[:2]
+    f = w // _APPEARANCE_WIDTH
+    if _APPEARANCE_WIDTH != _PROFILE_WIDTH or f < 2 or max(1, min(f, h // 8)) != max(1, min(f, h // strips)):
+        return appearance_descriptor(pano, **params), column_profile(pano, columns=columns, strips=strips)
+    if isinstance(columns, bool) or not isinstance(columns, (int, np.integer)) or columns < 4:
+        raise InvalidParameterError(f"columns must be an integer >= 4, got {columns!r}")
+    img = _blocks(np.asarray(pano.image, dtype=np.float64), f, max(1, min(f, h // 8)))
+    return _appearance_of(img, p), _profile_of(img, pano, columns, strips)
 
 
 def profile_correlation(a: FArray, b: FArray) -> FArray:

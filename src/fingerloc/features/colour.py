@@ -6,6 +6,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._types import FArray
+from ..errors import InvalidParameterError
+from ._vision_kernels import hsv
 
 __all__ = ["rgb_to_hsv", "white_balance"]
 
@@ -20,22 +22,19 @@ def rgb_to_hsv(img: ArrayLike) -> tuple[FArray, FArray, FArray]:
     Returns
     -------
     hue, sat, val : ndarray, shape (...)
+
+    Notes
+    -----
+    Per pixel, with ``mx``, ``mn`` the largest and smallest channel and ``c = mx - mn``: hue
+    ``60 ((g - b) / c mod 6)`` where ``mx == r``, ``60 ((b - r) / c + 2)`` where ``mx == g``,
+    ``60 ((r - g) / c + 4)`` otherwise (0 for greys); saturation ``c / mx`` (0 for black);
+    value ``mx`` (compiled).
     """
     a = np.asarray(img, dtype=np.float64)
-    r, g, b = a[..., 0], a[..., 1], a[..., 2]
-    mx = np.maximum(np.maximum(r, g), b)  # faster than a reduction over a length-3 axis
-    mn = np.minimum(np.minimum(r, g), b)
-    c = mx - mn
-    safe = np.where(c > 0, c, 1.0)
-    h = np.where(
-        mx == r,
-        np.mod((g - b) / safe, 6.0),
-        np.where(mx == g, (b - r) / safe + 2.0, (r - g) / safe + 4.0),
-    )
-    h = np.where(c > 0, h * 60.0, 0.0)
-    h = np.where(h >= 360.0, h - 360.0, h)
-    s = np.where(mx > 0, c / np.where(mx > 0, mx, 1.0), 0.0)
-    return h, s, mx
+    if a.shape[-1:] != (3,):
+        raise InvalidParameterError(f"expected an array of RGB triples, shape (..., 3), got shape {a.shape}")
+    h, s, v = hsv(np.ascontiguousarray(a.reshape(-1, 3)))
+    return h.reshape(a.shape[:-1]), s.reshape(a.shape[:-1]), v.reshape(a.shape[:-1])
 
 
 def white_balance(img: FArray, mode: str = "bright") -> FArray:
@@ -56,4 +55,5 @@ def white_balance(img: FArray, mode: str = "bright") -> FArray:
     if np.any(med <= 1e-3):
         return img
     gain = med.mean() / med
-    return np.clip(img * gain, 0.0, 1.0)
+    out = img * gain
+    return np.clip(out, 0.0, 1.0, out=out)

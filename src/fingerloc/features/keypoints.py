@@ -200,15 +200,16 @@ def extract_keypoints(pano: Any, **params: Any) -> Keypoints:
     h, w = g.shape
     pad = min(p.pad, w // 4)
     padded = np.concatenate([g[:, w - pad :], g, g[:, :pad]], axis=1) if pad else g
-    # every candidate first: those in the padding are dropped before the strongest are described
+    # every candidate described in one pass (one image pyramid instead of two); those in the padding
+    # are dropped, then the strongest kept
     sift = cv2.SIFT_create(contrastThreshold=float(p.contrast), edgeThreshold=float(p.edge))  # type: ignore[attr-defined]
-    found = sift.detect(padded, None)
+    found, all_desc = sift.detectAndCompute(padded, None)
     x = np.array([k.pt[0] for k in found]) - pad
     resp = np.array([k.response for k in found])
     keep = np.flatnonzero((x >= -0.5) & (x < w - 0.5))
     keep = keep[np.argsort(-resp[keep], kind="stable")[: p.n_keypoints]]
     dim = 128
-    kps, desc = sift.compute(padded, [found[i] for i in keep]) if keep.size else ((), None)
+    kps, desc = ([found[i] for i in keep], all_desc[keep]) if keep.size and all_desc is not None else ((), None)
     if not kps or desc is None:
         return Keypoints(np.empty(0), np.empty(0), np.empty(0), np.zeros((0, dim), dtype=np.uint8))
     x = np.array([k.pt[0] for k in kps]) - pad
@@ -246,20 +247,27 @@ def _mutual_ratio(s: Any, r2: float) -> Any:  # pragma: no cover - compiled
     c2 = np.full(nb, -4.0, np.float32)
     ci = np.full(nb, -1, np.int64)
     for i in range(na):
+        top1 = np.float32(-4.0)
+        top2 = np.float32(-4.0)
+        top_j = -1
         for j in range(nb):
             v = s[i, j]
-            if v > b1[i]:
-                b2[i] = b1[i]
-                b1[i] = v
-                bj[i] = j
-            elif v > b2[i]:
-                b2[i] = v
-            if v > c1[j]:
-                c2[j] = c1[j]
-                c1[j] = v
-                ci[j] = i
-            elif v > c2[j]:
-                c2[j] = v
+            if v > top1:
+                top2 = top1
+                top1 = v
+                top_j = j
+            elif v > top2:
+                top2 = v
+            if v > c2[j]:  # c1 >= c2: the rare case first
+                if v > c1[j]:
+                    c2[j] = c1[j]
+                    c1[j] = v
+                    ci[j] = i
+                else:
+                    c2[j] = v
+        b1[i] = top1
+        b2[i] = top2
+        bj[i] = top_j
     out = np.empty((na, 2), np.int64)
     m = 0
     for i in range(na):

@@ -43,8 +43,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numba
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from .._types import FArray, IArray
 from ..errors import InvalidParameterError
@@ -59,6 +60,7 @@ __all__ = [
     "epipolar_errors",
     "essential_from_pose",
     "heading_of_rotation",
+    "inlier_mask",
     "ransac_pose",
     "refine_pose",
     "rotation_about_z",
@@ -146,12 +148,50 @@ def epipolar_errors(essential: ArrayLike, f1: FArray, f2: FArray) -> FArray:
     return np.asarray(np.arcsin(np.minimum(s, 1.0)))
 
 
+@numba.njit(cache=True, nogil=True)
+def _inlier_kernel(e: Any, f1: Any, f2: Any, threshold: float) -> Any:  # pragma: no cover - compiled
+    """:func:`epipolar_errors` ``< threshold`` for each of ``s`` essential matrices, shape ``(s, n)``, one pass."""
+    s, n = e.shape[0], f1.shape[0]
+    out = np.zeros((s, n), dtype=np.bool_)
+    for h in range(s):
+        for k in range(n):
+            a0, a1, a2 = f1[k, 0], f1[k, 1], f1[k, 2]
+            b0, b1, b2 = f2[k, 0], f2[k, 1], f2[k, 2]
+            x0 = e[h, 0, 0] * a0 + e[h, 0, 1] * a1 + e[h, 0, 2] * a2
+            x1 = e[h, 1, 0] * a0 + e[h, 1, 1] * a1 + e[h, 1, 2] * a2
+            x2 = e[h, 2, 0] * a0 + e[h, 2, 1] * a1 + e[h, 2, 2] * a2
+            y0 = e[h, 0, 0] * b0 + e[h, 1, 0] * b1 + e[h, 2, 0] * b2
+            y1 = e[h, 0, 1] * b0 + e[h, 1, 1] * b1 + e[h, 2, 1] * b2
+            y2 = e[h, 0, 2] * b0 + e[h, 1, 2] * b1 + e[h, 2, 2] * b2
+            num = abs(x0 * b0 + x1 * b1 + x2 * b2)
+            n1 = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            n2 = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+            r = max(num / n1 if n1 > 0 else math.inf, num / n2 if n2 > 0 else math.inf)
+            if not math.isfinite(r):
+                r = 1.0
+            out[h, k] = math.asin(min(r, 1.0)) < threshold
+    return out
+
+
+def inlier_mask(essential: ArrayLike, f1: FArray, f2: FArray, threshold: float) -> NDArray[np.bool_]:
+    """``epipolar_errors(essential, f1, f2) < threshold`` (compiled, no temporary arrays), shape ``(..., n)``.
+
+    The same formula, summed in a fixed order (a last-bit difference from the
+    NumPy version can move a match lying exactly on ``threshold``).
+    """
+    e = np.asarray(essential, dtype=np.float64)
+    flat = np.ascontiguousarray(e.reshape(-1, 3, 3))
+    out = _inlier_kernel(flat, np.ascontiguousarray(f1, dtype=np.float64), np.ascontiguousarray(f2, dtype=np.float64),
+                         float(threshold))  # fmt: skip
+    return np.asarray(out).reshape(*e.shape[:-2], len(f1))
+
+
 def _null_vectors(a: FArray) -> FArray:
     """The right singular vector of the smallest singular value of each matrix of ``a`` (..., m, k)."""
     if a.shape[-2] < a.shape[-1]:  # pad with zero rows: svd's last row of vh is then the null vector
         pad = np.zeros((*a.shape[:-2], a.shape[-1] - a.shape[-2], a.shape[-1]))
         a = np.concatenate([a, pad], axis=-2)
-    _, _, vh = np.linalg.svd(a)
+    _, _, vh = np.linalg.svd(a, full_matrices=False)  # m >= k rows: vh is (k, k); no (m, m) u for many matches
     return np.asarray(vh[..., -1, :])
 
 
@@ -286,14 +326,14 @@ class PoseFit:
 
 def _refine(solve: Any, e: FArray, f1: FArray, f2: FArray, threshold: float, k: int) -> tuple[FArray, int]:
     """Local optimisation of a hypothesis: refit on its inliers (a looser threshold first) while that gains inliers."""
-    inl = epipolar_errors(e, f1, f2) < threshold
+    inl = inlier_mask(e, f1, f2, threshold)
     count = int(inl.sum())
     for thr in (2.0 * threshold, threshold, threshold):
-        sel = epipolar_errors(e, f1, f2) < thr
+        sel = inlier_mask(e, f1, f2, thr)
         if sel.sum() < k:
             break
         e2 = solve(f1[sel], f2[sel])
-        inl2 = epipolar_errors(e2, f1, f2) < threshold
+        inl2 = inlier_mask(e2, f1, f2, threshold)
         if inl2.sum() <= count:
             break
         e, count = e2, int(inl2.sum())
@@ -356,11 +396,16 @@ def refine_pose(
             t = t / np.linalg.norm(t)
         return r, t
 
+    def cross(t: FArray, g: FArray) -> FArray:  # np.cross(t, g) for one t, spelt out (its per-call cost dominated)
+        return np.stack(
+            [t[1] * g[:, 2] - t[2] * g[:, 1], t[2] * g[:, 0] - t[0] * g[:, 2], t[0] * g[:, 1] - t[1] * g[:, 0]], axis=1
+        )
+
     def residuals(x: FArray) -> FArray:
         r, t = pose(x)
         g = f1 @ r.T
-        n1 = np.cross(t, g)  # normal of the epipolar plane of f1 in view 2
-        n2 = np.cross(t, f2)
+        n1 = cross(t, g)  # normal of the epipolar plane of f1 in view 2
+        n2 = cross(t, f2)
         num = np.einsum("ni,ni->n", f2, n1)
         return np.concatenate([num / np.maximum(np.linalg.norm(n1, axis=1), 1e-12),
                                num / np.maximum(np.linalg.norm(n2, axis=1), 1e-12)])  # fmt: skip
@@ -374,8 +419,14 @@ def refine_pose(
 
 def _samples(rng: np.random.Generator, m: int, k: int, size: int) -> IArray:
     """``size`` random index sets of ``k`` distinct matches among ``m``, shape ``(size, k)``."""
-    # argsort of random keys: distinct indices per row
-    return np.argsort(rng.random((size, m)), axis=1)[:, :k].astype(np.int64)
+    # the k smallest of m random keys, in increasing order of key: distinct indices per row (the
+    # partition first: the order of a full argsort without sorting all m keys)
+    keys = rng.random((size, m))
+    if k >= m:
+        return np.argsort(keys, axis=1)[:, :k].astype(np.int64)
+    part = np.argpartition(keys, k - 1, axis=1)[:, :k]
+    order = np.argsort(np.take_along_axis(keys, part, axis=1), axis=1)
+    return np.take_along_axis(part, order, axis=1).astype(np.int64)
 
 
 def ransac_pose(
@@ -446,14 +497,14 @@ def ransac_pose(
         es = solve(f1[idx], f2[idx])  # (size, 3, 3)
         drawn += size
         if probe is not None:  # many matches: hypotheses ranked on a fixed subset, the best one counted on all
-            j = int(np.argmax((epipolar_errors(es, f1[probe], f2[probe]) < threshold).sum(axis=1)))
-            count_j = int((epipolar_errors(es[j], f1, f2) < threshold).sum())
+            j = int(np.argmax(inlier_mask(es, f1[probe], f2[probe], threshold).sum(axis=1)))
+            count_j = int(inlier_mask(es[j], f1, f2, threshold).sum())
             if count_j <= best_count:
                 continue
             counts = np.zeros(size, dtype=np.int64)
             counts[j] = count_j
         else:
-            counts = (epipolar_errors(es, f1, f2) < threshold).sum(axis=1)
+            counts = inlier_mask(es, f1, f2, threshold).sum(axis=1)
             j = int(np.argmax(counts))
         if counts[j] <= best_count:
             continue
@@ -466,7 +517,7 @@ def ransac_pose(
             needed = 0
         elif p_good > 0.0:
             needed = math.ceil(math.log(1.0 - confidence) / math.log1p(-p_good))
-    inl = epipolar_errors(best_e, f1, f2) < threshold
+    inl = inlier_mask(best_e, f1, f2, threshold)
     r, t = decompose_essential(best_e, f1[inl], f2[inl])
     if model == "upright":  # exactly about z (the decomposition of an upright E is, up to round-off)
         r = rotation_about_z(heading_of_rotation(r))

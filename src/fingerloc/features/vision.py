@@ -43,11 +43,13 @@ from ..errors import InvalidParameterError
 from ..observation import FULL_FOV, Observation
 from ..sensors import Panorama, Scan
 from ._params import _check_positive, _from_kwargs
+from ._vision_kernels import edge_columns, edge_inputs
 from .appearance import (
     APPEARANCE_VERSIONS,
     PROFILE_CHANNELS,
     PROFILE_DECIMALS,
     AppearanceParams,
+    appearance_and_profile,
     appearance_descriptor,
     column_profile,
     profile_correlation,
@@ -260,15 +262,35 @@ class EdgeParams:
             raise InvalidParameterError(f"min_support must be in (0, 1], got {self.min_support!r}")
 
 
-def _smooth_cols(a: FArray, sigma: float) -> tuple[FArray, float]:
-    """Gaussian smoothing along the columns (circular) and the gain that restores a step's height.
+def _gauss_taps(sigma: float) -> FArray:
+    """The taps of :func:`scipy.ndimage.gaussian_filter1d` (truncated at 4 sigma), shape (2 r + 1,)."""
+    r = int(4.0 * sigma + 0.5)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    k = np.exp(-0.5 / (sigma * sigma) * x * x)
+    return np.asarray(k / k.sum())
 
-    A step of height ``A`` gives a forward difference of ``A erf(1 / (2 sqrt(2) sigma))`` after
-    smoothing; multiplying by the returned gain makes it ``A`` again.
+
+def _smooth(a: FArray, sigma: float, sigma_rows: float) -> tuple[FArray, float]:
+    """Gaussian smoothing along the columns (circular, ``sigma``) and the rows (``sigma_rows``, edge
+    rows repeated) in one OpenCV pass, and the gain that restores a step's
+    height: a step of height ``A`` gives a forward difference of ``A erf(1 / (2 sqrt(2) sigma))``
+    after the column smoothing; multiplied by the gain it is ``A`` again.
+
+    The same filters as :func:`scipy.ndimage.gaussian_filter1d` (``mode="wrap"``, then
+    ``"nearest"``), summed in a different order (a last-bit difference).
     """
-    if sigma <= 0:
+    import cv2
+
+    if sigma <= 0 and sigma_rows <= 0:
         return a, 1.0
-    return ndimage.gaussian_filter1d(a, sigma, axis=1, mode="wrap"), 1.0 / math.erf(0.5 / (np.sqrt(2.0) * sigma))
+    kx = _gauss_taps(sigma) if sigma > 0 else np.ones(1)
+    ky = _gauss_taps(sigma_rows) if sigma_rows > 0 else np.ones(1)
+    r = kx.size // 2
+    w = a.shape[1]
+    idx = np.arange(-r, w + r) % w
+    out = cv2.sepFilter2D(np.ascontiguousarray(a[:, idx]), cv2.CV_64F, kx, ky, borderType=cv2.BORDER_REPLICATE)
+    gain = 1.0 / math.erf(0.5 / (np.sqrt(2.0) * sigma)) if sigma > 0 else 1.0
+    return np.asarray(out[:, r : r + w]), gain
 
 
 def _slant_cols(p: EdgeParams, w: int) -> int:
@@ -277,54 +299,30 @@ def _slant_cols(p: EdgeParams, w: int) -> int:
 
 def _edge_support(pano: Panorama, p: EdgeParams) -> tuple[FArray, FArray]:
     """Edge score of each column boundary (>= 1: an edge) and its mean gradient strength."""
-    img = pano.image.astype(np.float64)
-    h, w, _ = img.shape
-    scale = w / 720.0
-    lum = img @ np.array([0.299, 0.587, 0.114])
-    loglum = np.log(lum + 0.02)
-    tot = img.sum(axis=2) + 0.06
-    chrom = img[:, :, :2] / tot[:, :, None]
-    # chroma is smoothed twice as much: cameras and JPEG sample it at half resolution
-    sigma = p.smooth_px * max(scale, 0.5)
-    loglum, gl = _smooth_cols(loglum, sigma)
-    chrom, gc = _smooth_cols(chrom, 2.0 * sigma)
-    # vertical edges are vertical: averaging along the elevation removes pixel and JPEG noise
-    # without blurring them
-    if p.vertical_smooth > 0:
-        sv = p.vertical_smooth * h
-        loglum = ndimage.gaussian_filter1d(loglum, sv, axis=0, mode="nearest")
-        chrom = ndimage.gaussian_filter1d(chrom, sv, axis=0, mode="nearest")
-    # forward differences, circular: d[:, j] is the change across the boundary between j and j+1
-    dl = gl * (np.roll(loglum, -1, axis=1) - loglum)
-    dc = gc * (np.roll(chrom, -1, axis=1) - chrom)
-    gvec = np.concatenate([dl[:, :, None], p.chroma_weight * dc], axis=2)  # (h, w, 3)
-    # an edge keeps its polarity along the elevation: project each gradient on its column's mean
-    # direction, so that noise (random sign) breaks runs that a real edge keeps
-    mean_dir = gvec.sum(axis=0)
-    mean_dir /= np.maximum(np.linalg.norm(mean_dir, axis=1, keepdims=True), 1e-12)
-    g = np.maximum(np.einsum("hwc,wc->hw", gvec, mean_dir), 0.0)
-    # noise scale per row from the unsigned magnitude: in log units, dark rows (floor) are noisier
-    mag = np.linalg.norm(gvec, axis=2)
-    med = np.median(mag, axis=1, keepdims=True)
-    mad = 1.4826 * np.median(np.abs(mag - med), axis=1, keepdims=True)
-    thr = np.maximum(p.min_contrast, med + p.noise_k * mad)
-    peak = (g >= np.roll(g, 1, axis=1)) & (g >= np.roll(g, -1, axis=1)) & (g > thr)
-    # ringing and block artefacts beside a strong edge (JPEG) are much weaker than that edge
-    near = max(2, round(p.relative_deg / 360.0 * w))
-    peak &= g >= p.relative_min * ndimage.maximum_filter1d(g, 2 * near + 1, axis=1, mode="wrap")
-    slant = _slant_cols(p, w)
-    peak = ndimage.maximum_filter1d(peak, 2 * slant + 1, axis=1, mode="wrap")
-    support = peak.mean(axis=0)
-    # longest vertical run of edge pixels (gaps of a couple of rows bridged), part of the height
-    gap = max(1, round(0.01 * h))
-    filled = ndimage.binary_closing(peak, structure=np.ones((2 * gap + 1, 1), dtype=bool), border_value=0) | peak
-    run = np.zeros(w)
-    best = np.zeros(w)
-    for row in filled:
-        run = (run + 1.0) * row
-        np.maximum(best, run, out=best)
-    extent = best / h
-    strength = np.where(peak, g, 0.0).sum(axis=0) / max(h, 1)
+    h, w = pano.image.shape[:2]
+    loglum, chrom = edge_inputs(np.ascontiguousarray(pano.image))
+    # chroma is smoothed twice as much: cameras and JPEG sample it at half resolution; vertical
+    # edges are vertical: averaging along the elevation removes pixel and JPEG noise without
+    # blurring them
+    sigma = p.smooth_px * max(w / 720.0, 0.5)
+    loglum, gl = _smooth(loglum, sigma, p.vertical_smooth * h)
+    chrom, gc = _smooth(chrom, 2.0 * sigma, p.vertical_smooth * h)
+    # forward differences across column boundaries (circular), projected on each column's mean
+    # direction (an edge keeps its polarity along the elevation, noise does not); per-row noise
+    # thresholds, row maxima, the slant tolerance, gaps bridged along the elevation (compiled)
+    support, extent, strength = edge_columns(
+        np.ascontiguousarray(loglum),
+        np.ascontiguousarray(chrom),
+        float(gl),
+        float(gc),
+        float(p.chroma_weight),
+        float(p.min_contrast),
+        float(p.noise_k),
+        float(p.relative_min),
+        max(2, round(p.relative_deg / 360.0 * w)),
+        _slant_cols(p, w),
+        max(1, round(0.01 * h)),
+    )
     # a column passes with a long unbroken run, or with enough edge rows in all
     score = np.maximum(extent / p.min_extent, support / p.min_support)
     return score, strength
@@ -457,6 +455,20 @@ def _bearing_extent(pano: Any, cols: NDArray[np.int64], w: int) -> tuple[float, 
     return centre, float(np.abs(wrap(cb - centre)).max()) + np.pi / w
 
 
+def _close3(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Binary closing by a 3x3 square, outside the array counting as empty for both steps.
+
+    :func:`scipy.ndimage.binary_closing` with ``structure=np.ones((3, 3))`` (its
+    default ``border_value=0``), through OpenCV's morphology (exact on binary images).
+    """
+    import cv2
+
+    u8 = mask.astype(np.uint8)
+    k = np.ones((3, 3), dtype=np.uint8)
+    grown = cv2.dilate(u8, k, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(cv2.erode(grown, k, borderType=cv2.BORDER_CONSTANT, borderValue=0), dtype=bool)
+
+
 def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
     """Saturated colour regions of a panorama: their bearings and hues.
 
@@ -500,7 +512,7 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         # close pin holes (JPEG, text), circularly in columns; rows keep their border
         padded = np.pad(m, ((1, 1), (2, 2)), mode="wrap")
         padded[0], padded[-1] = padded[1], padded[-2]
-        m = ndimage.binary_closing(padded, structure=np.ones((3, 3)))[1:-1, 2:-2] | m
+        m = _close3(padded)[1:-1, 2:-2] | m
         lab, nlab = ndimage.label(m)
         if nlab == 0:
             continue
@@ -524,7 +536,8 @@ def colour_patches(pano: Panorama, **params: Any) -> tuple[FArray, FArray]:
         regions: list[list[Any]] = []
         flat = lab.ravel()
         counts = np.bincount(flat)
-        order = np.argsort(flat, kind="stable")
+        # stable: pixels of a region in raster order (16-bit labels sort by radix, much faster)
+        order = np.argsort(flat.astype(np.uint16) if nlab < 65536 else flat, kind="stable")
         starts = np.r_[0, np.cumsum(counts)]
         min_pixels = p.min_fill * min_rows * min_cols
         for r in np.flatnonzero(counts):
@@ -692,9 +705,12 @@ def observation_from_views(
     prof: FArray | None = None
     if panorama is not None:
         vf = extract_vision_features(panorama, **e, **c)
-        if appearance:
+        if appearance and profile:  # the band's block means once for both
+            desc, prof = appearance_and_profile(panorama)
+            prof = np.round(prof, PROFILE_DECIMALS)
+        elif appearance:
             desc = appearance_descriptor(panorama)
-        if profile:
+        elif profile:
             prof = np.round(column_profile(panorama), PROFILE_DECIMALS)
         ve, cp, cp_hue = vf.edges, vf.patches, vf.patch_hues
         mp = panorama.meta.get("pose")

@@ -63,6 +63,7 @@ from ..features.keypoints import Keypoints, match_descriptors
 from ..features.sphere import (
     MODELS,
     SAMPLE_SIZE,
+    PoseFit,
     heading_of_rotation,
     ransac_pose,
     refine_pose,
@@ -86,6 +87,10 @@ __all__ = [
 #: Pairs of views whose verification is memoised (process-wide).
 CACHE_SIZE = 400_000
 _CACHE: OrderedDict[tuple[Any, ...], PairCheck] = OrderedDict()
+#: The matches and RANSAC fits of the last pairs verified without refinement (query first), so that a
+#: heading refines its view's rotation without matching again.
+_FITS_SIZE = 256
+_FITS: OrderedDict[tuple[Any, ...], tuple[PairCheck, IArray, PoseFit | None]] = OrderedDict()
 #: Most inliers the rotation is refined on (evenly spread among them).
 REFINE_MAX = 100
 #: Seed of every RANSAC (the same pair gives the same answer).
@@ -95,6 +100,7 @@ _SEED = 0
 def clear_pair_cache() -> None:
     """Forget every memoised pair verification (a new process starts without them)."""
     _CACHE.clear()
+    _FITS.clear()
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,10 +174,27 @@ def check_pair(
         refined on them by :func:`fingerloc.features.sphere.refine_pose`
         (None: never; at most :data:`REFINE_MAX` of them, evenly spread); the inliers stay the RANSAC's.
     """
+    check, m, fit = _verify(unit_a, vec_a, unit_b, vec_b, ratio=ratio, model=model, threshold_deg=threshold_deg,
+                            max_iter=max_iter)  # fmt: skip
+    return _refined(check, m, fit, vec_a, vec_b, model, refine_min_inliers)
+
+
+def _verify(
+    unit_a: NDArray[np.float32],
+    vec_a: FArray,
+    unit_b: NDArray[np.float32],
+    vec_b: FArray,
+    *,
+    ratio: float,
+    model: str,
+    threshold_deg: float,
+    max_iter: int | None,
+) -> tuple[PairCheck, IArray, PoseFit | None]:
+    """:func:`check_pair` without the refinement: the check, the matches ``(m, 2)`` and the RANSAC's fit (or None)."""
     m = match_descriptors(unit_a, unit_b, ratio=ratio)
     k = SAMPLE_SIZE[model]
     if len(m) < k:
-        return PairCheck(len(m), 0, math.nan, math.nan)
+        return PairCheck(len(m), 0, math.nan, math.nan), m, None
     it = max_iter if max_iter is not None else 300
     fit = ransac_pose(
         vec_a[m[:, 0]],
@@ -182,14 +205,23 @@ def check_pair(
         seed=_SEED,
     )
     if fit is None:
-        return PairCheck(len(m), 0, math.nan, math.nan)
+        return PairCheck(len(m), 0, math.nan, math.nan), m, None
     rot = fit.rotation
-    if refine_min_inliers is not None and fit.n_inliers >= max(refine_min_inliers, k):
-        sel = m[fit.inliers]
-        if len(sel) > REFINE_MAX:  # a spread subset bounds the cost (many inliers pin the rotation anyway)
-            sel = sel[np.linspace(0, len(sel) - 1, REFINE_MAX).round().astype(np.int64)]
-        rot, _ = refine_pose(vec_a[sel[:, 0]], vec_b[sel[:, 1]], fit.rotation, fit.translation, model=model)  # type: ignore[arg-type]
-    return PairCheck(len(m), fit.n_inliers, heading_of_rotation(rot), tilt_of_rotation(rot))
+    return PairCheck(len(m), fit.n_inliers, heading_of_rotation(rot), tilt_of_rotation(rot)), m, fit
+
+
+def _refined(
+    check: PairCheck, m: IArray, fit: PoseFit | None, vec_a: FArray, vec_b: FArray, model: str,
+    refine_min_inliers: int | None,
+) -> PairCheck:  # fmt: skip
+    """``check`` with the rotation refined on the fit's inliers (:func:`check_pair`'s ``refine_min_inliers``)."""
+    if fit is None or refine_min_inliers is None or fit.n_inliers < max(refine_min_inliers, SAMPLE_SIZE[model]):
+        return check
+    sel = m[fit.inliers]
+    if len(sel) > REFINE_MAX:  # a spread subset bounds the cost (many inliers pin the rotation anyway)
+        sel = sel[np.linspace(0, len(sel) - 1, REFINE_MAX).round().astype(np.int64)]
+    rot, _ = refine_pose(vec_a[sel[:, 0]], vec_b[sel[:, 1]], fit.rotation, fit.translation, model=model)  # type: ignore[arg-type]
+    return PairCheck(check.matches, check.inliers, heading_of_rotation(rot), tilt_of_rotation(rot))
 
 
 def keypoint_distance(inliers: FArray | IArray, n_query: int, n_ref: FArray | IArray) -> FArray:
@@ -330,11 +362,11 @@ class KeypointTerm(IndexedTerm[_View]):
         The relative-pose model; ``"auto"`` chooses it on the training views.
     max_tilt_deg : float, default 1.0
         ``"auto"``: the median tilt above which the general model is used.
-    shortlist : int, default 10
+    shortlist : int, default 8
         With more stored views than ``shortlist + shortlist_appearance``, only
         the ``shortlist`` best-ranked by the bag of words are verified, with
         the ``shortlist_appearance`` nearest by appearance (0 and 0: verify every view).
-    shortlist_appearance : int, default 10
+    shortlist_appearance : int, default 5
         Views nearest to the query by their appearance descriptors (L1) added
         to the shortlist (when the query and every stored view carry one).
     min_inliers : int, default 8
@@ -368,8 +400,8 @@ class KeypointTerm(IndexedTerm[_View]):
         threshold_deg: float = 0.6,
         model: str = "auto",
         max_tilt_deg: float = 1.0,
-        shortlist: int = 10,
-        shortlist_appearance: int = 10,
+        shortlist: int = 8,
+        shortlist_appearance: int = 5,
         min_inliers: int = 8,
         max_queries: int = 200,
     ) -> None:
@@ -497,8 +529,12 @@ class KeypointTerm(IndexedTerm[_View]):
             return np.arange(n, dtype=np.int64)
         return np.unique(np.concatenate(picked)).astype(np.int64)
 
-    def checks(self, query: Keypoints, views: IArray | None = None) -> list[PairCheck]:
-        """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised)."""
+    def checks(self, query: Keypoints, views: IArray | None = None, *, refine: bool = True) -> list[PairCheck]:
+        """:class:`PairCheck` of ``query`` against the stored views ``views`` (default: every stored view; memoised).
+
+        ``refine``: headings from the rotation refined on the inliers (:func:`check_pair`); False
+        skips that refinement (the inliers and matches are the same; what the likelihood needs).
+        """
         self._check_fitted()
         if query.dim != self.dim_ and len(query) and len(self._units):
             raise InvalidParameterError(
@@ -511,14 +547,29 @@ class KeypointTerm(IndexedTerm[_View]):
         out: list[PairCheck] = []
         for v in idx:
             dr = self._digests[int(v)]
-            key = (dq, dr, *params) if dq <= dr else (dr, dq, *params)
+            pair = (dq, dr) if dq <= dr else (dr, dq)
+            key = (*pair, *params, True)
             got = _CACHE.get(key)
+            if got is None and not refine:
+                key = (*pair, *params, False)
+                got = _CACHE.get(key)
             if got is None:
                 if uq is None:
                     uq, vq = query.unit_descriptors(), query.vectors()
                 assert vq is not None
-                got = check_pair(uq, vq, self._units[int(v)], self._vecs[int(v)], ratio=float(self.ratio),
-                                 model=self.model_, threshold_deg=float(self.threshold_deg))  # fmt: skip
+                ordered = (dq, dr, *params)
+                kept = _FITS.get(ordered) if refine else None
+                if kept is not None:  # verified without refinement: refine that fit
+                    got = _refined(*kept, vq, self._vecs[int(v)], self.model_, 8)
+                else:
+                    got, m, fit = _verify(uq, vq, self._units[int(v)], self._vecs[int(v)], ratio=float(self.ratio),
+                                          model=self.model_, threshold_deg=float(self.threshold_deg), max_iter=None)  # fmt: skip
+                    if refine:
+                        got = _refined(got, m, fit, vq, self._vecs[int(v)], self.model_, 8)
+                    else:
+                        _FITS[ordered] = (got, m, fit)
+                        while len(_FITS) > _FITS_SIZE:
+                            _FITS.popitem(last=False)
                 _CACHE[key] = got if dq <= dr else got.swapped()
                 while len(_CACHE) > CACHE_SIZE:
                     _CACHE.popitem(last=False)
@@ -531,7 +582,7 @@ class KeypointTerm(IndexedTerm[_View]):
         """Verified inliers of ``query`` against every stored view, shape ``(m,)`` (0 outside the shortlist)."""
         cand = self.candidates(query, appearance)
         out = np.zeros(len(self._units), dtype=np.int64)
-        out[cand] = [c.inliers for c in self.checks(query, cand)]
+        out[cand] = [c.inliers for c in self.checks(query, cand, refine=False)]
         return out
 
     def _view_distances(self, query: _View) -> FArray:
@@ -559,9 +610,9 @@ class KeypointTerm(IndexedTerm[_View]):
         # the views the likelihood verified (its memo answers at once); every view of the place if none of them was
         short = np.intersect1d(sel, self.candidates(f.kp, f.app))
         sel = short if short.size else sel
-        checks = self.checks(f.kp, sel)
+        checks = self.checks(f.kp, sel, refine=False)
         k = int(np.argmax([c.inliers for c in checks]))
-        best = checks[k]
+        best = self.checks(f.kp, sel[k : k + 1])[0]  # the rotation refined for this view only
         view = int(self.view_[sel[k]])
         if best.inliers < max(1, int(self.min_inliers)) or not math.isfinite(best.heading):
             return None, view, best.inliers
