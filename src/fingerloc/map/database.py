@@ -775,6 +775,9 @@ def _open(path: str | Path) -> Iterator[sqlite3.Connection]:
 
 _VERIFIED: dict[tuple[str, int, int, int, tuple[str, ...]], bool] = {}
 
+#: Observation rows read from the database and decoded at a time (their records are then let go).
+LOAD_CHUNK_ROWS = 20_000
+
 #: The tables each reader hands on (their digests are checked after the reader's own checks).
 _MODEL_TABLES = ("meta", "places", "observations", "fingerprints", "mixtures", "range_descriptors")
 _INFO_TABLES = ("meta", "place_positions", "content_hashes")
@@ -885,7 +888,17 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
             "SELECT o.place_id, o.data, o.source, f.letters, f.bearings FROM observations o "
             "LEFT JOIN fingerprints f ON f.obs_id = o.id ORDER BY o.place_id, o.idx"
         )
-    pending: list[tuple[int, Any, Any]] = []  # schema 3+: (place, record, source), decoded together below
+    pending: list[tuple[int, Any, Any]] = []  # schema 3+: (place, record, source), decoded a chunk at a time
+
+    def decode_pending() -> None:
+        try:
+            decoded = decode_rows([r for _, r, _ in pending], [labels[j] for j, _, _ in pending], [s for _, _, s in pending], default_fov=default_fov)
+        except DatabaseError as err:
+            raise DatabaseError(f"{path}: {err}") from err
+        for (j, _, _), obs in zip(pending, decoded, strict=True):
+            observations[j].append(obs)
+        pending.clear()  # the chunk's records go: the rows stream, only the observations stay
+
     for pid, record, source, letters, bearings in con.execute(q):
         if pid not in index:
             raise DatabaseError(f"{path}: an observation row names place id {pid!r}, which the database does not hold")
@@ -901,14 +914,11 @@ def _load(con: sqlite3.Connection, path: str | Path) -> PlaceModel:
             observations[index[pid]].append(obs)
         else:
             pending.append((index[pid], record, source))
+            if len(pending) >= LOAD_CHUNK_ROWS:
+                decode_pending()
         fingerprints[index[pid]].append(None if letters is None else (letters, _array(bearings)))
     if pending:
-        try:
-            decoded = decode_rows([r for _, r, _ in pending], [labels[j] for j, _, _ in pending], [s for _, _, s in pending], default_fov=default_fov)
-        except DatabaseError as err:
-            raise DatabaseError(f"{path}: {err}") from err
-        for (j, _, _), obs in zip(pending, decoded, strict=True):
-            observations[j].append(obs)
+        decode_pending()
     mixtures: dict[str, list[Any]] = {}
     for pid, term, w, m, sg in con.execute("SELECT place_id, term, weights, means, sigmas FROM mixtures"):
         if pid not in index:
