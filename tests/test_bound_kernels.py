@@ -15,6 +15,7 @@ from fingerloc.retrieval import place_layout
 from fingerloc.terms._bound_kernels import (
     NO_VIEW,
     count_place_min,
+    count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
@@ -133,6 +134,11 @@ def test_letter_count_bounds_a_place_are_the_least_over_its_views_and_below_the_
     d = q[None, :] - counts
     per_view = np.maximum.reduce([(np.abs(d) * h2).sum(1), (np.maximum(d, 0) * c2).sum(1), (np.maximum(-d, 0) * c2).sum(1)])
     assert np.array_equal(got, least_per_place(per_view, place_start, per_place, NO_VIEW))
+    # the same in 16-bit lanes from 8-bit counts (its sums fit: short views)
+    counts8 = np.ascontiguousarray(counts.T.astype(np.uint8))
+    narrow = count_place_min_narrow(q.astype(np.int16), counts8, np.arange(N_LETTERS, dtype=np.int64), h2.astype(np.int16), c2.astype(np.int16), place_start, per_place)
+    assert np.array_equal(narrow, got)
+    assert np.array_equal(count_place_min(q, counts8, np.arange(N_LETTERS, dtype=np.int64), h2, c2, place_start, per_place), got)
     if nv:
         qs = "".join(ALPHABET[c] for c in query)
         exact = alignment_costs([qs], strings(codes, off), cyclic=True, costs=cm)[0] * scale

@@ -39,6 +39,7 @@ __all__ = [
     "NO_VIEW",
     "QueryRows",
     "count_place_min",
+    "count_place_min_narrow",
     "cyclic_place_min",
     "exact_l1_place_min",
     "l1_place_min",
@@ -98,6 +99,49 @@ def count_place_min(
     for i in range(nv):
         acc_h[i] = max(acc_h[i], max(acc_p[i], acc_n[i]))
     return _place_min_i32(acc_h, place_start, per_place)
+
+
+@njit(cache=True)
+def count_place_min_narrow(
+    q: NDArray[np.int16],
+    counts_t: NDArray[np.uint8],
+    letters: NDArray[np.int64],
+    h2: NDArray[np.int16],
+    c2: NDArray[np.int16],
+    place_start: NDArray[np.int64],
+    per_place: NDArray[np.int64],
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """:func:`count_place_min` in 16-bit lanes (twice as many a vector), for counts below 256.
+
+    The caller checks that no sum can pass 32767: ``sum_x max(h2[x], c2[x]) max(q[x], most[x])``
+    over ``letters``, ``most[x]`` the largest count of ``x`` in a view, is at most that.
+    """
+    nv = counts_t.shape[1]
+    acc_h = np.zeros(nv, dtype=np.int16)
+    acc_p = np.zeros(nv, dtype=np.int16)
+    acc_n = np.zeros(nv, dtype=np.int16)
+    zero = np.int16(0)
+    for t in range(letters.shape[0]):
+        x = letters[t]
+        qx = q[x]
+        hx = h2[x]
+        cx = c2[x]
+        row = counts_t[x]
+        for i in range(nv):
+            d = np.int16(qx - np.int16(row[i]))
+            pos = max(d, zero)
+            neg = max(np.int16(-d), zero)
+            acc_h[i] = np.int16(acc_h[i] + np.int16(hx * np.int16(pos + neg)))
+            acc_p[i] = np.int16(acc_p[i] + np.int16(cx * pos))
+            acc_n[i] = np.int16(acc_n[i] + np.int16(cx * neg))
+    least = np.empty(place_start.size, dtype=np.int64)
+    for p in range(place_start.size):
+        m = NO_VIEW
+        a = place_start[p]
+        for v in range(a, a + per_place[p]):
+            m = min(m, max(int(acc_h[v]), max(int(acc_p[v]), int(acc_n[v]))))
+        least[p] = m
+    return least
 
 
 @njit(cache=True)

@@ -53,6 +53,7 @@ from ..observation import Observation
 from ._bound_kernels import (
     NO_VIEW,
     count_place_min,
+    count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
@@ -188,8 +189,10 @@ class FingerprintBound(TermBound):
             sc = ints[2]
             h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
             if np.array_equal(h2, np.round(h2)) and np.array_equal(c2, np.round(c2)):
-                self.counts_t = np.ascontiguousarray(counts.T.astype(np.int16))
+                narrow = counts.max(initial=0) < 256 and max(h2.max(initial=0), c2.max(initial=0)) < 256
+                self.counts_t = np.ascontiguousarray(counts.T.astype(np.uint8 if narrow else np.int16))
                 self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
+                self.most = counts.max(axis=0, initial=0)  # the largest count of each letter in a view
         # the semi-global bound: cyclic matching with integer costs, one block (or more) a group
         self.gp = None
         self.codes, self.off = codes, off
@@ -238,7 +241,13 @@ class FingerprintBound(TermBound):
             return self._likelihood(np.where(self.views.per_place > 0, 0.0, np.inf))
         h2, c2, unit = self.weights2
         letters = np.flatnonzero((q > 0) | self.used)
-        least = count_place_min(q, self.counts_t, letters, h2, c2, self.views.place_start, self.views.per_place)
+        wide = np.maximum(h2, c2)[letters].astype(np.int64) @ np.maximum(q[letters], self.most[letters])
+        if self.counts_t.dtype == np.uint8 and wide <= np.iinfo(np.int16).max:  # no sum can pass 16 bits
+            least = count_place_min_narrow(
+                q.astype(np.int16), self.counts_t, letters, h2.astype(np.int16), c2.astype(np.int16), self.views.place_start, self.views.per_place
+            )
+        else:
+            least = count_place_min(q, self.counts_t, letters, h2, c2, self.views.place_start, self.views.per_place)
         out = _scaled(least, unit)
         return self._likelihood(out) if n else out
 
