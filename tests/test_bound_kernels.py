@@ -1,7 +1,6 @@
 """The compiled passes of exact retrieval (fingerloc.terms._bound_kernels) against plain computations."""
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.distance import cdist
@@ -19,6 +18,8 @@ from fingerloc.terms._bound_kernels import (
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
+    letter_counts,
+    place_letter_counts,
     query_rows,
     semiglobal_place_min,
 )
@@ -159,8 +160,8 @@ def test_range_distances_a_place_are_cdists_bit_for_bit(seed, n_places, width):
     got = exact_l1_place_min(q, np.ascontiguousarray(refs), first, per_place, places)
     full = cdist(q[None, :], refs, metric="cityblock")[0] if refs.shape[0] else np.zeros(0)
     assert np.array_equal(got, least_per_place(full, first, per_place, np.inf)[places])
-    # the rounded descriptors' L1 in steps
-    steps = 65535
+    # the rounded descriptors' L1 in steps (as many as a 16-bit sum holds)
+    steps = 65535 // width
     d16 = np.round(refs * steps).astype(np.uint16)
     q16 = np.round(q * steps).astype(np.uint16)
     got16 = l1_place_min(np.ascontiguousarray(d16.T), q16, first, per_place)
@@ -177,5 +178,17 @@ def test_a_query_without_letters_costs_each_view_its_indels():
     assert got[0] == indel8[3] and got[1] == indel8[4] * 2 + indel8[9] and got[2] == NO_VIEW
 
 
-if __name__ == "__main__":  # pragma: no cover
-    pytest.main([__file__])
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_places=st.integers(1, 30))
+def test_letter_counts_of_views_and_places_are_those_of_the_strings(seed, n_places):
+    _, per_place, _, codes, off, _ = random_views(seed, n_places, 3, 12, 9)
+    views = off.size - 1
+    by_view = letter_counts(codes, off, N_LETTERS)
+    assert by_view.shape == (N_LETTERS, views)
+    for v in range(views):
+        assert np.array_equal(by_view[:, v], np.bincount(codes[off[v] : off[v + 1]], minlength=N_LETTERS))
+    by_place = place_letter_counts(codes, off, per_place, N_LETTERS)
+    first = np.cumsum(per_place) - per_place
+    for p in range(n_places):
+        want = by_view[:, first[p] : first[p] + per_place[p]].sum(axis=1)
+        assert np.array_equal(by_place[p], want.astype(np.float64))

@@ -43,6 +43,8 @@ __all__ = [
     "cyclic_place_min",
     "exact_l1_place_min",
     "l1_place_min",
+    "letter_counts",
+    "place_letter_counts",
     "query_rows",
     "semiglobal_place_min",
 ]
@@ -60,6 +62,30 @@ def _place_min_i32(per_view: NDArray[np.int32], place_start: NDArray[np.int64], 
         for v in range(a, a + per_place[p]):
             m = min(m, per_view[v])
         out[p] = m
+    return out
+
+
+@njit(cache=True)
+def letter_counts(codes: NDArray[np.uint8], off: NDArray[np.int64], n_letters: int) -> NDArray[np.uint16]:  # pragma: no cover - compiled
+    """Occurrences of each letter in each string, shape ``(n_letters, n_strings)`` (strings shorter than 65,536 letters)."""
+    n = off.size - 1
+    out = np.zeros((n_letters, n), dtype=np.uint16)
+    for v in range(n):
+        for i in range(off[v], off[v + 1]):
+            out[codes[i], v] += 1
+    return out
+
+
+@njit(cache=True)
+def place_letter_counts(codes: NDArray[np.uint8], off: NDArray[np.int64], per_place: NDArray[np.int64], n_letters: int) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """Occurrences of each letter in the strings of each place (place ``p`` holds the next ``per_place[p]``), shape ``(P, n_letters)``."""
+    out = np.zeros((per_place.size, n_letters))
+    v = 0
+    for p in range(per_place.size):
+        for _ in range(per_place[p]):
+            for i in range(off[v], off[v + 1]):
+                out[p, codes[i]] += 1.0
+            v += 1
     return out
 
 
@@ -148,15 +174,26 @@ def count_place_min_narrow(
 def l1_place_min(
     desc_t: NDArray[np.uint16], q: NDArray[np.uint16], place_start: NDArray[np.int64], per_place: NDArray[np.int64]
 ) -> NDArray[np.int64]:  # pragma: no cover - compiled
-    """Each place's least ``sum_b |desc_t[b, v] - q[b]|`` over its views (layout order), in steps, shape ``(P,)``."""
+    """Each place's least ``sum_b |desc_t[b, v] - q[b]|`` over its views (layout order), in steps, shape ``(P,)``.
+
+    Summed in 16-bit lanes: every entry at most ``65535 // desc_t.shape[0]`` (the caller's steps), so no sum wraps.
+    """
     nv = desc_t.shape[1]
-    acc = np.zeros(nv, dtype=np.int32)
+    acc = np.zeros(nv, dtype=np.uint16)
     for b in range(desc_t.shape[0]):
         row = desc_t[b]
-        qb = np.int32(q[b])
+        qb = q[b]
         for v in range(nv):
-            acc[v] += abs(np.int32(row[v]) - qb)
-    return _place_min_i32(acc, place_start, per_place)
+            x = row[v]
+            acc[v] = np.uint16(acc[v] + np.uint16(max(x, qb) - min(x, qb)))
+    out = np.empty(place_start.size, dtype=np.int64)
+    for p in range(place_start.size):
+        m = NO_VIEW
+        a = place_start[p]
+        for v in range(a, a + per_place[p]):
+            m = min(m, int(acc[v]))
+        out[p] = m
+    return out
 
 
 @njit(cache=True)

@@ -16,7 +16,8 @@ term              coarse: every place, a few operations a view  fine: the places
                                                                 cyclic cost, 7 % of its work); otherwise
                                                                 the exact cost
 ``R``             the L1 distance to each view, its descriptor  (none finer)
-                  rounded to 1/65535 (less 41/131070 + 1e-9)
+                  rounded to 1/(65535 // bins) (less bins/steps
+                  + 2e-9, both roundings)
 mixtures, others  the exact log-likelihood of every place       (none finer)
 ================  ============================================  ==========================================
 
@@ -35,8 +36,8 @@ counts each difference is the distance to the box.
 
 Every bound is a float at most the term's own value, rounding included (the
 count and semi-global bounds are exact sums of the costs' dyadic fractions;
-the range bound, summed in float32 in another order, is lowered by 1e-4,
-far more than its rounding); the likelihood forms ``-lambda d`` and
+the range bound sums whole steps exactly and is lowered by the most both
+roundings can move it, plus 2e-9); the likelihood forms ``-lambda d`` and
 ``-log(1 + d)`` are monotone in floating point too, so a lower bound on
 ``d`` is an upper bound on the log-likelihood.
 """
@@ -57,6 +58,7 @@ from ._bound_kernels import (
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
+    letter_counts,
     query_rows,
     semiglobal_place_min,
 )
@@ -66,8 +68,10 @@ from .range import RangeTerm
 
 __all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for", "has_bound"]
 
-#: Steps of a range descriptor entry (in [0, 1]) in the coarse bound.
+#: Most steps of a range descriptor entry (in [0, 1]) in the coarse bound, all bins together.
 _RANGE_STEPS = 65535
+#: Views converted at a time when a bound is built (bounded temporary memory).
+_CHUNK_VIEWS = 1 << 15
 
 
 @dataclass(frozen=True, slots=True)
@@ -176,23 +180,24 @@ class FingerprintBound(TermBound):
         self.views = views = _Views(layout, per_place)
         codes, off = encode_many([term._refs[int(r)].letters for r in views.order])
         n_views = off.size - 1
-        counts = np.zeros((n_views, N_LETTERS), dtype=np.int64)
-        np.add.at(counts, (np.repeat(np.arange(n_views), np.diff(off)), codes.astype(np.int64)), 1)
+        counts_t = letter_counts(codes, off, N_LETTERS)  # (letters, views)
+        most = counts_t.max(axis=1, initial=0).astype(np.int64)  # the largest count of each letter in a view
         other = np.where(np.eye(N_LETTERS, dtype=bool), np.inf, cm.substitution).min(axis=1)
         c_weight = np.minimum(cm.indel, other)
         h_weight = np.minimum(cm.indel, other / 2.0)
-        self.used = counts.max(axis=0, initial=0) > 0
+        self.used = most > 0
         self.partial_fov_exact = not term.cyclic  # cropped references: no count bound for a partial field of view
         ints = integer_costs(cm.substitution, cm.indel)
-        self.counts_t = None
-        if ints is not None and counts.max(initial=0) < np.iinfo(np.int16).max:
+        self.counts_t: Any = None  # (letters, views): uint8, or int16 for larger counts or costs
+        if ints is not None and most.max(initial=0) < np.iinfo(np.int16).max:
             sc = ints[2]
             h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
             if np.array_equal(h2, np.round(h2)) and np.array_equal(c2, np.round(c2)):
-                narrow = counts.max(initial=0) < 256 and max(h2.max(initial=0), c2.max(initial=0)) < 256
-                self.counts_t = np.ascontiguousarray(counts.T.astype(np.uint8 if narrow else np.int16))
+                narrow = most.max(initial=0) < 256 and max(h2.max(initial=0), c2.max(initial=0)) < 256
+                self.counts_t = counts_t.astype(np.uint8 if narrow else np.int16)
                 self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
-                self.most = counts.max(axis=0, initial=0)  # the largest count of each letter in a view
+                self.most = most
+        del counts_t
         # the semi-global bound: cyclic matching with integer costs, one block (or more) a group
         self.gp = None
         self.codes, self.off = codes, off
@@ -273,10 +278,16 @@ class RangeBound(TermBound):
         super().__init__(term, layout)
         per_place = np.array([d.shape[0] for d in term.descriptors_], dtype=np.int64)
         self.views = _Views(layout, per_place)
-        desc = np.vstack(term.descriptors_)[self.views.order]
-        # each entry rounded to 1/65535: an L1 distance moves by at most half a step a bin
-        self.desc_t = np.ascontiguousarray(np.round(np.clip(desc, 0.0, 1.0).T * _RANGE_STEPS).astype(np.uint16))
-        self.slack = desc.shape[1] * 0.5 / _RANGE_STEPS + 1e-9
+        refs = term._refs  # every view's descriptor, place after place
+        n_views, width = int(self.views.order.size), int(refs.shape[1])
+        # each entry rounded to 1/steps: an L1 distance moves by at most half a step a bin; steps such that a whole
+        # L1 distance fits 16 bits (the pass sums in 16-bit lanes): 1/1598 for 41 bins
+        self.steps = max(1, _RANGE_STEPS // max(width, 1))
+        self.desc_t = np.empty((width, n_views), dtype=np.uint16)
+        for a in range(0, n_views, _CHUNK_VIEWS):  # in chunks: no float64 copy of every descriptor at once
+            part = refs[self.views.order[a : a + _CHUNK_VIEWS]]
+            self.desc_t[:, a : a + part.shape[0]] = np.round(np.clip(part, 0.0, 1.0) * self.steps).T
+        self.slack = width * 0.5 / self.steps + 1e-9
         self.first = (np.cumsum(per_place) - per_place).astype(np.int64)  # first row of each place in ``term._refs``
 
     def prepare(self, obs: Observation) -> tuple[Observation, FArray | None]:
@@ -295,8 +306,8 @@ class RangeBound(TermBound):
         q = query[1]
         if q is None:
             return np.zeros(self.views.per_place.size)
-        q16 = np.round(np.clip(q, 0.0, 1.0) * _RANGE_STEPS).astype(np.uint16)
-        d = _scaled(l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place), _RANGE_STEPS)
+        q16 = np.round(np.clip(q, 0.0, 1.0) * self.steps).astype(np.uint16)
+        d = _scaled(l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place), self.steps)
         d = np.maximum(d - 2.0 * self.slack, 0.0)  # both the view's and the query's rounding
         return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
 
