@@ -1,6 +1,7 @@
 """The compiled passes of exact retrieval (fingerloc.terms._bound_kernels) against plain computations."""
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.distance import cdist
@@ -21,7 +22,9 @@ from fingerloc.terms._bound_kernels import (
     letter_counts,
     place_letter_counts,
     query_rows,
+    scaled,
     semiglobal_place_min,
+    unscored_mass,
 )
 
 COSTS = {"unit": CostModel(), "feature": CostModel.feature_aware()}
@@ -192,3 +195,17 @@ def test_letter_counts_of_views_and_places_are_those_of_the_strings(seed, n_plac
     for p in range(n_places):
         want = by_view[:, first[p] : first[p] + per_place[p]].sum(axis=1)
         assert np.array_equal(by_place[p], want.astype(np.float64))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(0, 200))
+def test_scaled_values_and_the_unscored_mass_are_numpys(seed, n):
+    rng = np.random.default_rng(seed)
+    least = rng.integers(0, 5000, n).astype(np.int64)
+    least[rng.random(n) < 0.2] = NO_VIEW
+    got = scaled(least, 8.0)
+    assert np.array_equal(got, np.where(least == NO_VIEW, np.inf, least / 8.0))
+    ub = rng.normal(-30.0, 10.0, n)
+    level = rng.integers(1, 4, n).astype(np.int8)
+    want = np.exp(ub[level < 3] - 5.0).sum()
+    assert unscored_mass(ub, level, 5.0) == pytest.approx(want, rel=1e-12, abs=0.0)

@@ -55,7 +55,7 @@ import numpy as np
 from ._types import FArray, IArray
 from .errors import InvalidParameterError
 from .observation import Observation
-from .terms._bound_kernels import place_letter_counts
+from .terms._bound_kernels import place_letter_counts, unscored_mass
 from .terms.bounds import DenseBound, PlaceLayout, TermBound, bound_for, has_bound
 from .terms.fingerprint import FingerprintTerm
 from .terms.range import RangeTerm
@@ -395,7 +395,14 @@ class _Search:
         return _finish(all_p, self.joint, k, self._mass(), self.true_col)
 
     def _mass(self) -> float:
-        return _mass(self.joint, self.ub[self.level < 3])
+        """:func:`_mass` of the scored places and the bounds of the others (their sum in one compiled pass)."""
+        j = self.joint
+        if j.size == 0:
+            return math.inf
+        top = float(np.max(j))
+        if not math.isfinite(top):
+            return _mass(j, self.ub[self.level < 3])
+        return unscored_mass(self.ub, self.level, top) / float(np.exp(j - top).sum())
 
     def _needed(self) -> tuple[IArray, int]:
         """Places not scored, most mass first, and how many of them hold more than ``tol`` of the posterior (bounds)."""

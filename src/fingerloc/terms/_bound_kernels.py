@@ -46,11 +46,32 @@ __all__ = [
     "letter_counts",
     "place_letter_counts",
     "query_rows",
+    "scaled",
     "semiglobal_place_min",
+    "unscored_mass",
 ]
 
 #: The value of a place without views in the integer passes (larger than any bound or cost).
 NO_VIEW = np.iinfo(np.int32).max
+
+
+@njit(cache=True)
+def scaled(least: NDArray[np.int64], unit: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """``least / unit`` (the integer passes' values in cost units), ``inf`` where ``least`` is :data:`NO_VIEW`."""
+    out = np.empty(least.size)
+    for i in range(least.size):
+        out[i] = np.inf if least[i] == NO_VIEW else least[i] / unit
+    return out
+
+
+@njit(cache=True)
+def unscored_mass(ub: NDArray[np.float64], level: NDArray[np.int8], top: float) -> float:  # pragma: no cover - compiled
+    """``sum(exp(ub[i] - top))`` over the places not scored (``level[i] < 3``)."""
+    total = 0.0
+    for i in range(ub.size):
+        if level[i] < 3:
+            total += np.exp(ub[i] - top)
+    return total
 
 
 @njit(cache=True)

@@ -52,7 +52,6 @@ import numpy as np
 from .._types import FArray, IArray
 from ..observation import Observation
 from ._bound_kernels import (
-    NO_VIEW,
     count_place_min,
     count_place_min_narrow,
     cyclic_place_min,
@@ -60,6 +59,7 @@ from ._bound_kernels import (
     l1_place_min,
     letter_counts,
     query_rows,
+    scaled,
     semiglobal_place_min,
 )
 from .base import Term
@@ -314,9 +314,7 @@ class RangeBound(TermBound):
 
 def _scaled(least: IArray, unit: float) -> FArray:
     """Integer least values a place (:mod:`._bound_kernels`) divided by ``unit``; inf for a place without views."""
-    out = least / unit
-    out[least == NO_VIEW] = np.inf
-    return out
+    return scaled(least, float(unit))
 
 
 def has_bound(term: Term) -> bool:
