@@ -7,7 +7,7 @@ joint log-likelihoods, scoring in full only the places that could matter.
 
 How. The places are put in groups of look-alikes (:func:`place_layout`: a
 recursive split of the places along their most spread feature, the range
-descriptor and the letter counts of their views, into groups of at most 256
+descriptor and the letter counts of their views, into groups of at most 64
 views). For one query, each term gives an upper bound of its
 log-likelihood over a whole group, and a tighter one for each place of a
 group (:mod:`fingerloc.terms.bounds`); their weighted sum bounds the joint
@@ -463,8 +463,8 @@ _FULL_FRACTION = 0.4
 
 #: Places from which :func:`index_for` gives an index, or None: never (``localize`` then scores every place).
 #: None by default: on a campus of 10,000 look-alike laser places (``bench scale``) the exact top 5 through the
-#: index cost 8.9 CPU ms a query against 18.6 for the full scan, but ``localize`` also prints the posterior of
-#: its top places, and the posterior within :data:`POSTERIOR_TOL` through the index cost 24.7 ms (a broad
+#: index cost 6-8 CPU ms a query against 16-21 for the full scan, but ``localize`` also prints the posterior of
+#: its top places, and the posterior within :data:`POSTERIOR_TOL` through the index cost 21-32 ms (a broad
 #: posterior: about half the places must be scored). Set a number of places to have ``localize`` use it.
 INDEX_MIN_PLACES: int | None = None
 #: The posterior tolerance ``localize`` asks of the index: every probability within this of the linear scan's.
