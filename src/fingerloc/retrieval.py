@@ -7,7 +7,7 @@ joint log-likelihoods, scoring in full only the places that could matter.
 
 How. The places are put in groups of look-alikes (:func:`place_layout`: a
 recursive split of the places along their most spread feature, the range
-descriptor and the letter counts of their views, into groups of at most 256
+descriptor and the letter counts of their views, into groups of at most 64
 views). For one query, each term gives an upper bound of its
 log-likelihood over a whole group, and a tighter one for each place of a
 group (:mod:`fingerloc.terms.bounds`); their weighted sum bounds the joint
@@ -55,6 +55,7 @@ import numpy as np
 from ._types import FArray, IArray
 from .errors import InvalidParameterError
 from .observation import Observation
+from .terms._bound_kernels import place_letter_counts, unscored_mass
 from .terms.bounds import DenseBound, PlaceLayout, TermBound, bound_for, has_bound
 from .terms.fingerprint import FingerprintTerm
 from .terms.range import RangeTerm
@@ -155,9 +156,7 @@ def _features(model: Any) -> tuple[FArray, IArray]:
 
             per = np.diff(np.append(t._starts, len(t._refs)))
             codes, off = encode_many([fp.letters for fp in t._refs])
-            owner = np.repeat(np.repeat(np.arange(n_places), per), np.diff(off))  # the place of each letter
-            counts = np.zeros((n_places, N_LETTERS))
-            np.add.at(counts, (owner, codes.astype(np.int64)), 1.0)
+            counts = place_letter_counts(codes, off, per.astype(np.int64), N_LETTERS)
             counts /= np.maximum(per, 1)[:, None]
             scale = w * (t.lambda_ if t.likelihood == "exp" else 0.1)
             cols.append(counts * 0.5 * scale)
@@ -363,10 +362,10 @@ class _Search:
         if self.true_col is not None:  # the truth first: its score bounds what must be scored
             self.score(np.array([self.true_col]))
         # 1. a first threshold: the groups of the places with the best coarse bounds, refined, their best scored
-        m = min(32, ix.n_places)
+        m = min(max(32, _FIRST_SCORED), ix.n_places)
         top = np.argpartition(-self.ub, m - 1)[:m]
         self.refine(ix.group_of[top])
-        self.score(top[np.argsort(-self.ub[top], kind="stable")][: max(2 * k, 16)])
+        self.score(top[np.argsort(-self.ub[top], kind="stable")][: max(2 * k, _FIRST_SCORED)])
         if self.tol is not None and self._needs_most():  # the posterior to tol would score most places anyway
             return None  # every place to be scored: search() does it for such queries together
         # 2. the fine bounds of every group holding a place the coarse bounds keep (whole groups skipped)
@@ -387,8 +386,8 @@ class _Search:
             if coarse.size:  # places whose group was not refined yet (tol)
                 self.refine(ix.group_of[coarse])
                 continue
-            if cand.size > 64:
-                cand_top = cand[np.argpartition(-self.ub[cand], 63)[:64]]
+            if cand.size > _SCORE_BATCH:
+                cand_top = cand[np.argpartition(-self.ub[cand], _SCORE_BATCH - 1)[:_SCORE_BATCH]]
             else:
                 cand_top = cand
             self.score(cand_top)
@@ -396,7 +395,14 @@ class _Search:
         return _finish(all_p, self.joint, k, self._mass(), self.true_col)
 
     def _mass(self) -> float:
-        return _mass(self.joint, self.ub[self.level < 3])
+        """:func:`_mass` of the scored places and the bounds of the others (their sum in one compiled pass)."""
+        j = self.joint
+        if j.size == 0:
+            return math.inf
+        top = float(np.max(j))
+        if not math.isfinite(top):
+            return _mass(j, self.ub[self.level < 3])
+        return unscored_mass(self.ub, self.level, top) / float(np.exp(j - top).sum())
 
     def _needed(self) -> tuple[IArray, int]:
         """Places not scored, most mass first, and how many of them hold more than ``tol`` of the posterior (bounds)."""
@@ -446,14 +452,19 @@ class _Search:
         return False
 
 
+#: Places scored first (the best coarse bounds among the places of the refined groups): the first threshold.
+_FIRST_SCORED = 16
+#: Places scored a step afterwards, best bound first.
+_SCORE_BATCH = 64
+
 #: Places to score for ``tol`` beyond which the linear scan is run instead (a fraction of all places).
 _FULL_FRACTION = 0.4
 
 
 #: Places from which :func:`index_for` gives an index, or None: never (``localize`` then scores every place).
 #: None by default: on a campus of 10,000 look-alike laser places (``bench scale``) the exact top 5 through the
-#: index cost 8.9 CPU ms a query against 18.6 for the full scan, but ``localize`` also prints the posterior of
-#: its top places, and the posterior within :data:`POSTERIOR_TOL` through the index cost 24.7 ms (a broad
+#: index cost 6-8 CPU ms a query against 16-21 for the full scan, but ``localize`` also prints the posterior of
+#: its top places, and the posterior within :data:`POSTERIOR_TOL` through the index cost 21-32 ms (a broad
 #: posterior: about half the places must be scored). Set a number of places to have ``localize`` use it.
 INDEX_MIN_PLACES: int | None = None
 #: The posterior tolerance ``localize`` asks of the index: every probability within this of the linear scan's.
@@ -494,7 +505,7 @@ def index_for(model: Any, *, min_places: int | None = None) -> PlaceIndex | None
 
 
 #: Queries scored against every place in one call of ``model.joint_log_likelihood``.
-_FULL_BATCH = 64
+_FULL_BATCH = 16
 
 
 def _put(res: SearchResult, i: int, one: tuple[IArray, FArray, FArray, float, int, int]) -> None:

@@ -16,7 +16,8 @@ term              coarse: every place, a few operations a view  fine: the places
                                                                 cyclic cost, 7 % of its work); otherwise
                                                                 the exact cost
 ``R``             the L1 distance to each view, its descriptor  (none finer)
-                  rounded to 1/65535 (less 41/131070 + 1e-9)
+                  rounded to 1/(65535 // bins) (less bins/steps
+                  + 2e-9, both roundings)
 mixtures, others  the exact log-likelihood of every place       (none finer)
 ================  ============================================  ==========================================
 
@@ -35,8 +36,8 @@ counts each difference is the distance to the box.
 
 Every bound is a float at most the term's own value, rounding included (the
 count and semi-global bounds are exact sums of the costs' dyadic fractions;
-the range bound, summed in float32 in another order, is lowered by 1e-4,
-far more than its rounding); the likelihood forms ``-lambda d`` and
+the range bound sums whole steps exactly and is lowered by the most both
+roundings can move it, plus 2e-9); the likelihood forms ``-lambda d`` and
 ``-log(1 + d)`` are monotone in floating point too, so a lower bound on
 ``d`` is an upper bound on the log-likelihood.
 """
@@ -47,19 +48,30 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
-from numpy.typing import NDArray
 
 from .._types import FArray, IArray
 from ..observation import Observation
+from ._bound_kernels import (
+    count_place_min,
+    count_place_min_narrow,
+    cyclic_place_min,
+    exact_l1_place_min,
+    l1_place_min,
+    letter_counts,
+    query_rows,
+    scaled,
+    semiglobal_place_min,
+)
 from .base import Term
 from .fingerprint import FingerprintTerm
 from .range import RangeTerm
 
 __all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for", "has_bound"]
 
-#: Steps of a range descriptor entry (in [0, 1]) in the coarse bound.
+#: Most steps of a range descriptor entry (in [0, 1]) in the coarse bound, all bins together.
 _RANGE_STEPS = 65535
+#: Views converted at a time when a bound is built (bounded temporary memory).
+_CHUNK_VIEWS = 1 << 15
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,7 +147,7 @@ class DenseBound(TermBound):
 
 
 class _Views:
-    """A term's views in layout order: where each place's views start, and the least over them."""
+    """A term's views in layout order: where each place's views start."""
 
     def __init__(self, layout: PlaceLayout, per_place: IArray) -> None:
         self.layout = layout
@@ -150,19 +162,6 @@ class _Views:
         #: start of each group's views, (G + 1,)
         self.group_start = np.append(pos, int(n.sum()))[layout.starts]
         self.has = per_place[layout.order] > 0
-
-    def least(self, per_view: FArray) -> FArray:
-        """Each place's least value over its views (``per_view`` in layout order), shape ``(P,)``; inf without views."""
-        return _segment_min(np.asarray(per_view, dtype=np.float64), self.place_start, self.per_place)
-
-    def least_in(self, per_view: FArray, groups: IArray) -> FArray:
-        """The same for the places of ``groups`` (``per_view``: their views, group after group)."""
-        g = np.asarray(groups, dtype=np.int64)
-        places = self.layout.places_of(g)
-        n_views = self.group_start[g + 1] - self.group_start[g]
-        offs = np.cumsum(n_views) - n_views
-        pstart = self.place_start[places] - np.repeat(self.group_start[g] - offs, self.layout.sizes()[g])
-        return _segment_min(np.asarray(per_view, dtype=np.float64), pstart, self.per_place[places])
 
 
 class FingerprintBound(TermBound):
@@ -181,21 +180,24 @@ class FingerprintBound(TermBound):
         self.views = views = _Views(layout, per_place)
         codes, off = encode_many([term._refs[int(r)].letters for r in views.order])
         n_views = off.size - 1
-        counts = np.zeros((n_views, N_LETTERS), dtype=np.int64)
-        np.add.at(counts, (np.repeat(np.arange(n_views), np.diff(off)), codes.astype(np.int64)), 1)
+        counts_t = letter_counts(codes, off, N_LETTERS)  # (letters, views)
+        most = counts_t.max(axis=1, initial=0).astype(np.int64)  # the largest count of each letter in a view
         other = np.where(np.eye(N_LETTERS, dtype=bool), np.inf, cm.substitution).min(axis=1)
         c_weight = np.minimum(cm.indel, other)
         h_weight = np.minimum(cm.indel, other / 2.0)
-        self.used = counts.max(axis=0, initial=0) > 0
+        self.used = most > 0
         self.partial_fov_exact = not term.cyclic  # cropped references: no count bound for a partial field of view
         ints = integer_costs(cm.substitution, cm.indel)
-        self.counts_t = None
-        if ints is not None and counts.max(initial=0) < np.iinfo(np.int16).max:
+        self.counts_t: Any = None  # (letters, views): uint8, or int16 for larger counts or costs
+        if ints is not None and most.max(initial=0) < np.iinfo(np.int16).max:
             sc = ints[2]
             h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
             if np.array_equal(h2, np.round(h2)) and np.array_equal(c2, np.round(c2)):
-                self.counts_t = np.ascontiguousarray(counts.T.astype(np.int16))
+                narrow = most.max(initial=0) < 256 and max(h2.max(initial=0), c2.max(initial=0)) < 256
+                self.counts_t = counts_t.astype(np.uint8 if narrow else np.int16)
                 self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
+                self.most = most
+        del counts_t
         # the semi-global bound: cyclic matching with integer costs, one block (or more) a group
         self.gp = None
         self.codes, self.off = codes, off
@@ -222,53 +224,51 @@ class FingerprintBound(TermBound):
         codes = encode(fp.letters)
         q = np.bincount(codes, minlength=N_LETTERS).astype(np.int32)
         partial = self.partial_fov_exact and not any(w >= 2 * np.pi - 1e-12 for _, w in obs.fov)
-        return obs, codes, q, partial, fp
+        rows = None if self.gp is None else query_rows(codes, self.ints[0], self.ints[1])
+        return obs, codes, q, partial, fp, rows
 
     def _likelihood(self, d: FArray) -> FArray:
         return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
 
     def exact(self, query: Any, places: IArray) -> FArray:
-        from ..align._bounds import cyclic_costs_one
-
         term: FingerprintTerm = self.term  # type: ignore[assignment]
         if self.gp is None:
             return self._likelihood(term.distances_at([query[0]], places, fingerprints=[query[4]])[0])
         # cyclic, integer costs: the same exact integers as the term's batch kernel, for these views only
         v = self.views
-        n = v.per_place[places]
-        views = _ranges(v.place_start[places], v.place_start[places] + n)
-        lens = self.off[views + 1] - self.off[views]
-        codes = self.codes[_ranges(self.off[views], self.off[views + 1])]
-        off = np.zeros(views.size + 1, dtype=np.int64)
-        np.cumsum(lens, out=off[1:])
-        sub8, indel8, scale = self.ints
-        cost = cyclic_costs_one(query[1], codes, off, sub8, indel8).astype(np.float64) / scale
-        return self._likelihood(_segment_min(cost, np.cumsum(n) - n, n))
+        least = cyclic_place_min(query[5], self.codes, self.off, v.place_start, v.per_place, np.asarray(places, dtype=np.int64))
+        return self._likelihood(_scaled(least, self.ints[2]))
 
     def coarse(self, query: Any) -> FArray:
-        from ..align._bounds import count_bounds
-
-        _, _, q, partial, _ = query
+        _, _, q, partial, _, _ = query
         n = self.views.per_place.size
         if partial or self.counts_t is None:  # -lambda * 0 and -log(1 + 0): the largest there is
             return self._likelihood(np.where(self.views.per_place > 0, 0.0, np.inf))
         h2, c2, unit = self.weights2
         letters = np.flatnonzero((q > 0) | self.used)
-        lb2 = count_bounds(q, self.counts_t, letters, h2, c2)
-        out = self.views.least(lb2 / unit)
+        wide = np.maximum(h2, c2)[letters].astype(np.int64) @ np.maximum(q[letters], self.most[letters])
+        if self.counts_t.dtype == np.uint8 and wide <= np.iinfo(np.int16).max:  # no sum can pass 16 bits
+            least = count_place_min_narrow(
+                q.astype(np.int16), self.counts_t, letters, h2.astype(np.int16), c2.astype(np.int16), self.views.place_start, self.views.per_place
+            )
+        else:
+            least = count_place_min(q, self.counts_t, letters, h2, c2, self.views.place_start, self.views.per_place)
+        out = _scaled(least, unit)
         return self._likelihood(out) if n else out
 
     def fine(self, query: Any, groups: IArray) -> FArray | None:
-        from ..align._bounds import semiglobal_bounds
-
-        _, codes, _, partial, _ = query
+        _, codes, _, partial, _, _ = query
         if self.gp is None or partial:
             return self.exact(query, self.layout.places_of(groups))
         g = np.asarray(groups, dtype=np.int64)
-        blocks = _ranges(self.group_blocks[g], self.group_blocks[g + 1])
-        lanes = semiglobal_bounds(codes, self.gp, blocks, workers=1)  # one query's blocks: a thread's handoff costs more
-        used = np.arange(lanes.shape[1])[None, :] < (self.block_start[blocks + 1] - self.block_start[blocks])[:, None]
-        return self._likelihood(self.views.least_in(lanes[used] / self.scale, g))
+        gp, v, lay = self.gp, self.views, self.layout
+        n = int(codes.size)
+        aa = np.concatenate([codes, codes[: max(n - 1, 0)]]).astype(np.int64)
+        _, least = semiglobal_place_min(
+            gp.row_of[aa], gp.indel[aa].astype(np.int32), g, self.group_blocks, self.block_start, gp.prof, gp.pstart,
+            gp.block_len, gp.gsum, gp.n_rows, lay.order, lay.starts, v.place_start, v.per_place,
+        )
+        return self._likelihood(_scaled(least, self.scale))
 
 
 class RangeBound(TermBound):
@@ -278,10 +278,17 @@ class RangeBound(TermBound):
         super().__init__(term, layout)
         per_place = np.array([d.shape[0] for d in term.descriptors_], dtype=np.int64)
         self.views = _Views(layout, per_place)
-        desc = np.vstack(term.descriptors_)[self.views.order]
-        # each entry rounded to 1/65535: an L1 distance moves by at most half a step a bin
-        self.desc_t = np.ascontiguousarray(np.round(np.clip(desc, 0.0, 1.0).T * _RANGE_STEPS).astype(np.uint16))
-        self.slack = desc.shape[1] * 0.5 / _RANGE_STEPS + 1e-9
+        refs = term._refs  # every view's descriptor, place after place
+        n_views, width = int(self.views.order.size), int(refs.shape[1])
+        # each entry rounded to 1/steps: an L1 distance moves by at most half a step a bin; steps such that a whole
+        # L1 distance fits 16 bits (the pass sums in 16-bit lanes): 1/1598 for 41 bins
+        self.steps = max(1, _RANGE_STEPS // max(width, 1))
+        self.desc_t = np.empty((width, n_views), dtype=np.uint16)
+        for a in range(0, n_views, _CHUNK_VIEWS):  # in chunks: no float64 copy of every descriptor at once
+            part = refs[self.views.order[a : a + _CHUNK_VIEWS]]
+            self.desc_t[:, a : a + part.shape[0]] = np.round(np.clip(part, 0.0, 1.0) * self.steps).T
+        self.slack = width * 0.5 / self.steps + 1e-9
+        self.first = (np.cumsum(per_place) - per_place).astype(np.int64)  # first row of each place in ``term._refs``
 
     def prepare(self, obs: Observation) -> tuple[Observation, FArray | None]:
         return obs, (None if obs.ranges is None else self.term.descriptor(obs))  # type: ignore[attr-defined]
@@ -289,42 +296,25 @@ class RangeBound(TermBound):
     def exact(self, query: tuple[Observation, FArray | None], places: IArray) -> FArray:
         term: RangeTerm = self.term  # type: ignore[assignment]
         obs, q = query
-        d = term.distances_at([obs], places, descriptors=None if q is None else q[None, :])[0]
+        if q is None:
+            d = term.distances_at([obs], places)[0]
+        else:  # cdist's L1, bin after bin, for these places' views only
+            d = exact_l1_place_min(q, term._refs, self.first, self.views.per_place, np.asarray(places, dtype=np.int64))
         return np.asarray(term._likelihood_of(d))
 
     def coarse(self, query: tuple[Observation, FArray | None]) -> FArray:
         q = query[1]
         if q is None:
             return np.zeros(self.views.per_place.size)
-        q16 = np.round(np.clip(q, 0.0, 1.0) * _RANGE_STEPS).astype(np.uint16)
-        d = _l1_columns(self.desc_t, q16).astype(np.float64) / _RANGE_STEPS
+        q16 = np.round(np.clip(q, 0.0, 1.0) * self.steps).astype(np.uint16)
+        d = _scaled(l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place), self.steps)
         d = np.maximum(d - 2.0 * self.slack, 0.0)  # both the view's and the query's rounding
-        return np.asarray(self.term._likelihood_of(self.views.least(d)), dtype=np.float64)  # type: ignore[attr-defined]
+        return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
 
 
-@njit(cache=True)
-def _segment_min(values: FArray, starts: IArray, counts: IArray) -> FArray:  # pragma: no cover - compiled
-    """``min(values[starts[i] : starts[i] + counts[i]])`` for each ``i`` (inf for an empty segment)."""
-    out = np.empty(starts.size)
-    for i in range(starts.size):
-        m = np.inf
-        a = starts[i]
-        for j in range(a, a + counts[i]):
-            m = min(m, values[j])
-        out[i] = m
-    return out
-
-
-@njit(cache=True)
-def _l1_columns(desc_t: NDArray[np.uint16], q: NDArray[np.uint16]) -> NDArray[np.int32]:  # pragma: no cover - compiled
-    """``sum_b |desc_t[b, v] - q[b]|`` for every column ``v``, in steps."""
-    out = np.zeros(desc_t.shape[1], dtype=np.int32)
-    for b in range(desc_t.shape[0]):
-        row = desc_t[b]
-        qb = np.int32(q[b])
-        for v in range(out.size):
-            out[v] += abs(np.int32(row[v]) - qb)
-    return out
+def _scaled(least: IArray, unit: float) -> FArray:
+    """Integer least values a place (:mod:`._bound_kernels`) divided by ``unit``; inf for a place without views."""
+    return scaled(least, float(unit))
 
 
 def has_bound(term: Term) -> bool:
