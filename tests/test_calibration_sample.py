@@ -122,3 +122,35 @@ def test_tuning_on_stretches_pools_the_top1_of_separate_runs():
     whole, _ = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, odometry_error=1.0, seed=1)
     one, _ = tune_pose_filter(cal, cfg, centres, g, held, rows, poses, odometry_error=1.0, seed=1, windows=[(0, poses.shape[0])])
     assert one == whole
+
+
+def test_a_long_mapping_part_is_calibrated_on_its_stretches_end_to_end(tmp_path, monkeypatch):
+    """``make_map`` with a mapping part beyond ``max_steps``: only the stretches' views are held out, and the map tracks."""
+    import fingerloc as fl
+    import fingerloc.pipeline.calibrate as calibrate_module
+
+    from ._runs import walk, write_carmen
+
+    run = fl.read_run(write_carmen(tmp_path / "walk-corrected.log", walk(passes=8)))  # 96 steps, 48 mapping
+    seen = []
+    real = calibrate_module.held_out_calibration
+
+    def spy(fit_score, train_idx, labels, n_places, **kw):
+        seen.append((np.asarray(train_idx).copy(), kw.get("scored")))
+        return real(fit_score, train_idx, labels, n_places, **kw)
+
+    monkeypatch.setattr(calibrate_module, "held_out_calibration", spy)
+    whole = fl.make_map(run)
+    sample = fl.make_map(run, Config().with_(calibration={"max_steps": 24, "windows": 2}))
+    assert seen[0][1] is None  # 48 steps <= 1,000: all of it
+    idx, scored = seen[1]
+    assert scored is not None and 0 < scored.sum() < scored.size
+    wins = calibration_windows(48, 24, 2)
+    assert wins == [(0, 12), (36, 48)]
+    inside = np.zeros(idx.size, dtype=bool)
+    for a, b in wins:
+        inside |= (idx >= a) & (idx < b)
+    np.testing.assert_array_equal(scored, inside)
+    assert 0 < sample.calibration.calibration_rows < whole.calibration.calibration_rows
+    assert sample.calibration.place_filter_top1 is not None
+    assert sample.track(run, filter="pose").summary["filtered"]["top1"] >= 0.9
