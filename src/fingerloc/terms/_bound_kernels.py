@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from ..align._bounds import GROUP_LANES, _bounds
+from ..align._bounds import GROUP_LANES, _bounds, _count_bounds
 from ..align._cyclic_int import LANES8, _costs_blocks, _profiles
 
 __all__ = [
@@ -126,26 +126,9 @@ def count_place_min(
     ``max(sum h2 |d|, sum c2 max(d, 0), sum c2 max(-d, 0))`` over ``letters``, ``d = q - counts``
     (twice the bound of :mod:`fingerloc.terms.bounds`, integer units of the costs).
     """
-    nv = counts_t.shape[1]
-    acc_h = np.zeros(nv, dtype=np.int32)
-    acc_p = np.zeros(nv, dtype=np.int32)
-    acc_n = np.zeros(nv, dtype=np.int32)
-    for t in range(letters.shape[0]):
-        x = letters[t]
-        qx = q[x]
-        hx = h2[x]
-        cx = c2[x]
-        row = counts_t[x]
-        for i in range(nv):
-            d = qx - np.int32(row[i])
-            pos = max(d, 0)
-            neg = max(-d, 0)
-            acc_h[i] += hx * (pos + neg)
-            acc_p[i] += cx * pos
-            acc_n[i] += cx * neg
-    for i in range(nv):
-        acc_h[i] = max(acc_h[i], max(acc_p[i], acc_n[i]))
-    return _place_min_i32(acc_h, place_start, per_place)
+    per_view = np.empty(counts_t.shape[1], dtype=np.int32)
+    _count_bounds(q, counts_t, letters, h2, c2, per_view)  # the per-view bound of fingerloc.align._bounds
+    return _place_min_i32(per_view, place_start, per_place)
 
 
 @njit(cache=True)
