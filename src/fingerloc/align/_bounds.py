@@ -41,7 +41,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["GROUP_LANES", "GroupProfiles", "count_bounds", "pack_groups", "semiglobal_bounds"]
+__all__ = ["GROUP_LANES", "GroupProfiles", "pack_groups", "semiglobal_bounds"]
 
 #: References side by side in a block of :func:`pack_groups` (two AVX2 registers of int8).
 GROUP_LANES = 64
@@ -272,47 +272,3 @@ def _count_bounds(
             acc_n[i] += cx * neg
     for i in range(nv):
         out[i] = max(acc_h[i], max(acc_p[i], acc_n[i]))
-
-
-def count_bounds(
-    query_counts: NDArray[np.int32], counts_t: NDArray[np.int16], letters: NDArray[np.int64], h2: NDArray[np.int32], c2: NDArray[np.int32]
-) -> NDArray[np.int32]:
-    """Letter-count lower bounds (integer units) of the alignment cost of a query against every view.
-
-    ``counts_t[x, v]``: occurrences of letter ``x`` in view ``v``; ``letters``: the letters to sum over (those the
-    query or some view holds); ``h2``, ``c2``: twice the per-letter weights ``h`` and ``c`` of
-    :mod:`fingerloc.terms.bounds`, in the integer units of the costs. Returns
-    ``max(sum h2 |d|, sum c2 max(d, 0), sum c2 max(-d, 0))``, ``d = q - counts``: twice the bound.
-    """
-    out = np.empty(counts_t.shape[1], dtype=np.int32)
-    _count_bounds(query_counts, counts_t, np.ascontiguousarray(letters, dtype=np.int64), h2, c2, out)
-    return out
-
-
-def cyclic_costs_one(
-    query: NDArray[np.uint8], codes: NDArray[np.uint8], off: NDArray[np.int64], sub8: NDArray[np.int8], indel8: NDArray[np.int8]
-) -> NDArray[np.int64]:
-    """Integer cyclic costs of one query against the references ``codes``/``off``, shape ``(n_references,)``.
-
-    What :func:`~fingerloc.align._cyclic_int.cyclic_i8_costs` gives (the same exact integers), with a
-    profile of the query's own letters only: a place's handful of views do not pay for the profile of the
-    whole alphabet. Row ``r`` stands for the query's ``r``-th distinct letter ``L_r``; the profile
-    builder subtracts the indel of the row *index*, so it is given ``s(L_r, b) - g(L_r) + g(r)``, and
-    the kernel gets the rows' own indels ``g(L_r)`` for the query's letters.
-    """
-    from ._cyclic_int import ProfileBlocks, _profiles, cyclic_i8_costs
-    from ._kernels import pack_lanes
-
-    n_refs = off.size - 1
-    if n_refs == 0:
-        return np.zeros(0, dtype=np.int64)
-    letters, rows = np.unique(query, return_inverse=True)
-    if letters.size == 0:
-        letters = np.zeros(1, dtype=np.uint8)
-    r = np.arange(letters.size)
-    sub_rows = (sub8[letters].astype(np.int16) - indel8[letters][:, None] + indel8[r][:, None]).astype(np.int8)
-    blocks, blens, block_len, slot = pack_lanes(codes, off, 256)
-    prof, pstart, prow, gsum, keep, short = _profiles(blocks, blens, block_len, sub_rows, indel8)
-    pk = ProfileBlocks(prof, pstart, prow, gsum, keep, short, block_len, slot, indel8[letters].copy(), int(indel8.max(initial=0)))
-    qrow = rows.astype(np.uint8)
-    return cyclic_i8_costs(qrow, np.array([0, qrow.size], dtype=np.int64), pk, workers=1)[0, slot].astype(np.int64)
