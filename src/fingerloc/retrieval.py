@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from ._lse import logsumexp
 from ._types import FArray, IArray
 from .errors import InvalidParameterError
 from .observation import Observation
@@ -531,18 +532,12 @@ def _mass(scored: FArray, bounds: FArray) -> float:
     return float(np.exp(bounds - top).sum()) / z
 
 
-def _logsumexp(x: FArray) -> float:
-    """``log(sum(exp(x)))`` of finite values (scipy's arithmetic, without its per-call overhead)."""
-    top = float(np.max(x))
-    return top + math.log(float(np.sum(np.exp(x - top))))
-
-
 def _finish(places: IArray, joint: FArray, k: int, mass: float, true_col: int | None) -> tuple[IArray, FArray, FArray, float, int, int]:
     """The k best of the scored places (ties by column), their normalised scores, and the rank of the truth."""
     order = np.lexsort((places, -joint))[:k]
     top_p, top_j = places[order], joint[order]
     finite = joint[np.isfinite(joint)]
-    lse = _logsumexp(finite) if finite.size else 0.0
+    lse = float(logsumexp(finite)) if finite.size else 0.0
     lp = top_j - lse if finite.size else np.full(top_j.size, -math.log(max(len(places), 1)))
     rank = 0
     if true_col is not None:
