@@ -59,6 +59,7 @@ __all__ = [
     "mapping_graph",
     "model_fit_headings",
     "model_fit_score",
+    "model_fit_score_of",
     "posterior_columns",
     "read_calibration",
     "step_distances",
@@ -414,9 +415,22 @@ def model_fit_score(options: Mapping[str, Any], observations: Sequence[Observati
     """
     from .presets import model_from_options
 
+    def fit_model(tr: IArray, y: IArray) -> Any:
+        return model_from_options(options).fit([observations[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
+
+    return model_fit_score_of(fit_model, observations)
+
+
+def model_fit_score_of(fit_model: Callable[[IArray, IArray], Any], observations: Sequence[Observation]) -> FitScore:
+    """A :data:`FitScore` from ``fit_model(train_rows, train_labels) -> model`` over ``observations``.
+
+    The model is fit on labels ``"0" .. "k-1"`` (``fit_model``'s to do); the
+    scores are its log-posterior, column ``j`` = place ``j``
+    (:func:`posterior_columns`).
+    """
+
     def fit_score(tr: IArray, y: IArray, te: IArray) -> FArray:
-        model = model_from_options(options).fit([observations[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
-        return posterior_columns(model, [observations[i] for i in te.tolist()], int(y.max()) + 1)
+        return posterior_columns(fit_model(tr, y), [observations[i] for i in te.tolist()], int(y.max()) + 1)
 
     return fit_score
 

@@ -26,7 +26,7 @@ import numpy as np
 from ..config import Config
 from ..errors import InvalidParameterError
 from .calibrate import MappingPart, calibrate_map
-from .calibration import model_fit_headings, posterior_columns
+from .calibration import model_fit_headings, model_fit_score_of
 from .placemap import PlaceMap
 from .places import place_label, places_from_trajectory
 from .presets import model_from_options, resolve_preset
@@ -147,9 +147,7 @@ def make_map(
             folds[key] = model_from_options(opts).fit([raw[i] for i in tr.tolist()], [str(v) for v in y.tolist()])
         return folds[key]
 
-    def fit_score(tr: Any, y: Any, te: Any) -> Any:
-        return posterior_columns(fit_model(tr, y), [raw[i] for i in te.tolist()], int(y.max()) + 1)
-
+    fit_score = model_fit_score_of(fit_model, raw)
     fit_headings = model_fit_headings(fit_model, raw) if all(o.pose is not None for o in raw) else None
     mapping = MappingPart(
         split.train_idx, split.train_labels, split.centres, poses[: split.n_mapping], run.field_of_view(np.arange(split.n_mapping)),
