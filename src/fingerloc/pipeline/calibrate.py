@@ -191,11 +191,7 @@ def calibrate_map(
         scan_map = ScanMap.from_scans(m.points, m.poses)
     held = None
     windows = calibration_windows(m.poses.shape[0], cc.max_steps, cc.windows)
-    scored = None
-    if len(windows) > 1:
-        scored = np.zeros(m.train_idx.size, dtype=bool)
-        for a, b in windows:
-            scored |= (m.train_idx >= a) & (m.train_idx < b)
+    scored = np.any(_within(m.train_idx, windows), axis=0) if len(windows) > 1 else None
     if cc.enabled:
         sample = "" if scored is None else f" ({len(windows)} stretches of {windows[0][1] - windows[0][0]} of its {m.poses.shape[0]} steps)"
         note(f"calibrating the filters on the mapping part{sample}")
@@ -265,6 +261,11 @@ def calibration_windows(n_steps: int, max_steps: int | None, windows: int = 4) -
     return [(a, a + length) for a in starts]
 
 
+def _within(steps: IArray, windows: Sequence[tuple[int, int]]) -> list[Any]:
+    """Per stretch ``[a, b)`` of ``windows``: which of ``steps`` (step indices) lie in it (bool, shape of ``steps``)."""
+    return [(steps >= a) & (steps < b) for a, b in windows]
+
+
 def with_place_check(
     calibration: Calibration,
     config: Config,
@@ -293,16 +294,14 @@ def with_place_check(
     transition = place_transition_of(graph, calibration, config, m.centres)
     dist = step_distances(m.poses[:, :2])
     wins = [(0, m.poses.shape[0])] if windows is None else list(windows)
-    if len(wins) == 1:
-        a, b = wins[0]
-        chk = check_place_filter(ll[a:b], transition, labels[a:b], distances=dist[a:b])
-        return replace(calibration, place_filter_top1=chk.filter_top1, place_single_top1=chk.single_top1)
-    filt = single = 0.0
-    n = 0
-    for a, b in wins:
-        chk = check_place_filter(ll[a:b], transition, labels[a:b], distances=dist[a:b])
-        filt, single, n = filt + chk.filter_top1 * chk.rows, single + chk.single_top1 * chk.rows, n + chk.rows
-    return replace(calibration, place_filter_top1=filt / max(n, 1), place_single_top1=single / max(n, 1))
+    checks = [check_place_filter(ll[a:b], transition, labels[a:b], distances=dist[a:b]) for a, b in wins]
+    if len(checks) == 1:  # the check's own fractions (a pooled one would round them again)
+        filt, single = checks[0].filter_top1, checks[0].single_top1
+    else:
+        n = max(sum(c.rows for c in checks), 1)
+        filt = sum(c.filter_top1 * c.rows for c in checks) / n
+        single = sum(c.single_top1 * c.rows for c in checks) / n
+    return replace(calibration, place_filter_top1=filt, place_single_top1=single)
 
 
 def scan_folds(train_idx: Any, labels: Any) -> IArray:
@@ -528,7 +527,8 @@ def tune_pose_filter(
         )  # fmt: skip
         return res, f
 
-    in_win = [(rows >= a) & (rows < b) for a, b in wins]
+    in_win = _within(rows, wins)
+    n_in = sum(int(np.sum(x)) for x in in_win)  # held-out rows within the stretches (they never overlap)
     fitted = fit_outlier_weight(ll[rows], truth)
     tried: list[dict[str, float]] = []
     best = (-1.0, cal)
@@ -539,7 +539,7 @@ def tune_pose_filter(
             for w, (a, _) in enumerate(wins):
                 res, _f = run(trial, w, a)
                 right += int(np.sum(res.best[rows[in_win[w]] - a] == truth[in_win[w]]))
-            top1 = right / max(sum(int(np.sum(x)) for x in in_win), 1)
+            top1 = right / max(n_in, 1)
             tried.append({"outlier": float(rho), "temper_metres": float(metres), "top1": top1})
             if top1 > best[0]:
                 best = (top1, trial)
@@ -591,7 +591,7 @@ def tune_pose_filter(
     if use_lost and best[1].scan_gamma > 0 and (len(wins) > 1 or starts[0][1] == int(rows[0])):
         trace, ok = traces[float(best[1].scan_gamma)]
         right_rows = np.concatenate(ok) if ok else np.zeros(0, dtype=bool)
-        if len(trace) == right_rows.size == int(sum(int(np.sum(x)) for x in in_win)):
+        if len(trace) == right_rows.size == n_in:
             thr, kap = calibrate_lost(np.asarray(trace, dtype=np.float64), right_rows, cc.lost_quantile,
                                       after=config.pose_filter.lost_after)  # fmt: skip
             if thr is not None:
