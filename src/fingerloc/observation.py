@@ -92,6 +92,11 @@ def fov_from_degrees(ranges: Sequence[Sequence[float]] | None) -> tuple[tuple[fl
     return tuple(out)
 
 
+def _check_label(label: Any) -> None:
+    if label is not None and not isinstance(label, str):
+        raise InvalidParameterError(f"label: must be a string or None, got {label!r}")
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Observation:
     """One measurement: feature bearings seen from one pose.
@@ -189,8 +194,7 @@ class Observation:
             if not (np.isfinite(s) and np.isfinite(w)) or not (0.0 < w <= TWO_PI + 1e-12):
                 raise InvalidParameterError(f"fov: width must be in (0, 2 pi] radians, got {w!r}")
         object.__setattr__(self, "fov", tuple((float(wrap(s)), min(w, TWO_PI)) for s, w in fov))
-        if self.label is not None and not isinstance(self.label, str):
-            raise InvalidParameterError(f"label: must be a string or None, got {self.label!r}")
+        _check_label(self.label)
         if self.pose is not None:
             pose = tuple(float(v) for v in self.pose)
             if len(pose) != 3 or not all(np.isfinite(pose)):
@@ -431,8 +435,7 @@ class Observation:
 
     def with_label(self, label: str | None) -> Observation:
         """A copy with another place label (the checked arrays shared, read-only as they are)."""
-        if label is not None and not isinstance(label, str):
-            raise InvalidParameterError(f"label: must be a string or None, got {label!r}")
+        _check_label(label)
         obs = object.__new__(type(self))
         for name in self.__slots__:
             object.__setattr__(obs, name, getattr(self, name))
