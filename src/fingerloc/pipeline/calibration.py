@@ -499,9 +499,9 @@ class PlaceColumns:
         out = np.full((len(obs), len(self.labels)), np.nan)
         if not obs:
             return out
-        views = self._place_views()
         if own is not None:
             return self._own_headings(obs, own, out)
+        views = self._place_views()
         cols = range(len(self.labels)) if columns is None else np.unique(np.asarray(columns, dtype=np.int64)).tolist()
         known = [j for j in cols if views[j][0] is not None]
         if len(obs) == 1:  # one call for every place: the model's loop over (observation, place) pairs
@@ -518,7 +518,6 @@ class PlaceColumns:
             h, v = self.model.headings_with_reference(obs, [key] * len(obs))
             _absolute(out[:, j], theta, h, v)
         return out
-
 
     def _own_headings(self, obs: list[Observation], own: Any, out: FArray) -> FArray:
         """``out[i, own[i]]``: observation ``i``'s heading at its one place (column ``own[i]``; -1: none), one model call."""
