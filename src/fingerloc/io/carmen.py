@@ -634,6 +634,18 @@ class _Inspector:
         return LogInfo(counts=dict(self.counts), max_range=max_range, params=self.params, head=head, compressed=gz)
 
 
+def _odom_valid(text: str) -> bool:
+    """True when :func:`parse_line` would read ``text`` as an ``ODOM`` record without error (a quicker check)."""
+    parts = text.split()
+    if len(parts) != _ODOM_FIELDS or parts[0] != "ODOM":
+        return False
+    try:
+        x, y, th, *_ = (float(t) for t in parts[1:8])
+    except ValueError:
+        return False
+    return math.isfinite(x) and math.isfinite(y) and math.isfinite(th) and abs(x) <= MAX_COORD_M and abs(y) <= MAX_COORD_M
+
+
 def _is_message(text: str) -> str:
     head = text.lstrip()[:12]
     if head.startswith("PARAM"):
@@ -721,8 +733,12 @@ def read_log(
         start = st.lines
         for lineno, text in _source_lines(src):
             st.lines = start + lineno
-            if _is_message(text) == "PARAM":
+            kind = _is_message(text)
+            if kind == "PARAM":
                 acc.param(text)
+                continue
+            if kind == "ODOM" and _odom_valid(text):  # only counted here: checked without building a record
+                acc.counts["ODOM"] += 1
                 continue
             try:
                 rec = parse_line(text, line=lineno)
