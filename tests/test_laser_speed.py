@@ -83,7 +83,11 @@ def test_laser_section_small():
     assert 0.0 <= figs["top1"] <= 1.0 and 1.0 <= figs["mean_rank"] <= 3.0
 
 
-def test_localize_answers_match_the_model():
+@pytest.mark.parametrize("align_each", [0, 8])  # the few views of a place: in one batch first, or each aligned once
+def test_localize_answers_match_the_model(align_each, monkeypatch):
+    import fingerloc.terms.fingerprint as fpmod
+
+    monkeypatch.setattr(fpmod, "_ALIGN_EACH", align_each)
     d = laser_places(3, n_train=2, seed=3)
     tr = d.observations(d.train, d.train_labels)
     m = resolve_preset("laser2d").model().fit(tr, d.train_labels)

@@ -34,6 +34,8 @@ __all__ = ["FingerprintTerm", "consensus_fingerprint", "crop_fingerprint"]
 _Recent = tuple[dict[int, tuple[Observation, Fingerprint, int]], FArray | None]
 #: Most costs (queries x references) of the latest batch kept for the headings (64 MB of float64).
 _KEEP_COSTS = 1 << 23
+#: Most views of a place whose heading is found by aligning each view once (more: their costs in one batch first).
+_ALIGN_EACH = 8
 
 
 class FingerprintTerm(DistanceTerm):
@@ -345,7 +347,9 @@ class FingerprintTerm(DistanceTerm):
         cyclic cost. Only the views whose batch cost (:func:`fingerloc.align.alignment_costs`,
         from the latest :meth:`distances` call when it holds this query) is
         within 1e-9 of the least are aligned again with their alignment, so
-        the answer is that of aligning every view.
+        the answer is that of aligning every view; without the latest batch's
+        costs, a place of at most :data:`_ALIGN_EACH` views has each view
+        aligned once instead.
         """
         from ..align import alignment_costs, cyclic_heading
 
@@ -353,6 +357,14 @@ class FingerprintTerm(DistanceTerm):
         fps = self.fingerprints_[place]
         candidates: Sequence[int] = range(len(fps))
         if len(fps) > 1:
+            if row is None and len(fps) <= _ALIGN_EACH:  # a few views: each aligned once, with its heading
+                best: tuple[float, float | None, int] | None = None
+                for v, fp in enumerate(fps):
+                    cost, heading = cyclic_heading(q, fp, costs=self.costs)
+                    if best is None or cost < best[0]:
+                        best = (cost, heading, v)
+                assert best is not None
+                return best[1], best[2]
             if row is not None:
                 lo = int(self._starts[place])
                 costs = row[lo : lo + len(fps)]
@@ -360,7 +372,7 @@ class FingerprintTerm(DistanceTerm):
                 costs = alignment_costs([q], fps, cyclic=True, costs=self.costs, workers=1)[0]  # a few views: no threads
             least = float(costs.min())
             candidates = np.flatnonzero(costs <= least + 1e-9 * max(1.0, abs(least))).tolist()
-        best: tuple[float, float | None, int] | None = None
+        best = None
         for v in candidates:
             cost, heading = cyclic_heading(q, fps[v], costs=self.costs)
             if best is None or cost < best[0]:
