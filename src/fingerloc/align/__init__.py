@@ -41,7 +41,7 @@ from ..errors import InvalidParameterError
 from ..fingerprint import Fingerprint
 from ._costs import CostModel
 from ._cyclic import cyclic_all_rotations, cyclic_batch_unit
-from ._cyclic_int import ProfileBlocks, cyclic_i8_costs, integer_costs, pack_profiles
+from ._cyclic_int import LANES8, ProfileBlocks, cyclic_i8_costs, integer_costs, pack_profiles
 from ._encode import FingerprintBatch, FingerprintLike, as_letters, encode, encode_many, letters_many
 from ._energy import EnergyParams, energy_batch_lanes, energy_pair, pack_energy_lanes
 from ._kernels import nw_batch, nw_batch_cyclic, nw_cost, nw_matrix, pack_lanes, traceback
@@ -323,6 +323,25 @@ def _profile_blocks(references: Any, rs: list[str], sub8: NDArray[np.int8], inde
     return pk
 
 
+#: Most bytes of references packed at once for the int8 cyclic kernel when they are too many to keep packed.
+_PACK_CHUNK_BYTES = 64 << 20
+
+
+def _reference_chunk(rs: list[str], n_letters: int) -> int:
+    """How many references the int8 kernel packs at once: all when their packed form may be kept, else a chunk.
+
+    The packed form's profile takes ``n_letters`` bytes a letter of a reference, its length rounded up to 16
+    letters (at least: a block rounds its longest): all of them when that is at most :data:`_PACKED_MAX_BYTES`
+    (a :class:`FingerprintBatch` may keep it), else as many of the longest as fit :data:`_PACK_CHUNK_BYTES`.
+    """
+    lens = np.fromiter((len(r) for r in rs), dtype=np.int64, count=len(rs))
+    if n_letters * int(np.sum(-(-np.maximum(lens, 1) // 16) * 16)) <= _PACKED_MAX_BYTES:
+        return len(rs)
+    longest = int(lens.max())
+    per_ref = n_letters * (-(-longest // 16) * 16) + 2 * longest  # the profile, the packed letters and their mask
+    return max(LANES8, _PACK_CHUNK_BYTES // per_ref)
+
+
 def alignment_costs(
     queries: Any,
     references: Any,
@@ -386,10 +405,21 @@ def alignment_costs(
         small = integer_costs(cm.substitution, cm.indel)
         if small is not None:
             sub8, indel8, scale = small
-            pk = _profile_blocks(references, rs, sub8, indel8)
             # a few queries: one thread (threads would cost more than they give on a busy machine)
-            packed_int = cyclic_i8_costs(qcodes, qoff, pk, workers=nw if nq >= _PARALLEL_MIN_QUERIES else 1)
-            return np.ascontiguousarray(packed_int[:, pk.slot], dtype=np.float64) / scale
+            threads = nw if nq >= _PARALLEL_MIN_QUERIES else 1
+            chunk = _reference_chunk(rs, sub8.shape[0])
+            if chunk >= nr:
+                pk = _profile_blocks(references, rs, sub8, indel8)
+                packed_int = cyclic_i8_costs(qcodes, qoff, pk, workers=threads)
+                return np.ascontiguousarray(packed_int[:, pk.slot], dtype=np.float64) / scale
+            # too many references to pack at once (the packed form is not kept then): a chunk at a time, the same costs
+            out = np.empty((nq, nr))
+            for a in range(0, nr, chunk):
+                pk = pack_profiles(*encode_many(rs[a : a + chunk]), sub8, indel8)
+                out[:, a : a + chunk] = cyclic_i8_costs(qcodes, qoff, pk, workers=threads)[:, pk.slot]
+                del pk
+            out /= scale
+            return out
     rcodes, roff = encode_many(rs)
     if cyclic and cm.is_unit:
         return _run(nw, cyclic_batch_unit, qcodes, qoff, rcodes, roff, cm.substitution, cm.indel)
