@@ -356,15 +356,7 @@ class FingerprintTerm(DistanceTerm):
         q, row = self._query(obs)
         fps = self.fingerprints_[place]
         candidates: Sequence[int] = range(len(fps))
-        if len(fps) > 1:
-            if row is None and len(fps) <= _ALIGN_EACH:  # a few views: each aligned once, with its heading
-                best: tuple[float, float | None, int] | None = None
-                for v, fp in enumerate(fps):
-                    cost, heading = cyclic_heading(q, fp, costs=self.costs)
-                    if best is None or cost < best[0]:
-                        best = (cost, heading, v)
-                assert best is not None
-                return best[1], best[2]
+        if len(fps) > 1 and (row is not None or len(fps) > _ALIGN_EACH):  # else each view aligned once, below
             if row is not None:
                 lo = int(self._starts[place])
                 costs = row[lo : lo + len(fps)]
@@ -372,7 +364,7 @@ class FingerprintTerm(DistanceTerm):
                 costs = alignment_costs([q], fps, cyclic=True, costs=self.costs, workers=1)[0]  # a few views: no threads
             least = float(costs.min())
             candidates = np.flatnonzero(costs <= least + 1e-9 * max(1.0, abs(least))).tolist()
-        best = None
+        best: tuple[float, float | None, int] | None = None
         for v in candidates:
             cost, heading = cyclic_heading(q, fps[v], costs=self.costs)
             if best is None or cost < best[0]:
