@@ -190,6 +190,7 @@ def _bounds(
                 u3[k] = g3
                 u4[k] = g4
             for j in range(big):
+                # the four rows written out: a loop over them here keeps LLVM from vectorising over the lanes (~70x slower)
                 for k in range(GROUP_LANES):
                     h = hv[j, k]
                     x = u1[k]
