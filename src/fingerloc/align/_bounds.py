@@ -11,9 +11,10 @@ reaches 86 % of the cyclic cost on average (the letter counts alone reach
 about 40 %).
 
 It runs in the difference form of :mod:`fingerloc.align._cyclic_int` on
-``GROUP_LANES`` (64) references side by side, the query's letters down the rows, four
-rows a sweep (the difference row H goes through memory once for four rows: a pass
-about 20 % faster than with two on the campus index). With a free start the first column is ``D[i, 0] = 0``, so
+``GROUP_LANES`` (64) references side by side, the query's letters down the
+rows, four rows a sweep (the difference row H goes through memory once for
+the four: a pass about 20 % faster than with two on the campus index). With
+a free start the first column is ``D[i, 0] = 0``, so
 each row starts with ``U[i, 0] = -g(a_i)``. The free end needs
 ``D[i, m_k]`` of every row: every reference of a block is padded to the
 block's longest with a *wildcard* that costs nothing to pair or to leave
