@@ -38,3 +38,23 @@ def test_references_packed_at_once_while_their_profile_may_be_kept():
     assert align._reference_chunk(refs, 34) == 1000  # 1,000 x 34 x 16 bytes: kept whole
     many = ["abc" * 10] * 300_000  # 300,000 x 34 x 32 bytes, over the bound: chunks of the longest
     assert align._reference_chunk(many, 34) == align._PACK_CHUNK_BYTES // (34 * 32 + 60)
+
+
+def test_a_batch_keeps_its_packed_form_or_its_chunk_size(monkeypatch):
+    rng = np.random.default_rng(3)
+    letters = list(ALPHABET[:12])
+    refs = _strings(rng, 700, 30, letters)
+    queries = _strings(rng, 2, 30, letters)
+    cm = CostModel.feature_aware()
+    whole = alignment_costs(queries, refs, cyclic=True, costs=cm)
+    kept = align.FingerprintBatch(refs)
+    assert np.array_equal(alignment_costs(queries, kept, cyclic=True, costs=cm), whole)
+    assert [type(v).__name__ for v in kept._packed.values()] == ["ProfileBlocks"]
+    monkeypatch.setattr(align, "_PACKED_MAX_BYTES", 0)
+    monkeypatch.setattr(align, "_PACK_CHUNK_BYTES", 1)  # chunks of 256 references
+    chunked = align.FingerprintBatch(refs)
+    for _ in range(2):  # measured once, then the kept chunk size
+        assert np.array_equal(alignment_costs(queries, chunked, cyclic=True, costs=cm), whole)
+        assert list(chunked._packed.values()) == [256]
+    monkeypatch.setattr(align, "_reference_chunk", lambda *a: pytest.fail("measured again"))
+    assert np.array_equal(alignment_costs(queries, chunked, cyclic=True, costs=cm), whole)

@@ -307,14 +307,24 @@ _PARALLEL_MIN_QUERIES = 8
 _PACKED_MAX_BYTES = 256 << 20
 
 
-def _profile_blocks(references: Any, rs: list[str], sub8: NDArray[np.int8], indel8: NDArray[np.int8]) -> ProfileBlocks:
-    """The references packed for the int8 cyclic kernel; kept by a :class:`FingerprintBatch` (one cost model at a time)."""
+def _profile_blocks(references: Any, rs: list[str], sub8: NDArray[np.int8], indel8: NDArray[np.int8]) -> ProfileBlocks | int:
+    """The references packed for the int8 cyclic kernel, or, when too many to keep packed, how many to pack at a time.
+
+    Either is kept by a :class:`FingerprintBatch` (one cost model at a time), so a repeated call neither packs
+    nor measures the references again.
+    """
     key = (sub8.tobytes(), indel8.tobytes())
     cache = references._packed if isinstance(references, FingerprintBatch) else None
     if cache is not None:
         hit = cache.get(key)
-        if isinstance(hit, ProfileBlocks):
+        if isinstance(hit, (ProfileBlocks, int)):
             return hit
+    chunk = _reference_chunk(rs, sub8.shape[0])
+    if chunk < len(rs):
+        if cache is not None:
+            cache.clear()
+            cache[key] = chunk
+        return chunk
     rcodes, roff = encode_many(rs)
     pk = pack_profiles(rcodes, roff, sub8, indel8)
     if cache is not None and pk.nbytes <= _PACKED_MAX_BYTES:
@@ -407,12 +417,12 @@ def alignment_costs(
             sub8, indel8, scale = small
             # a few queries: one thread (threads would cost more than they give on a busy machine)
             threads = nw if nq >= _PARALLEL_MIN_QUERIES else 1
-            chunk = _reference_chunk(rs, sub8.shape[0])
-            if chunk >= nr:
-                pk = _profile_blocks(references, rs, sub8, indel8)
-                packed_int = cyclic_i8_costs(qcodes, qoff, pk, workers=threads)
-                return np.ascontiguousarray(packed_int[:, pk.slot], dtype=np.float64) / scale
-            # too many references to pack at once (the packed form is not kept then): a chunk at a time, the same costs
+            pk_or_chunk = _profile_blocks(references, rs, sub8, indel8)
+            if isinstance(pk_or_chunk, ProfileBlocks):
+                packed_int = cyclic_i8_costs(qcodes, qoff, pk_or_chunk, workers=threads)
+                return np.ascontiguousarray(packed_int[:, pk_or_chunk.slot], dtype=np.float64) / scale
+            # too many references to keep packed: a chunk at a time, the same costs
+            chunk = pk_or_chunk
             out = np.empty((nq, nr))
             for a in range(0, nr, chunk):
                 pk = pack_profiles(*encode_many(rs[a : a + chunk]), sub8, indel8)
