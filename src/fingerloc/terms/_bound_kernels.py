@@ -75,7 +75,7 @@ def unscored_mass(ub: NDArray[np.float64], level: NDArray[np.int8], top: float) 
 
 
 @njit(cache=True)
-def _place_min_i32(per_view: NDArray[np.int32], place_start: NDArray[np.int64], per_place: NDArray[np.int64]) -> NDArray[np.int64]:  # pragma: no cover - compiled
+def _place_min(per_view: NDArray[np.integer], place_start: NDArray[np.int64], per_place: NDArray[np.int64]) -> NDArray[np.int64]:  # pragma: no cover - compiled
     out = np.empty(place_start.size, dtype=np.int64)
     for p in range(place_start.size):
         m = NO_VIEW
@@ -128,7 +128,7 @@ def count_place_min(
     """
     per_view = np.empty(counts_t.shape[1], dtype=np.int32)
     _count_bounds(q, counts_t, letters, h2, c2, per_view)  # the per-view bound of fingerloc.align._bounds
-    return _place_min_i32(per_view, place_start, per_place)
+    return _place_min(per_view, place_start, per_place)
 
 
 @njit(cache=True)
@@ -164,14 +164,9 @@ def count_place_min_narrow(
             acc_h[i] = np.int16(acc_h[i] + np.int16(hx * np.int16(pos + neg)))
             acc_p[i] = np.int16(acc_p[i] + np.int16(cx * pos))
             acc_n[i] = np.int16(acc_n[i] + np.int16(cx * neg))
-    least = np.empty(place_start.size, dtype=np.int64)
-    for p in range(place_start.size):
-        m = NO_VIEW
-        a = place_start[p]
-        for v in range(a, a + per_place[p]):
-            m = min(m, max(int(acc_h[v]), max(int(acc_p[v]), int(acc_n[v]))))
-        least[p] = m
-    return least
+    for i in range(nv):
+        acc_h[i] = max(acc_h[i], max(acc_p[i], acc_n[i]))  # the bound of each view
+    return _place_min(acc_h, place_start, per_place)
 
 
 @njit(cache=True)
@@ -190,14 +185,7 @@ def l1_place_min(
         for v in range(nv):
             x = row[v]
             acc[v] = np.uint16(acc[v] + np.uint16(max(x, qb) - min(x, qb)))
-    out = np.empty(place_start.size, dtype=np.int64)
-    for p in range(place_start.size):
-        m = NO_VIEW
-        a = place_start[p]
-        for v in range(a, a + per_place[p]):
-            m = min(m, int(acc[v]))
-        out[p] = m
-    return out
+    return _place_min(acc, place_start, per_place)
 
 
 @njit(cache=True)
