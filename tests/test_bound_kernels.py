@@ -1,31 +1,36 @@
 """The compiled passes of exact retrieval (fingerloc.terms._bound_kernels) against plain computations."""
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.distance import cdist
 
 from fingerloc.align import CostModel, alignment_costs
-from fingerloc.align._bounds import GROUP_LANES, pack_groups, semiglobal_bounds
+from fingerloc.align._bounds import SUB_LANES, pack_subblocks, query_profile_rows, semiglobal_bounds
 from fingerloc.align._costs import N_LETTERS
 from fingerloc.align._cyclic_int import integer_costs
 from fingerloc.fingerprint import ALPHABET
-from fingerloc.retrieval import place_layout
 from fingerloc.terms._bound_kernels import (
     NO_VIEW,
+    SweepState,
     count_place_min,
     count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
     letter_counts,
+    open_places,
     place_letter_counts,
+    potential_place_min,
     query_rows,
     scaled,
-    semiglobal_place_min,
+    semiglobal_cover,
+    semiglobal_views_min,
+    top_places,
     unscored_mass,
+    view_spans,
 )
+from fingerloc.terms.bounds import count_potentials
 
 COSTS = {"unit": CostModel(), "feature": CostModel.feature_aware()}
 
@@ -71,46 +76,19 @@ def test_exact_cyclic_costs_a_place_are_those_of_the_batch_alignment(seed, n_pla
 
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**31), n_places=st.integers(1, 40), costs=st.sampled_from(sorted(COSTS)))
-def test_semiglobal_bounds_a_place_are_the_block_kernels_and_below_the_cyclic_cost(seed, n_places, costs):
+def test_semiglobal_bounds_a_place_are_the_sweeps_of_every_view_and_below_the_cyclic_cost(seed, n_places, costs):
+    """The views of chosen places, their sub-blocks gathered, get the bounds of a sweep over every view, and bound the cyclic cost."""
     cm = COSTS[costs]
     sub8, indel8, scale = integer_costs(cm.substitution, cm.indel)
-    rng, per_place, _, codes0, off0, letters = random_views(seed, n_places, 4, 10, 5)
-    layout = place_layout(rng.random((n_places, 2)), np.maximum(per_place, 1), group_views=int(rng.choice([3, 8, 64])))
-    # views in layout order, blocks of at most GROUP_LANES a group (as FingerprintBound packs them)
-    first = np.cumsum(per_place) - per_place
-    view_order = np.concatenate([np.arange(first[p], first[p] + per_place[p]) for p in layout.order]).astype(np.int64)
-    lens = np.diff(off0)[view_order]
-    off = np.zeros(view_order.size + 1, dtype=np.int64)
-    np.cumsum(lens, out=off[1:])
-    codes = np.concatenate([codes0[off0[v] : off0[v + 1]] for v in view_order] + [np.zeros(0, np.uint8)]).astype(np.uint8)
-    n = per_place[layout.order]
-    place_start = np.empty(n_places, dtype=np.int64)
-    place_start[layout.order] = np.cumsum(n) - n
-    group_start = np.append(np.cumsum(n) - n, n.sum())[layout.starts]
-    cuts, owner = [], []
-    for g in range(layout.n_groups):
-        for c in range(int(group_start[g]), int(group_start[g + 1]), GROUP_LANES):
-            cuts.append(c)
-            owner.append(g)
-    block_start = np.array([*cuts, view_order.size], dtype=np.int64)
-    group_blocks = np.searchsorted(np.array(owner, dtype=np.int64), np.arange(layout.n_groups + 1))
-    gp = pack_groups(codes, off, block_start, sub8, indel8)
+    rng, per_place, place_start, codes, off, letters = random_views(seed, n_places, 4, 10, 5)
+    sb = pack_subblocks(codes, off, sub8, indel8)
     qlen = int(rng.integers(0, 10))
     query = letters[rng.integers(0, letters.size, qlen)].astype(np.uint8)
-    groups = np.flatnonzero(rng.random(layout.n_groups) < 0.6).astype(np.int64)
-    aa = np.concatenate([query, query[: max(qlen - 1, 0)]]).astype(np.int64)
-    places, got = semiglobal_place_min(
-        gp.row_of[aa], gp.indel[aa].astype(np.int32), groups, group_blocks, block_start, gp.prof, gp.pstart,
-        gp.block_len, gp.gsum, gp.n_rows, layout.order, layout.starts, place_start, per_place,
-    )
-    assert np.array_equal(places, layout.places_of(groups))
-    # the same lanes as the block kernel
-    blocks = np.concatenate([np.arange(group_blocks[g], group_blocks[g + 1]) for g in groups] + [np.zeros(0, np.int64)])
-    lanes = semiglobal_bounds(query, gp, blocks.astype(np.int64), workers=1)
-    per_view = np.full(view_order.size, NO_VIEW, dtype=np.int64)
-    for row, b in enumerate(blocks):
-        m = block_start[b + 1] - block_start[b]
-        per_view[block_start[b] : block_start[b] + m] = lanes[row, :m]
+    places = rng.permutation(n_places)[: int(rng.integers(1, n_places + 1))].astype(np.int64)
+    pov = np.repeat(np.arange(n_places), per_place).astype(np.int32)
+    q = query_profile_rows(query, sb)
+    got = semiglobal_views_min(q, sb, SweepState(sb.length.size), places, place_start, per_place, pov, view_spans(place_start, per_place, pov.size))
+    per_view = semiglobal_bounds(query, sb)[: off.size - 1]
     assert np.array_equal(got, least_per_place(per_view, place_start, per_place, NO_VIEW)[places])
     # a lower bound of the cyclic cost
     views = strings(codes, off)
@@ -118,6 +96,34 @@ def test_semiglobal_bounds_a_place_are_the_block_kernels_and_below_the_cyclic_co
         qs = "".join(ALPHABET[c] for c in query)
         exact = least_per_place(alignment_costs([qs], views, cyclic=True, costs=cm)[0] * scale, place_start, per_place, np.inf)
         assert np.all(np.where(got == NO_VIEW, np.inf, got) <= exact[places])
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_places=st.integers(1, 60), calls=st.integers(1, 5))
+def test_each_sweep_covers_the_places_it_completes_once_and_their_bounds_stay(seed, n_places, calls):
+    """Calls of semiglobal_cover on chosen places: each returns the places whose views are all swept now and were not before."""
+    cm = COSTS["feature"]
+    sub8, indel8, _ = integer_costs(cm.substitution, cm.indel)
+    rng, per_place, place_start, codes, off, letters = random_views(seed, n_places, 12, 8, 5)
+    sb = pack_subblocks(codes, off, sub8, indel8)
+    pov = np.repeat(np.arange(n_places), per_place).astype(np.int32)
+    span = view_spans(place_start, per_place, pov.size)
+    query = letters[rng.integers(0, letters.size, int(rng.integers(0, 9)))].astype(np.uint8)
+    q = query_profile_rows(query, sb)
+    state = SweepState(sb.length.size)
+    swept = np.zeros(sb.length.size, dtype=bool)
+    done = per_place == 0  # a place without views is never covered
+    for _ in range(calls):
+        chosen = rng.permutation(n_places)[: int(rng.integers(0, n_places + 1))].astype(np.int64)
+        for p in chosen:
+            swept[place_start[p] // SUB_LANES : (place_start[p] + per_place[p] - 1) // SUB_LANES + 1] |= per_place[p] > 0
+        got = semiglobal_cover(q, sb, state, chosen, place_start, per_place, pov, span)
+        now = np.array([per_place[p] > 0 and swept[place_start[p] // SUB_LANES : (place_start[p] + per_place[p] - 1) // SUB_LANES + 1].all() for p in range(n_places)])
+        assert sorted(got.tolist()) == sorted(np.flatnonzero(now & ~done).tolist())
+        done |= now
+    covered = np.flatnonzero(done & (per_place > 0)).astype(np.int64)
+    want = least_per_place(semiglobal_bounds(query, sb), place_start, per_place, NO_VIEW)[covered]
+    assert np.array_equal(semiglobal_views_min(q, sb, state, covered, place_start, per_place, pov, span), want)
 
 
 @settings(max_examples=25, deadline=None)
@@ -147,6 +153,52 @@ def test_letter_count_bounds_a_place_are_the_least_over_its_views_and_below_the_
         qs = "".join(ALPHABET[c] for c in query)
         exact = alignment_costs([qs], strings(codes, off), cyclic=True, costs=cm)[0] * scale
         assert np.all(np.where(got == NO_VIEW, np.inf, got / 2.0) <= least_per_place(exact, place_start, per_place, np.inf))
+
+
+def random_cost_model(rng):
+    """Symmetric costs of quarter units, not metric in general (the bounds must hold for any table)."""
+    sub = np.triu(rng.integers(1, 9, (N_LETTERS, N_LETTERS)) / 4.0, 1)
+    return CostModel(substitution=sub + sub.T, indel=rng.integers(1, 5, N_LETTERS) / 4.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n_places=st.integers(1, 30), costs=st.sampled_from(["unit", "feature", "random"]))
+def test_letter_counts_with_every_potential_bound_the_cyclic_cost_and_tighten_the_coarse_bound(seed, n_places, costs):
+    """The middle bound (every potential of count_potentials) lies between the three-potential count bound and the cyclic cost."""
+    rng, per_place, place_start, codes, off, letters = random_views(seed, n_places, 3, 12, 7)
+    cm = COSTS.get(costs) or random_cost_model(rng)
+    _sub8, _indel8, scale = integer_costs(cm.substitution, cm.indel)
+    pots = count_potentials(cm.substitution, cm.indel)
+    u = np.array([a for a, _ in pots]) * 2 * scale
+    w = np.array([b for _, b in pots]) * 2 * scale
+    assert np.array_equal(u, np.round(u)) and np.array_equal(w, np.round(w))
+    nv = off.size - 1
+    counts = np.zeros((nv, N_LETTERS), dtype=np.int64)
+    np.add.at(counts, (np.repeat(np.arange(nv), np.diff(off)), codes.astype(np.int64)), 1)
+    query = letters[rng.integers(0, letters.size, int(rng.integers(0, 12)))].astype(np.uint8)
+    extra = rng.choice(np.setdiff1d(np.arange(N_LETTERS), letters), 2, replace=False)  # letters only the query has
+    query = np.concatenate([query, extra[rng.integers(0, 2, int(rng.integers(0, 3)))]]).astype(np.uint8)
+    q = np.bincount(query, minlength=N_LETTERS).astype(np.int32)
+    used = np.flatnonzero(counts.sum(0) > 0)
+    rest = np.setdiff1d(np.arange(N_LETTERS), used)
+    const = (u[:, rest] @ q[rest]).astype(np.int32)
+    places = rng.permutation(n_places)[: int(rng.integers(1, n_places + 1))].astype(np.int64)
+    got = potential_place_min(
+        q[used].astype(np.int32), np.ascontiguousarray(counts[:, used].astype(np.uint8)), u[:, used].astype(np.int32),
+        w[:, used].astype(np.int32), const, places, place_start, per_place,
+    )
+    d = q[None, :] - counts
+    per_view = np.maximum(0, (np.maximum(d, 0) @ u.T + np.maximum(-d, 0) @ w.T).max(axis=1)) if nv else np.zeros(0)
+    assert np.array_equal(got, least_per_place(per_view, place_start, per_place, NO_VIEW)[places])
+    other = np.where(np.eye(N_LETTERS, dtype=bool), np.inf, cm.substitution).min(axis=1)
+    h2 = (2 * scale * np.minimum(cm.indel, other / 2.0)).astype(np.int32)
+    c2 = (2 * scale * np.minimum(cm.indel, other)).astype(np.int32)
+    coarse = count_place_min(q, np.ascontiguousarray(counts.T.astype(np.int16)), np.arange(N_LETTERS, dtype=np.int64), h2, c2, place_start, per_place)
+    assert np.all(got >= coarse[places])
+    if nv:
+        qs = "".join(ALPHABET[c] for c in query)
+        exact = alignment_costs([qs], strings(codes, off), cyclic=True, costs=cm)[0] * scale
+        assert np.all(np.where(got == NO_VIEW, np.inf, got / 2.0) <= least_per_place(exact, place_start, per_place, np.inf)[places])
 
 
 @settings(max_examples=25, deadline=None)
@@ -208,4 +260,13 @@ def test_scaled_values_and_the_unscored_mass_are_numpys(seed, n):
     ub = rng.normal(-30.0, 10.0, n)
     level = rng.integers(1, 4, n).astype(np.int8)
     want = np.exp(ub[level < 3] - 5.0).sum()
-    assert unscored_mass(ub, level, 5.0) == pytest.approx(want, rel=1e-12, abs=0.0)
+    got = unscored_mass(ub, level, 5.0, 3)  # a bound: places 60 nats below count exp(-60) each
+    assert want * (1 - 1e-12) <= got <= want * (1 + 1e-12) + n * np.exp(-60.0)
+    assert unscored_mass(ub, level, float(ub.max(initial=0.0)) + 61.0, 3) >= np.count_nonzero(level < 3) * np.exp(-60.0) * (1 - 1e-12)
+    # the m best places, best first (ties of value in any order), and the open ones
+    m = int(rng.integers(0, n + 1))
+    top = top_places(ub, m)
+    assert np.array_equal(np.sort(ub[top])[::-1], np.sort(ub)[::-1][:m])
+    assert np.all(np.diff(ub[top]) <= 0)
+    cut = float(rng.normal(-30.0, 10.0))
+    assert np.array_equal(open_places(ub, level, cut, 3), np.flatnonzero((level < 3) & (ub >= cut)))

@@ -5,19 +5,21 @@ of every place: at 100,000 places that is 300,000 cyclic alignments a
 query. :class:`PlaceIndex` gives the same best places with the same
 joint log-likelihoods, scoring in full only the places that could matter.
 
-How. The places are put in groups of look-alikes (:func:`place_layout`: a
-recursive split of the places along their most spread feature, the range
-descriptor and the letter counts of their views, into groups of at most 64
-views). For one query, each term gives an upper bound of its
-log-likelihood over a whole group, and a tighter one for each place of a
-group (:mod:`fingerloc.terms.bounds`); their weighted sum bounds the joint
-log-likelihood. The search is best first: the group or place with the
-highest bound is refined (group -> its places' bounds -> a place's exact
-score), until no bound left can reach the ``k``-th best exact score. Ties
-are refined too, so the answer is that of the linear scan: the same ``k``
-places in the same order (ties by place index, as ``argmax``), with
-bit-identical joint log-likelihoods (each term scores the chosen places
-with the same arithmetic as it scores all of them).
+How. The places are laid out so that look-alikes sit side by side
+(:func:`place_layout`: a recursive split of the places along their most
+spread feature, the range descriptor and the letter counts of their views).
+For one query, each term gives upper bounds of its log-likelihood at a
+place, each tighter and dearer than the last (:mod:`fingerloc.terms.bounds`):
+a coarse one at every place, a middle one, a fine one and a finer one at
+chosen places; their weighted sum bounds the joint log-likelihood. The
+search is best first: the places whose bound could still reach the ``k``-th
+best exact score get their next bound, the highest bounds first, and at the
+last level their exact score, until no bound left can reach it (in batches:
+a kernel's set-up is paid once a batch). Ties are refined too, so the answer
+is that of the linear scan: the same ``k`` places in the same order (ties by
+place index, as ``argmax``), with bit-identical joint log-likelihoods (each
+term scores the chosen places with the same arithmetic as it scores all of
+them).
 
 The posterior. ``P(place | obs)`` is normalised over *every* place, and the
 places never scored contribute to the normaliser. The answer says by how
@@ -56,7 +58,7 @@ from ._lse import logsumexp
 from ._types import FArray, IArray
 from .errors import InvalidParameterError
 from .observation import Observation
-from .terms._bound_kernels import place_letter_counts, unscored_mass
+from .terms._bound_kernels import open_places, place_letter_counts, top_places, unscored_mass
 from .terms.bounds import DenseBound, PlaceLayout, TermBound, bound_for, has_bound
 from .terms.fingerprint import FingerprintTerm
 from .terms.range import RangeTerm
@@ -299,18 +301,22 @@ class PlaceIndex:
 
 
 
+#: A place's bound: its coarse bound, a middle one, its fine bound, its finer bound, its exact score (:class:`_Search`).
+COARSE, MID, FINE, FINER, SCORED = 1, 2, 3, 4, 5
+
+
 class _Search:
-    """One query's search (module docstring): coarse bounds of every place, fine bounds of chosen groups, scores."""
+    """One query's search (module docstring): coarse bounds of every place, then finer ones and scores, best bound first."""
 
     def __init__(self, index: PlaceIndex, o: Observation, k: int, tol: float | None, true_col: int | None) -> None:
         self.ix = index
         self.o = o
         self.k, self.tol, self.true_col = k, tol, true_col
         self.prep = {name: b.prepare(o) for name, b in index.bounds.items()}
-        self.coarse = {name: b.coarse(self.prep[name]) for name, b in index.bounds.items()}
-        self.ub = _weighted(index.weights, self.coarse)  # the best bound known of each place
-        self.level = np.ones(index.n_places, dtype=np.int8)  # 1 coarse, 2 fine, 3 scored
-        self.g_fine = np.zeros(index.layout.n_groups, dtype=bool)
+        #: each term's best bound known of each place (its coarse bound until a finer one is computed)
+        self.bound = {name: b.coarse(self.prep[name]) for name, b in index.bounds.items()}
+        self.ub = _weighted(index.weights, self.bound)  # the best bound known of each place's joint
+        self.level = np.full(index.n_places, COARSE, dtype=np.int8)
         self.scored_p: list[IArray] = []
         self.scored_j: list[FArray] = []
         self.joint = np.zeros(0)
@@ -323,34 +329,45 @@ class _Search:
             th = min(th, float(self.scored_j[0][0]))
         return th
 
-    def refine(self, groups: IArray) -> None:
-        """The fine bounds of the places of ``groups`` (a term without finer ones keeps its coarse bound)."""
-        mark = np.zeros(self.g_fine.size, dtype=bool)
-        mark[groups] = True
-        groups = np.flatnonzero(mark & ~self.g_fine)
-        if groups.size == 0:
+    def _tighten(self, p: IArray, level: int, per: dict[str, FArray | None]) -> None:
+        """New bounds of the terms at ``p`` (None: the term's bound stays), and ``p``'s joint bound; ``p`` at ``level``."""
+        for name, f in per.items():
+            if f is not None:
+                self.bound[name][p] = f
+        self.ub[p] = np.minimum(self.ub[p], _weighted(self.ix.weights, {name: b[p] for name, b in self.bound.items()}))
+        self.level[p] = level
+
+    def refine(self, places: IArray, *, keep_all: bool = False) -> None:
+        """The fine bounds of ``places`` (distinct) that their middle bounds keep (all with ``keep_all``), and of those they come with."""
+        p = places[self.level[places] < FINE]
+        first = p[self.level[p] < MID]
+        if first.size:
+            self._tighten(first, MID, {name: b.mid(self.prep[name], first) for name, b in self.ix.bounds.items()})
+        if not keep_all:
+            p = p[self.ub[p] >= self.cut()]
+        if p.size == 0:
             return
-        places = self.ix.layout.places_of(groups)
-        per: dict[str, FArray] = {}
-        for name, b in self.ix.bounds.items():
-            f = b.fine(self.prep[name], groups)
-            per[name] = self.coarse[name][places] if f is None else f
-        ub = _weighted(self.ix.weights, per)
-        open_ = self.level[places] < 2
-        p = places[open_]
-        self.ub[p] = np.minimum(self.ub[p], ub[open_])
-        self.level[p] = 2
-        self.g_fine[groups] = True
+        for name, b in self.ix.bounds.items():  # the places whose fine bounds come with those of p (p among them)
+            p = b.cover(self.prep[name], p)
+        p = p[self.level[p] < FINE]
+        if p.size:
+            self._tighten(p, FINE, {name: b.fine(self.prep[name], p) for name, b in self.ix.bounds.items()})
+
+    def refine_more(self, places: IArray) -> None:
+        """The finer bounds of ``places`` (distinct, fine already)."""
+        p = places[self.level[places] == FINE]
+        if p.size:
+            self._tighten(p, FINER, {name: b.finer(self.prep[name], p) for name, b in self.ix.bounds.items()})
 
     def score(self, places: IArray) -> None:
-        places = places[self.level[places] < 3]
+        places = places[self.level[places] < SCORED]
         if places.size == 0:
             return
         j = self.ix._exact(self.prep, places)
         self.scored_p.append(places)
         self.scored_j.append(j)
         self.joint = np.concatenate([self.joint, j])
-        self.level[places] = 3
+        self.level[places] = SCORED
 
     def cut(self) -> float:
         th = self.theta()
@@ -362,36 +379,51 @@ class _Search:
             return None  # every place to be scored: search() does it for such queries together
         if self.true_col is not None:  # the truth first: its score bounds what must be scored
             self.score(np.array([self.true_col]))
-        # 1. a first threshold: the groups of the places with the best coarse bounds, refined, their best scored
-        m = min(max(32, _FIRST_SCORED), ix.n_places)
-        top = np.argpartition(-self.ub, m - 1)[:m]
-        self.refine(ix.group_of[top])
-        self.score(top[np.argsort(-self.ub[top], kind="stable")][: max(2 * k, _FIRST_SCORED)])
+        # 1. a first threshold: the places with the best coarse bounds refined, the best of them scored
+        m = min(max(_FIRST_REFINED, _FIRST_SCORED), ix.n_places)
+        top = top_places(self.ub, m)
+        self.refine(top)
+        first = top[np.argsort(-self.ub[top], kind="stable")][: 4 * max(2 * k, _FIRST_SCORED)]
+        self.refine_more(first)
+        self.score(first[np.argsort(-self.ub[first], kind="stable")][: max(2 * k, _FIRST_SCORED)])
         if self.tol is not None and self._needs_most():  # the posterior to tol would score most places anyway
             return None  # every place to be scored: search() does it for such queries together
-        # 2. the fine bounds of every group holding a place the coarse bounds keep (whole groups skipped)
-        cand = np.flatnonzero((self.level < 3) & (self.ub >= self.cut()))
-        self.refine(ix.group_of[cand[self.level[cand] == 1]])
-        # 3. scores, best bound first, while a bound can reach the k-th best score
+        # 2. best first: of the places whose bound can still reach the k-th best score, those of the highest bounds
+        # get their next bound (or, at the last, their score); in batches (a kernel's set-up is paid once a batch)
+        cand = open_places(self.ub, self.level, self.cut(), SCORED)
+        batch = _SCORE_FIRST
         while True:
-            cut = self.cut()
-            cand = cand[(self.level[cand] < 3) & (self.ub[cand] >= cut)]
+            cand = cand[(self.level[cand] < SCORED) & (self.ub[cand] >= self.cut())]
             if cand.size == 0:
                 if self.tol is None or self._mass() <= self.tol:
                     break
                 if self._refine_mass():  # most places would be scored: the linear scan, at once
                     return None  # every place to be scored: search() does it for such queries together
-                cand = np.flatnonzero(self.level < 3)
+                cand = np.flatnonzero(self.level < SCORED)
                 continue
-            coarse = cand[self.level[cand] == 1]
-            if coarse.size:  # places whose group was not refined yet (tol)
-                self.refine(ix.group_of[coarse])
+            ub = self.ub[cand]
+            lev = self.level[cand]
+            at = max(int(lev[int(np.argmax(ub))]), MID)  # the level of the highest bound (coarse and middle: refine)
+            if at == FINER:
+                sel = np.flatnonzero(lev == FINER)
+                if sel.size > batch:
+                    sel = sel[np.argpartition(-ub[sel], batch - 1)[:batch]]
+                self.score(cand[sel])
+                batch = min(2 * batch, _SCORE_BATCH)
                 continue
-            if cand.size > _SCORE_BATCH:
-                cand_top = cand[np.argpartition(-self.ub[cand], _SCORE_BATCH - 1)[:_SCORE_BATCH]]
+            above = lev > at
+            top_above = float(ub[above].max()) if above.any() else -math.inf
+            here = (lev <= at) if at == MID else (lev == at)
+            sel = np.flatnonzero(here & (ub >= top_above))  # above every bound of a later level
+            cap = _REFINE_BATCH if at == MID else _FINER_BATCH
+            if sel.size > cap:
+                sel = sel[np.argpartition(-ub[sel], cap - 1)[:cap]]
+            elif at == MID:
+                sel = np.flatnonzero(here)  # a sweep's set-up once for all of them
+            if at == MID:
+                self.refine(cand[sel])
             else:
-                cand_top = cand
-            self.score(cand_top)
+                self.refine_more(cand[sel])
         all_p = np.concatenate(self.scored_p)
         return _finish(all_p, self.joint, k, self._mass(), self.true_col)
 
@@ -402,12 +434,12 @@ class _Search:
             return math.inf
         top = float(np.max(j))
         if not math.isfinite(top):
-            return _mass(j, self.ub[self.level < 3])
-        return unscored_mass(self.ub, self.level, top) / float(np.exp(j - top).sum())
+            return _mass(j, self.ub[self.level < SCORED])
+        return unscored_mass(self.ub, self.level, top, SCORED) / float(np.exp(j - top).sum())
 
     def _needed(self) -> tuple[IArray, int]:
         """Places not scored, most mass first, and how many of them hold more than ``tol`` of the posterior (bounds)."""
-        unscored = np.flatnonzero(self.level < 3)
+        unscored = np.flatnonzero(self.level < SCORED)
         top = float(np.max(self.joint)) if self.joint.size else -math.inf
         if not math.isfinite(top):
             return unscored, unscored.size
@@ -445,18 +477,24 @@ class _Search:
         if self.joint.size + need > _FULL_FRACTION * self.ix.n_places:
             return True
         chosen = ordered[:need]
-        coarse = chosen[self.level[chosen] == 1]
+        coarse = chosen[self.level[chosen] < FINE]
         if coarse.size:
-            self.refine(self.ix.group_of[coarse])
+            self.refine(coarse, keep_all=True)
         else:
             self.score(chosen)
         return False
 
 
 #: Places scored first (the best coarse bounds among the places of the refined groups): the first threshold.
-_FIRST_SCORED = 16
-#: Places scored a step afterwards, best bound first.
+_FIRST_SCORED = 8
+_FIRST_REFINED = 256
+#: Places scored a step afterwards, best bound first: the first batch, doubled each step up to the last.
+_SCORE_FIRST = 16
 _SCORE_BATCH = 64
+#: Most places refined a step (their fine bounds in one call), best coarse bound first.
+_REFINE_BATCH = 2048
+#: Most places given their finer bound a step, best bound first.
+_FINER_BATCH = 256
 
 #: Places to score for ``tol`` beyond which the linear scan is run instead (a fraction of all places).
 _FULL_FRACTION = 0.4

@@ -32,23 +32,30 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from ..align._bounds import GROUP_LANES, _bounds, _count_bounds
+from ..align._bounds import SUB_LANES, SubBlocks, _count_bounds, reversed_bound, sweep
 from ..align._cyclic_int import LANES8, _costs_blocks, _profiles
 
 __all__ = [
     "NO_VIEW",
     "QueryRows",
+    "SweepState",
     "count_place_min",
     "count_place_min_narrow",
     "cyclic_place_min",
     "exact_l1_place_min",
     "l1_place_min",
     "letter_counts",
+    "open_places",
     "place_letter_counts",
+    "potential_place_min",
     "query_rows",
     "scaled",
-    "semiglobal_place_min",
+    "semiglobal_cover",
+    "semiglobal_finer_min",
+    "semiglobal_views_min",
+    "top_places",
     "unscored_mass",
+    "view_spans",
 ]
 
 #: The value of a place without views in the integer passes (larger than any bound or cost).
@@ -64,14 +71,85 @@ def scaled(least: NDArray[np.int64], unit: float) -> NDArray[np.float64]:  # pra
     return out
 
 
+#: Below the best score by more than this (nats), a place's bound counts as exp(-_FAR) in :func:`unscored_mass`.
+_FAR = 60.0
+
+
 @njit(cache=True)
-def unscored_mass(ub: NDArray[np.float64], level: NDArray[np.int8], top: float) -> float:  # pragma: no cover - compiled
-    """``sum(exp(ub[i] - top))`` over the places not scored (``level[i] < 3``)."""
+def unscored_mass(ub: NDArray[np.float64], level: NDArray[np.int8], top: float, scored: int) -> float:  # pragma: no cover - compiled
+    """A bound on ``sum(exp(ub[i] - top))`` over the places not scored (``level[i] < scored``).
+
+    Bounds more than ``_FAR`` (60) nats below ``top`` count ``exp(-60)`` each instead of their own
+    (less than 1e-26 each: the sum is a bound still, computed without an exponential for most places).
+    """
     total = 0.0
+    far = 0
+    lim = top - _FAR
     for i in range(ub.size):
-        if level[i] < 3:
-            total += np.exp(ub[i] - top)
-    return total
+        if level[i] < scored:
+            if ub[i] > lim:
+                total += np.exp(ub[i] - top)
+            else:
+                far += 1
+    return total + far * np.exp(-_FAR)
+
+
+@njit(cache=True)
+def top_places(ub: NDArray[np.float64], m: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """The ``m`` places of largest ``ub`` (a heap of ``m``: one pass, most places rejected by a comparison), best first."""
+    n = ub.size
+    m = min(m, n)
+    if m <= 0:
+        return np.zeros(0, dtype=np.int64)
+    heap_v = np.empty(m)  # a min-heap of the m best values so far
+    heap_i = np.empty(m, dtype=np.int64)
+    size = 0
+    for i in range(n):
+        x = ub[i]
+        if size < m:
+            j = size
+            size += 1
+        elif x > heap_v[0]:
+            j = 0  # replace the root, sift down
+            while True:
+                c = 2 * j + 1
+                if c >= m:
+                    break
+                if c + 1 < m and heap_v[c + 1] < heap_v[c]:
+                    c += 1
+                if heap_v[c] >= x:
+                    break
+                heap_v[j] = heap_v[c]
+                heap_i[j] = heap_i[c]
+                j = c
+            heap_v[j] = x
+            heap_i[j] = i
+            continue
+        else:
+            continue
+        while j > 0:  # sift up the new leaf
+            parent = (j - 1) // 2
+            if heap_v[parent] <= x:
+                break
+            heap_v[j] = heap_v[parent]
+            heap_i[j] = heap_i[parent]
+            j = parent
+        heap_v[j] = x
+        heap_i[j] = i
+    order = np.argsort(-heap_v[:size], kind="mergesort")
+    return heap_i[:size][order]
+
+
+@njit(cache=True)
+def open_places(ub: NDArray[np.float64], level: NDArray[np.int8], cut: float, scored: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """``flatnonzero((level < scored) & (ub >= cut))``."""
+    out = np.empty(ub.size, dtype=np.int64)
+    n = 0
+    for i in range(ub.size):
+        if level[i] < scored and ub[i] >= cut:
+            out[n] = i
+            n += 1
+    return out[:n].copy()
 
 
 @njit(cache=True)
@@ -169,6 +247,83 @@ def count_place_min_narrow(
     return _place_min(acc_h, place_start, per_place)
 
 
+#: Views a block of :func:`potential_place_min` (their letter counts gathered side by side).
+_POTENTIAL_BLOCK = 256
+
+
+@njit(cache=True)
+def potential_place_min(
+    q: NDArray[np.int32],
+    rows: NDArray[np.uint8],
+    u: NDArray[np.int32],
+    w: NDArray[np.int32],
+    const: NDArray[np.int32],
+    places: NDArray[np.int64],
+    place_start: NDArray[np.int64],
+    per_place: NDArray[np.int64],
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """Each of ``places``' least letter-count bound over its views with the potentials ``u``, ``w``, shape ``(len(places),)``.
+
+    ``rows[v, x]``: occurrences of letter ``x`` (of the letters the views use) in view ``v`` (layout
+    order); ``q``: the query's, the same letters. Per view the bound is ``max(0, max_k const[k] +
+    sum_x u[k, x] max(q_x - rows[v, x], 0) + w[k, x] max(rows[v, x] - q_x, 0))`` (``const``: the
+    query's letters no view has, ``sum u[k, x] q_x`` over them), integer units of the costs. The
+    views are gathered :data:`_POTENTIAL_BLOCK` at a time, their counts side by side.
+    """
+    K, L = u.shape
+    n = 0
+    for p in places:
+        n += per_place[p]
+    views = np.empty(n, dtype=np.int64)
+    i = 0
+    for p in places:
+        for v in range(place_start[p], place_start[p] + per_place[p]):
+            views[i] = v
+            i += 1
+    per_view = np.empty(n, dtype=np.int32)
+    blk = _POTENTIAL_BLOCK
+    t = np.empty((L, blk), dtype=np.int32)
+    pos = np.empty(blk, dtype=np.int32)
+    neg = np.empty(blk, dtype=np.int32)
+    acc = np.empty((K, blk), dtype=np.int32)
+    for a in range(0, n, blk):
+        m = min(blk, n - a)
+        for j in range(m):
+            r = rows[views[a + j]]
+            for x in range(L):
+                t[x, j] = r[x]
+        for k in range(K):
+            for j in range(m):
+                acc[k, j] = const[k]
+        for x in range(L):
+            qx = q[x]
+            tx = t[x]
+            for j in range(m):
+                d = qx - tx[j]
+                pos[j] = max(d, 0)
+                neg[j] = max(-d, 0)
+            for k in range(K):
+                uk = u[k, x]
+                wk = w[k, x]
+                ak = acc[k]
+                for j in range(m):
+                    ak[j] += uk * pos[j] + wk * neg[j]
+        for j in range(m):
+            b = 0
+            for k in range(K):
+                b = max(b, acc[k, j])
+            per_view[a + j] = b
+    out = np.empty(places.size, dtype=np.int64)
+    i = 0
+    for t2 in range(places.size):
+        mm = NO_VIEW
+        for _ in range(per_place[places[t2]]):
+            mm = min(mm, int(per_view[i]))
+            i += 1
+        out[t2] = mm
+    return out
+
+
 @njit(cache=True)
 def l1_place_min(
     desc_t: NDArray[np.uint16], q: NDArray[np.uint16], place_start: NDArray[np.int64], per_place: NDArray[np.int64]
@@ -188,62 +343,229 @@ def l1_place_min(
     return _place_min(acc, place_start, per_place)
 
 
+class SweepState:
+    """What one query's search has swept of the semi-global bound (:func:`semiglobal_cover`): the lanes of each sub-block."""
+
+    def __init__(self, n_sub: int) -> None:
+        self.lanes = np.empty(n_sub * SUB_LANES, dtype=np.int32)  # valid where swept_at > 0
+        self.swept_at = np.zeros(n_sub, dtype=np.int32)  # the call that swept each sub-block; 0: not swept
+        self.calls = 0
+
+
 @njit(cache=True)
-def semiglobal_place_min(
-    rows: NDArray[np.int64],
-    gaps: NDArray[np.int32],
-    groups: NDArray[np.int64],
-    group_blocks: NDArray[np.int64],
-    block_start: NDArray[np.int64],
-    prof: NDArray[np.int8],
-    pstart: NDArray[np.int64],
-    block_len: NDArray[np.int64],
-    gsum: NDArray[np.int32],
-    n_rows: int,
-    order: NDArray[np.int64],
-    starts: NDArray[np.int64],
+def _new_subblocks(
+    places: NDArray[np.int64], place_start: NDArray[np.int64], per_place: NDArray[np.int64], length: NDArray[np.int64],
+    swept_at: NDArray[np.int32], call: int,
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """The sub-blocks holding a view of ``places`` not swept yet, each once, shortest first; marked swept by ``call``."""
+    nv = 0
+    for p in places:
+        nv += per_place[p]
+    subs = np.empty(nv, dtype=np.int64)
+    n = 0
+    maxlen = 0
+    for p in places:
+        a = place_start[p]
+        if per_place[p] == 0:
+            continue
+        for s in range(a // SUB_LANES, (a + per_place[p] - 1) // SUB_LANES + 1):
+            if swept_at[s] == 0:
+                swept_at[s] = call
+                subs[n] = s
+                n += 1
+                maxlen = max(maxlen, length[s])
+    first = np.zeros(maxlen + 2, dtype=np.int64)  # a counting sort on the lengths: sweeps of alike lengths
+    for t in range(n):
+        first[length[subs[t]] + 1] += 1
+    for m in range(maxlen + 1):
+        first[m + 1] += first[m]
+    order = np.empty(n, dtype=np.int64)
+    for t in range(n):
+        m = length[subs[t]]
+        order[first[m]] = subs[t]
+        first[m] += 1
+    return order
+
+
+@njit(cache=True)
+def _store(lanes: NDArray[np.int32], subs: NDArray[np.int64], out: NDArray[np.int32]) -> None:  # pragma: no cover - compiled
+    flat = lanes.reshape(lanes.size)
+    for t in range(subs.size):
+        for k in range(SUB_LANES):
+            out[subs[t] * SUB_LANES + k] = flat[t * SUB_LANES + k]
+
+
+@njit(cache=True)
+def _newly_covered(
+    subs: NDArray[np.int64], view_place: NDArray[np.int32], view_span: NDArray[np.int32], swept_at: NDArray[np.int32], call: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """The places whose views all lie in swept sub-blocks, one of them swept by ``call`` (``subs``: those).
+
+    ``view_place``: the place of each view; ``view_span[v] = (first sub-block, last sub-block)`` of its
+    place's views, negated (-1 -) at the place's first view in each sub-block (the only view looked at).
+    """
+    nv = view_place.size
+    out = np.empty(subs.size * SUB_LANES, dtype=np.int64)
+    n = 0
+    for s in subs:
+        lo = s * SUB_LANES
+        for v in range(lo, min(nv, lo + SUB_LANES)):
+            first = view_span[2 * v]
+            if first >= 0:  # not the place's first view in this sub-block
+                continue
+            first = -1 - first
+            last = view_span[2 * v + 1]
+            whole = True
+            for u in range(first, last + 1):  # every sub-block swept, and s the last this call swept
+                x = swept_at[u]
+                whole = whole and x > 0 and not (u > s and x == call)
+            if whole:
+                out[n] = view_place[v]
+                n += 1
+    return out[:n]
+
+
+def view_spans(place_start: NDArray[np.int64], per_place: NDArray[np.int64], n_views: int) -> NDArray[np.int32]:
+    """:func:`_newly_covered`'s ``view_span`` (2 entries a view) for views in layout order (place ``p``: ``place_start[p] ..``)."""
+    has = per_place > 0
+    a, m = place_start[has], per_place[has]
+    first = a // SUB_LANES
+    last = (a + m - 1) // SUB_LANES
+    span = np.empty((n_views, 2), dtype=np.int64)
+    order = np.argsort(a, kind="stable")  # the views of the places in layout order
+    span[:, 0] = np.repeat(first[order], m[order])
+    span[:, 1] = np.repeat(last[order], m[order])
+    v = np.arange(n_views)
+    start = np.repeat(a[order], m[order])
+    head = v == np.maximum(start, (v // SUB_LANES) * SUB_LANES)
+    span[head, 0] = -1 - span[head, 0]
+    return span.reshape(-1).astype(np.int32)
+
+
+@njit(cache=True)
+def _cached_place_min(
+    lanes: NDArray[np.int32], swept_at: NDArray[np.int32], places: NDArray[np.int64], place_start: NDArray[np.int64], per_place: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], bool]:  # pragma: no cover - compiled
+    """Each place's least lane over its views, and whether every view was swept (else the values are not all valid)."""
+    out = np.empty(places.size, dtype=np.int64)
+    ok = True
+    for i in range(places.size):
+        p = places[i]
+        m = NO_VIEW
+        for v in range(place_start[p], place_start[p] + per_place[p]):
+            ok = ok and swept_at[v // SUB_LANES] > 0
+            m = min(m, int(lanes[v]))
+        out[i] = m
+    return out, ok
+
+
+def semiglobal_cover(
+    query: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int64]],
+    sb: SubBlocks,
+    state: SweepState,
+    places: NDArray[np.int64],
     place_start: NDArray[np.int64],
     per_place: NDArray[np.int64],
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
-    """The places of ``groups`` (group after group, layout order) and each one's least semi-global bound.
+    place_of_view: NDArray[np.int32],
+    view_span: NDArray[np.int32],
+) -> NDArray[np.int64]:
+    """Sweep the sub-blocks of ``places``' views not swept yet; the places whose bounds that completed.
 
-    ``rows``/``gaps``: the query written twice, as profile rows and integer indels
-    (:func:`fingerloc.align._bounds.semiglobal_bounds`); group ``g`` holds the blocks
-    ``group_blocks[g] .. group_blocks[g + 1] - 1`` of the packed views, block ``b`` the views
-    ``block_start[b] ..`` (at most ``GROUP_LANES``); ``order``/``starts``: the layout.
+    ``query``: :func:`~fingerloc.align._bounds.query_profile_rows`; ``sb``: the views packed in
+    sub-blocks in layout order (place ``p`` holds the views ``place_start[p] ..``,
+    ``place_of_view`` the place of each view, ``view_span`` from :func:`view_spans`). Only the sub-blocks
+    (:data:`~fingerloc.align._bounds.SUB_LANES` views) holding a view of ``places`` are swept,
+    shortest together (:func:`~fingerloc.align._bounds.sweep_subblocks`), each once a query: their
+    lanes are kept in ``state``. The places returned are those whose every view is now swept and
+    was not before (``places`` among them, unless swept before): :func:`semiglobal_views_min` reads
+    their bounds.
     """
-    nb = 0
-    n_places = 0
-    for g in groups:
-        nb += group_blocks[g + 1] - group_blocks[g]
-        n_places += starts[g + 1] - starts[g]
-    blocks = np.empty(nb, dtype=np.int64)
+    state.calls += 1
+    subs = _new_subblocks(np.ascontiguousarray(places, dtype=np.int64), place_start, per_place, sb.length, state.swept_at, state.calls)
+    if subs.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    _store(sweep(query, sb, subs), subs, state.lanes)
+    return _newly_covered(subs, place_of_view, view_span, state.swept_at, state.calls)
+
+
+def semiglobal_views_min(
+    query: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int64]],
+    sb: SubBlocks,
+    state: SweepState,
+    places: NDArray[np.int64],
+    place_start: NDArray[np.int64],
+    per_place: NDArray[np.int64],
+    place_of_view: NDArray[np.int32],
+    view_span: NDArray[np.int32],
+) -> NDArray[np.int64]:
+    """Each of ``places``' least semi-global bound over its views, shape ``(len(places),)`` (:data:`NO_VIEW`: no view).
+
+    Sweeps what :func:`semiglobal_cover` has not swept yet (``state``), then reads the lanes.
+    """
+    places = np.ascontiguousarray(places, dtype=np.int64)
+    least, ok = _cached_place_min(state.lanes, state.swept_at, places, place_start, per_place)
+    if ok:
+        return least
+    semiglobal_cover(query, sb, state, places, place_start, per_place, place_of_view, view_span)
+    return _cached_place_min(state.lanes, state.swept_at, places, place_start, per_place)[0]
+
+
+@njit(cache=True)
+def _views_of(places: NDArray[np.int64], place_start: NDArray[np.int64], per_place: NDArray[np.int64]) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    n = 0
+    for p in places:
+        n += per_place[p]
+    out = np.empty(n, dtype=np.int64)
     i = 0
-    for g in groups:
-        for b in range(group_blocks[g], group_blocks[g + 1]):
-            blocks[i] = b
+    for p in places:
+        for v in range(place_start[p], place_start[p] + per_place[p]):
+            out[i] = v
             i += 1
-    lanes = np.empty((nb, GROUP_LANES), dtype=np.int32)
-    if nb:
-        _bounds(rows, gaps, blocks, prof, pstart, block_len, gsum, n_rows, lanes, 0, 1)
-    places = np.empty(n_places, dtype=np.int64)
-    least = np.empty(n_places, dtype=np.int64)
-    first = 0  # row of the group's first block in ``lanes``
+    return out
+
+
+@njit(cache=True)
+def _max_place_min(
+    lanes: NDArray[np.int32], rev: NDArray[np.int32], places: NDArray[np.int64], place_start: NDArray[np.int64], per_place: NDArray[np.int64]
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """Each place's least ``max(lanes[v], rev[i])`` over its views (``rev`` in the order of :func:`_views_of`)."""
+    out = np.empty(places.size, dtype=np.int64)
     i = 0
-    for g in groups:
-        b0 = group_blocks[g]
-        v0 = block_start[b0]
-        for t in range(starts[g], starts[g + 1]):
-            p = order[t]
-            m = NO_VIEW
-            for v in range(place_start[p], place_start[p] + per_place[p]):
-                k = (v - v0) // GROUP_LANES
-                m = min(m, lanes[first + k, v - block_start[b0 + k]])
-            places[i] = p
-            least[i] = m
+    for t in range(places.size):
+        p = places[t]
+        m = NO_VIEW
+        for v in range(place_start[p], place_start[p] + per_place[p]):
+            m = min(m, int(max(lanes[v], rev[i])))
             i += 1
-        first += group_blocks[g + 1] - b0
-    return places, least
+        out[t] = m
+    return out
+
+
+def semiglobal_finer_min(
+    query: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int64]],
+    sb: SubBlocks,
+    state: SweepState,
+    codes: NDArray[np.uint8],
+    off: NDArray[np.int64],
+    places: NDArray[np.int64],
+    place_start: NDArray[np.int64],
+    per_place: NDArray[np.int64],
+    place_of_view: NDArray[np.int32],
+    view_span: NDArray[np.int32],
+) -> NDArray[np.int64]:
+    """Each of ``places``' least, over its views, of the larger of the two semi-global bounds, shape ``(len(places),)``.
+
+    The view whole against the query twice (:func:`semiglobal_views_min`, swept as needed) and the
+    query whole against the view twice (:func:`~fingerloc.align._bounds.reversed_bound`): each lets
+    the other string's surplus letters go free, both are at most the cyclic cost, and together they
+    come close to it.
+    """
+    places = np.ascontiguousarray(places, dtype=np.int64)
+    if not _cached_place_min(state.lanes, state.swept_at, places, place_start, per_place)[1]:
+        semiglobal_cover(query, sb, state, places, place_start, per_place, place_of_view, view_span)
+    views = _views_of(places, place_start, per_place)
+    rev = reversed_bound(query, sb, codes, off, views) if views.size else np.zeros(0, dtype=np.int32)
+    return _max_place_min(state.lanes, rev, places, place_start, per_place)
 
 
 class QueryRows(NamedTuple):

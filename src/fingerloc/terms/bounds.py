@@ -1,28 +1,32 @@
-"""Upper bounds on each term's log-likelihood, for groups of places and for single places.
+"""Upper bounds on each term's log-likelihood at places, from cheap and loose to dear and tight.
 
 Exact retrieval (:mod:`fingerloc.retrieval`) scores a place in full only when
-a cheap upper bound on its joint log-likelihood could still change the
-answer. Each term gives two levels of bound per place, over a
-:class:`PlaceLayout` (places in groups of look-alikes, one group = one block
-of the bound kernels):
+an upper bound on its joint log-likelihood could still change the answer.
+Each term gives up to four levels of bound, over a :class:`PlaceLayout`
+(the places in an order that keeps look-alikes side by side):
 
-================  ============================================  ==========================================
-term              coarse: every place, a few operations a view  fine: the places of chosen groups
-================  ============================================  ==========================================
-``Fp``            letter counts (below): a letter the query     cyclic, integer costs: the semi-global
-                  has more (or fewer) of than a view must be    bound of :mod:`fingerloc.align._bounds`
-                  substituted or left out                       (the view against any substring of the
-                                                                query written twice, about 86 % of the
-                                                                cyclic cost, 7 % of its work); otherwise
-                                                                the exact cost
-``R``             the L1 distance to each view, its descriptor  (none finer)
-                  rounded to 1/(65535 // bins) (less bins/steps
-                  + 2e-9, both roundings)
-mixtures, others  the exact log-likelihood of every place       (none finer)
-================  ============================================  ==========================================
+=========  =========================================  ==============================================
+level      ``Fp`` (cyclic, integer costs)             ``R``; mixtures and other terms
+=========  =========================================  ==============================================
+coarse     letter counts with three potentials        ``R``: the L1 distance to each view, its
+(every     (below), one pass over 8-bit counts        descriptor rounded to 1/(65535 // bins) (less
+place)                                                bins/steps + 2e-9, both roundings); others:
+                                                      the exact log-likelihood of every place
+middle     letter counts with every potential of      (none finer)
+           :func:`count_potentials` (the dual of the
+           transport of the letters in excess)
+fine       the semi-global bound of                   (none finer)
+           :mod:`fingerloc.align._bounds`: the view
+           whole against any substring of the query
+           written twice (its sub-blocks swept once
+           a query, 7 % of the cyclic cost's work)
+finer      the larger of that and the query whole     (none finer)
+           against the view written twice: together
+           within a few percent of the cyclic cost
+=========  =========================================  ==============================================
 
-A group whose places' coarse bounds cannot change the answer is skipped as
-a whole: its fine bounds (the costly level) are never computed.
+Without integer costs the fine bound of ``Fp`` is its exact cost; with a
+partial field of view (no cyclic matching) every bound of ``Fp`` is.
 
 The letter-count bound: let ``e_a(x) = max(0, n_a(x) - n_b(x))`` be the letters
 ``x`` of ``a`` that no equal letter of ``b`` can match (``e_b`` likewise). In any
@@ -31,8 +35,9 @@ letter (cost ``s(x, y)``), so with ``c(x) = min(g(x), min_{y != x} s(x, y))``
 the cost is at least ``sum_x c(x) e_a(x)`` and ``sum_x c(x) e_b(x)``, and,
 splitting a pair's cost between its two letters, ``sum_x h(x) |n_a(x) - n_b(x)|``
 with ``h(x) = min(g(x), min_{y != x} s(x, y) / 2)``. Counts do not depend on the
-rotation, so the bound holds for the cyclic cost too; against a box of
-counts each difference is the distance to the box.
+rotation, so the bound holds for the cyclic cost too. These are three
+feasible points of a linear programme's dual (:func:`count_potentials`); the
+middle level takes the best of more of them.
 
 Every bound is a float at most the term's own value, rounding included (the
 count and semi-global bounds are exact sums of the costs' dyadic fractions;
@@ -50,23 +55,29 @@ from typing import Any
 import numpy as np
 
 from .._types import FArray, IArray
+from ..align._bounds import query_profile_rows
 from ..observation import Observation
 from ._bound_kernels import (
+    SweepState,
     count_place_min,
     count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
     l1_place_min,
     letter_counts,
+    potential_place_min,
     query_rows,
     scaled,
-    semiglobal_place_min,
+    semiglobal_cover,
+    semiglobal_finer_min,
+    semiglobal_views_min,
+    view_spans,
 )
 from .base import Term
 from .fingerprint import FingerprintTerm
 from .range import RangeTerm
 
-__all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for", "has_bound"]
+__all__ = ["DenseBound", "FingerprintBound", "PlaceLayout", "RangeBound", "TermBound", "bound_for", "count_potentials", "has_bound"]
 
 #: Most steps of a range descriptor entry (in [0, 1]) in the coarse bound, all bins together.
 _RANGE_STEPS = 65535
@@ -124,8 +135,20 @@ class TermBound:
         """An upper bound of the term's log-likelihood at every place, shape ``(P,)`` (columns of the model)."""
         raise NotImplementedError
 
-    def fine(self, query: Any, groups: IArray) -> FArray | None:
-        """A tighter bound at the places of ``groups`` (order of :meth:`PlaceLayout.places_of`); None: none finer."""
+    def cover(self, query: Any, places: IArray) -> IArray:
+        """``places`` and any others whose fine bounds come at no extra cost with theirs (``places`` first)."""
+        return places
+
+    def fine(self, query: Any, places: IArray) -> FArray | None:
+        """A tighter bound at ``places`` (distinct, in that order); None: none finer."""
+        return None
+
+    def mid(self, query: Any, places: IArray) -> FArray | None:
+        """A bound between the coarse and the fine one at ``places`` (distinct), cheap a place; None: none."""
+        return None
+
+    def finer(self, query: Any, places: IArray) -> FArray | None:
+        """A bound tighter still at ``places`` (distinct, their fine bounds computed); None: none finer."""
         return None
 
     def exact(self, query: Any, places: IArray) -> FArray:
@@ -169,7 +192,7 @@ class FingerprintBound(TermBound):
 
     def __init__(self, term: FingerprintTerm, layout: PlaceLayout) -> None:
         from ..align import CostModel
-        from ..align._bounds import GROUP_LANES, pack_groups
+        from ..align._bounds import pack_subblocks
         from ..align._costs import N_LETTERS
         from ..align._cyclic_int import integer_costs
         from ..align._encode import encode_many
@@ -189,6 +212,7 @@ class FingerprintBound(TermBound):
         self.partial_fov_exact = not term.cyclic  # cropped references: no count bound for a partial field of view
         ints = integer_costs(cm.substitution, cm.indel)
         self.counts_t: Any = None  # (letters, views): uint8, or int16 for larger counts or costs
+        self.pot_u: Any = None  # (potentials, letters) of the middle bound, integer units; None: none
         if ints is not None and most.max(initial=0) < np.iinfo(np.int16).max:
             sc = ints[2]
             h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
@@ -197,42 +221,44 @@ class FingerprintBound(TermBound):
                 self.counts_t = counts_t.astype(np.uint8 if narrow else np.int16)
                 self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
                 self.most = most
+                pots = [(2 * sc * u, 2 * sc * w) for u, w in count_potentials(cm.substitution, cm.indel)]
+                pots = [(u, w) for u, w in pots if np.array_equal(u, np.round(u)) and np.array_equal(w, np.round(w))]
+                if pots:  # the middle bound: more potentials, on chosen places only (rows of the letters the views use)
+                    self.used_letters = np.flatnonzero(self.used)
+                    self.rows_u = np.ascontiguousarray(counts_t[self.used_letters].T.astype(np.uint8 if narrow else np.int16))
+                    self.pot_u = np.array([u for u, _ in pots], dtype=np.int32)
+                    self.pot_w = np.array([w for _, w in pots], dtype=np.int32)
         del counts_t
-        # the semi-global bound: cyclic matching with integer costs, one block (or more) a group
-        self.gp = None
+        # the semi-global bound: cyclic matching with integer costs, the views in sub-blocks in layout order
+        self.sb = None
         self.codes, self.off = codes, off
         if term.cyclic and ints is not None and n_views:
             sub8, indel8, scale = ints
             self.ints = ints
-            cuts: list[int] = []
-            block_group: list[int] = []
-            gs = views.group_start
-            for g in range(layout.n_groups):
-                for c in range(int(gs[g]), int(gs[g + 1]), GROUP_LANES):
-                    cuts.append(c)
-                    block_group.append(g)
-            self.block_start = np.array([*cuts, n_views], dtype=np.int64)
-            self.gp = pack_groups(codes, off, self.block_start, sub8, indel8)
+            self.sb = pack_subblocks(codes, off, sub8, indel8)
             self.scale = scale
-            self.group_blocks = np.searchsorted(np.asarray(block_group, dtype=np.int64), np.arange(layout.n_groups + 1))
+            self.place_of_view = np.repeat(layout.order, per_place[layout.order]).astype(np.int32)
+            self.view_span = view_spans(views.place_start, per_place, n_views)
 
     def prepare(self, obs: Observation) -> Any:
         from ..align._costs import N_LETTERS
         from ..align._encode import encode
 
-        fp = self.term.fingerprints([obs])[0]  # type: ignore[attr-defined]
+        fp = self.term.query_fingerprint(obs)  # type: ignore[attr-defined]
         codes = encode(fp.letters)
         q = np.bincount(codes, minlength=N_LETTERS).astype(np.int32)
         partial = self.partial_fov_exact and not any(w >= 2 * np.pi - 1e-12 for _, w in obs.fov)
-        rows = None if self.gp is None else query_rows(codes, self.ints[0], self.ints[1])
-        return obs, codes, q, partial, fp, rows
+        rows = None if self.sb is None else query_rows(codes, self.ints[0], self.ints[1])
+        sg = None if self.sb is None else query_profile_rows(codes, self.sb)
+        state = None if self.sb is None else SweepState(int(self.sb.length.size))
+        return obs, codes, q, partial, fp, rows, sg, state
 
     def _likelihood(self, d: FArray) -> FArray:
         return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
 
     def exact(self, query: Any, places: IArray) -> FArray:
         term: FingerprintTerm = self.term  # type: ignore[assignment]
-        if self.gp is None:
+        if self.sb is None:
             return self._likelihood(term.distances_at([query[0]], places, fingerprints=[query[4]])[0])
         # cyclic, integer costs: the same exact integers as the term's batch kernel, for these views only
         v = self.views
@@ -240,7 +266,7 @@ class FingerprintBound(TermBound):
         return self._likelihood(_scaled(least, self.ints[2]))
 
     def coarse(self, query: Any) -> FArray:
-        _, _, q, partial, _, _ = query
+        q, partial = query[2], query[3]
         n = self.views.per_place.size
         if partial or self.counts_t is None:  # -lambda * 0 and -log(1 + 0): the largest there is
             return self._likelihood(np.where(self.views.per_place > 0, 0.0, np.inf))
@@ -256,17 +282,43 @@ class FingerprintBound(TermBound):
         out = _scaled(least, unit)
         return self._likelihood(out) if n else out
 
-    def fine(self, query: Any, groups: IArray) -> FArray | None:
-        _, codes, _, partial, _, _ = query
-        if self.gp is None or partial:
-            return self.exact(query, self.layout.places_of(groups))
-        g = np.asarray(groups, dtype=np.int64)
-        gp, v, lay = self.gp, self.views, self.layout
-        n = int(codes.size)
-        aa = np.concatenate([codes, codes[: max(n - 1, 0)]]).astype(np.int64)
-        _, least = semiglobal_place_min(
-            gp.row_of[aa], gp.indel[aa].astype(np.int32), g, self.group_blocks, self.block_start, gp.prof, gp.pstart,
-            gp.block_len, gp.gsum, gp.n_rows, lay.order, lay.starts, v.place_start, v.per_place,
+    def cover(self, query: Any, places: IArray) -> IArray:
+        """Sweep the semi-global bound of ``places``' views: the places whose fine bounds that completed (theirs among them)."""
+        if self.sb is None or query[3]:
+            return places
+        v = self.views
+        return semiglobal_cover(query[6], self.sb, query[7], places, v.place_start, v.per_place, self.place_of_view, self.view_span)
+
+    def mid(self, query: Any, places: IArray) -> FArray | None:
+        """The letter-count bound with every potential of :func:`count_potentials` (the coarse bound uses three)."""
+        q, partial = query[2], query[3]
+        if partial or self.pot_u is None:
+            return None
+        lu = self.used_letters
+        rest = np.ones(q.size, dtype=bool)
+        rest[lu] = False
+        const = (self.pot_u[:, rest] @ q[rest].astype(np.int64)).astype(np.int32)  # letters only the query has
+        least = potential_place_min(
+            q[lu].astype(np.int32), self.rows_u, self.pot_u[:, lu].copy(), self.pot_w[:, lu].copy(), const,
+            np.asarray(places, dtype=np.int64), self.views.place_start, self.views.per_place,
+        )
+        return self._likelihood(_scaled(least, self.weights2[2]))
+
+    def fine(self, query: Any, places: IArray) -> FArray | None:
+        places = np.asarray(places, dtype=np.int64)
+        if self.sb is None or query[3]:
+            return self.exact(query, places)
+        v = self.views
+        least = semiglobal_views_min(query[6], self.sb, query[7], places, v.place_start, v.per_place, self.place_of_view, self.view_span)
+        return self._likelihood(_scaled(least, self.scale))
+
+    def finer(self, query: Any, places: IArray) -> FArray | None:
+        if self.sb is None or query[3]:
+            return None  # the fine bound is the exact cost already
+        v = self.views
+        least = semiglobal_finer_min(
+            query[6], self.sb, query[7], self.codes, self.off, np.asarray(places, dtype=np.int64), v.place_start, v.per_place,
+            self.place_of_view, self.view_span,
         )
         return self._likelihood(_scaled(least, self.scale))
 
@@ -310,6 +362,42 @@ class RangeBound(TermBound):
         d = _scaled(l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place), self.steps)
         d = np.maximum(d - 2.0 * self.slack, 0.0)  # both the view's and the query's rounding
         return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
+
+
+def count_potentials(substitution: FArray, indel: FArray) -> list[tuple[FArray, FArray]]:
+    """Letter weights ``(u, w)`` of letter-count bounds: the cost is at least ``sum_x u(x) e_a(x) + w(x) e_b(x)``.
+
+    ``e_a(x)``: the letters ``x`` of ``a`` in excess of those of ``b`` (``e_b`` likewise). Such a
+    letter is left out (cost ``g``) or paired with another (cost ``s``), so charging ``u`` to the
+    letters of ``a`` that no equal letter pairs with and ``w`` to those of ``b`` bounds the cost when
+    ``u <= g``, ``w <= g``, ``u(x) + w(y) <= min(s(x, y), g(x) + g(y))`` for ``x != y`` (a pair or two
+    indels), and ``u(x) + w(x) >= 0`` (beyond the excess, letters left unpaired by equal ones come a
+    pair at a time, one in each string). That is the dual of the transport of the excess letters,
+    order left out; each pair here is one of its feasible points: ``(h, h)``, ``(c, 0)``, ``(0, c)``
+    (module docstring), and for each indel value ``t`` the weights ``u = min(g, t)`` with the best
+    ``w`` for them, and the same swapped. Pairs breaking a condition are left out.
+    """
+    sub = np.asarray(substitution, dtype=np.float64)
+    g = np.asarray(indel, dtype=np.float64)
+    n = g.size
+    pair = np.minimum(sub, g[:, None] + g[None, :])
+    pair[np.eye(n, dtype=bool)] = np.inf
+    other = pair.min(axis=1) if n > 1 else np.full(n, np.inf)
+    c = np.minimum(g, other)
+    h = np.minimum(g, other / 2.0)
+    zero = np.zeros(n)
+    cands = [(h, h), (c, zero), (zero, c)]
+    for t in sorted(set(g.tolist())):
+        u = np.minimum(g, t)
+        w = np.minimum(g, (pair - u[:, None]).min(axis=0)) if n > 1 else g.copy()
+        cands += [(u, w), (w, u)]
+    out: list[tuple[FArray, FArray]] = []
+    for u, w in cands:
+        ok = bool(np.all(u <= g + 1e-12) and np.all(w <= g + 1e-12) and np.all(u + w >= -1e-12))
+        ok = ok and bool(np.all(u[:, None] + w[None, :] <= pair + 1e-12))
+        if ok and not any(np.array_equal(u, a) and np.array_equal(w, b) for a, b in out):
+            out.append((u, w))
+    return out
 
 
 def _scaled(least: IArray, unit: float) -> FArray:

@@ -187,6 +187,7 @@ class FingerprintTerm(DistanceTerm):
         self._starts = np.searchsorted(self._owner, np.arange(len(self.fingerprints_)))
         self._crop_cache: dict[Any, Any] = {}
         self._recent: _Recent = ({}, None)  # the latest batch's queries and costs (distances)
+        self._last_query: tuple[Observation, Fingerprint] | None = None  # the latest single query's fingerprint
 
     def _loo_matrix(self, rows: NDArray[np.int64], cols: NDArray[np.int64] | None = None) -> FArray | None:
         from ..align import alignment_costs
@@ -311,7 +312,16 @@ class FingerprintTerm(DistanceTerm):
         hit = recent.get(id(obs))
         if hit is not None and hit[0] is obs:
             return hit[1], (None if d is None or hit[2] < 0 else d[hit[2]])
-        return self.fingerprint(obs), None
+        return self.query_fingerprint(obs), None
+
+    def query_fingerprint(self, obs: Observation) -> Fingerprint:
+        """:meth:`fingerprint` of one query, kept for the next call of the same observation (a search, then its heading)."""
+        last = self.__dict__.get("_last_query")
+        if last is not None and last[0] is obs:
+            return last[1]
+        fp = self.fingerprint(obs)
+        self._last_query = (obs, fp)
+        return fp
 
     def headings(self, observations: Sequence[Observation]) -> FArray | None:
         """Heading of each observation at each place, radians, shape ``(n, P)`` (NaN where none).
