@@ -11,17 +11,18 @@ from fingerloc.align._costs import N_LETTERS
 from fingerloc.align._cyclic_int import integer_costs
 from fingerloc.fingerprint import ALPHABET
 from fingerloc.terms._bound_kernels import (
+    COUNT_GROUPS,
     NO_VIEW,
     SweepState,
     count_place_min,
     count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
+    group_count_place_min,
     l1_place_min,
     letter_counts,
     open_places,
     place_letter_counts,
-    potential_place_min,
     query_rows,
     scaled,
     semiglobal_cover,
@@ -163,9 +164,10 @@ def random_cost_model(rng):
 
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31), n_places=st.integers(1, 30), costs=st.sampled_from(["unit", "feature", "random"]))
-def test_letter_counts_with_every_potential_bound_the_cyclic_cost_and_tighten_the_coarse_bound(seed, n_places, costs):
-    """The middle bound (every potential of count_potentials) lies between the three-potential count bound and the cyclic cost."""
-    rng, per_place, place_start, codes, off, letters = random_views(seed, n_places, 3, 12, 7)
+def test_letter_counts_with_every_potential_bound_the_cyclic_cost_and_tighten_the_three_potential_bound(seed, n_places, costs):
+    """The grouped pass (every potential of count_potentials) gives the direct sums, between the three-potential bound and the cyclic cost."""
+    # up to COUNT_GROUPS groups of letters: with unit costs every letter is alike, else at most 4 letters
+    rng, per_place, place_start, codes, off, letters = random_views(seed, n_places, 3, 12, 7 if costs == "unit" else COUNT_GROUPS)
     cm = COSTS.get(costs) or random_cost_model(rng)
     _sub8, _indel8, scale = integer_costs(cm.substitution, cm.indel)
     pots = count_potentials(cm.substitution, cm.indel)
@@ -181,24 +183,37 @@ def test_letter_counts_with_every_potential_bound_the_cyclic_cost_and_tighten_th
     q = np.bincount(query, minlength=N_LETTERS).astype(np.int32)
     used = np.flatnonzero(counts.sum(0) > 0)
     rest = np.setdiff1d(np.arange(N_LETTERS), used)
-    const = (u[:, rest] @ q[rest]).astype(np.int32)
-    places = rng.permutation(n_places)[: int(rng.integers(1, n_places + 1))].astype(np.int64)
-    got = potential_place_min(
-        q[used].astype(np.int32), np.ascontiguousarray(counts[:, used].astype(np.uint8)), u[:, used].astype(np.int32),
-        w[:, used].astype(np.int32), const, places, place_start, per_place,
+    const = u[:, rest] @ q[rest]
+    # the letters the views use, in groups of equal potentials (the kernel takes up to COUNT_GROUPS)
+    keys = {}
+    group = np.array([keys.setdefault(u[:, x].tobytes() + w[:, x].tobytes(), len(keys)) for x in used], dtype=np.int64)
+    assert len(keys) <= COUNT_GROUPS
+    ca = np.zeros((len(pots), COUNT_GROUPS), dtype=np.int16)
+    cb = np.zeros((len(pots), COUNT_GROUPS), dtype=np.int16)
+    vsum = np.zeros((COUNT_GROUPS, nv), dtype=np.int16)
+    qsum = np.zeros(COUNT_GROUPS, dtype=np.int16)
+    for x, g in zip(used, group, strict=True):
+        ca[:, g], cb[:, g] = u[:, x] + w[:, x], u[:, x] - w[:, x]
+        vsum[g] += counts[:, x].astype(np.int16)
+        qsum[g] += q[x]
+    got = group_count_place_min(
+        q.astype(np.int16), np.ascontiguousarray(counts.T.astype(np.uint8)), used.astype(np.int64), group, vsum, qsum, ca, cb,
+        (2 * const).astype(np.int16), place_start, per_place,
     )
     d = q[None, :] - counts
     per_view = np.maximum(0, (np.maximum(d, 0) @ u.T + np.maximum(-d, 0) @ w.T).max(axis=1)) if nv else np.zeros(0)
-    assert np.array_equal(got, least_per_place(per_view, place_start, per_place, NO_VIEW)[places])
+    assert np.array_equal(got, least_per_place(2 * per_view, place_start, per_place, NO_VIEW))
+    has = per_place > 0
+    got = np.where(has, got // 2, NO_VIEW)
     other = np.where(np.eye(N_LETTERS, dtype=bool), np.inf, cm.substitution).min(axis=1)
     h2 = (2 * scale * np.minimum(cm.indel, other / 2.0)).astype(np.int32)
     c2 = (2 * scale * np.minimum(cm.indel, other)).astype(np.int32)
     coarse = count_place_min(q, np.ascontiguousarray(counts.T.astype(np.int16)), np.arange(N_LETTERS, dtype=np.int64), h2, c2, place_start, per_place)
-    assert np.all(got >= coarse[places])
+    assert np.all(got >= coarse)
     if nv:
         qs = "".join(ALPHABET[c] for c in query)
         exact = alignment_costs([qs], strings(codes, off), cyclic=True, costs=cm)[0] * scale
-        assert np.all(np.where(got == NO_VIEW, np.inf, got / 2.0) <= least_per_place(exact, place_start, per_place, np.inf)[places])
+        assert np.all(np.where(has, got / 2.0, np.inf) <= least_per_place(exact, place_start, per_place, np.inf))
 
 
 @settings(max_examples=25, deadline=None)

@@ -301,8 +301,8 @@ class PlaceIndex:
 
 
 
-#: A place's bound: its coarse bound, a middle one, its fine bound, its finer bound, its exact score (:class:`_Search`).
-COARSE, MID, FINE, FINER, SCORED = 1, 2, 3, 4, 5
+#: A place's bound: its coarse bound, its fine bound, its finer bound, its exact score (:class:`_Search`).
+COARSE, FINE, FINER, SCORED = 1, 2, 3, 4
 
 
 class _Search:
@@ -330,21 +330,16 @@ class _Search:
         return th
 
     def _tighten(self, p: IArray, level: int, per: dict[str, FArray | None]) -> None:
-        """New bounds of the terms at ``p`` (None: the term's bound stays), and ``p``'s joint bound; ``p`` at ``level``."""
+        """New bounds of the terms at ``p`` (None: the term's bound stays; each the least of its bounds), and ``p``'s joint bound."""
         for name, f in per.items():
             if f is not None:
-                self.bound[name][p] = f
+                self.bound[name][p] = np.minimum(self.bound[name][p], f)
         self.ub[p] = np.minimum(self.ub[p], _weighted(self.ix.weights, {name: b[p] for name, b in self.bound.items()}))
         self.level[p] = level
 
-    def refine(self, places: IArray, *, keep_all: bool = False) -> None:
-        """The fine bounds of ``places`` (distinct) that their middle bounds keep (all with ``keep_all``), and of those they come with."""
+    def refine(self, places: IArray) -> None:
+        """The fine bounds of ``places`` (distinct), and of the places they come with."""
         p = places[self.level[places] < FINE]
-        first = p[self.level[p] < MID]
-        if first.size:
-            self._tighten(first, MID, {name: b.mid(self.prep[name], first) for name, b in self.ix.bounds.items()})
-        if not keep_all:
-            p = p[self.ub[p] >= self.cut()]
         if p.size == 0:
             return
         for name, b in self.ix.bounds.items():  # the places whose fine bounds come with those of p (p among them)
@@ -403,7 +398,7 @@ class _Search:
                 continue
             ub = self.ub[cand]
             lev = self.level[cand]
-            at = max(int(lev[int(np.argmax(ub))]), MID)  # the level of the highest bound (coarse and middle: refine)
+            at = int(lev[int(np.argmax(ub))])  # the level of the highest bound
             if at == FINER:
                 sel = np.flatnonzero(lev == FINER)
                 if sel.size > batch:
@@ -413,14 +408,13 @@ class _Search:
                 continue
             above = lev > at
             top_above = float(ub[above].max()) if above.any() else -math.inf
-            here = (lev <= at) if at == MID else (lev == at)
-            sel = np.flatnonzero(here & (ub >= top_above))  # above every bound of a later level
-            cap = _REFINE_BATCH if at == MID else _FINER_BATCH
+            sel = np.flatnonzero((lev == at) & (ub >= top_above))  # above every bound of a later level
+            cap = _REFINE_BATCH if at == COARSE else _FINER_BATCH
             if sel.size > cap:
                 sel = sel[np.argpartition(-ub[sel], cap - 1)[:cap]]
-            elif at == MID:
-                sel = np.flatnonzero(here)  # a sweep's set-up once for all of them
-            if at == MID:
+            elif at == COARSE:
+                sel = np.flatnonzero(lev == COARSE)  # a sweep's set-up once for all of them
+            if at == COARSE:
                 self.refine(cand[sel])
             else:
                 self.refine_more(cand[sel])
@@ -479,7 +473,7 @@ class _Search:
         chosen = ordered[:need]
         coarse = chosen[self.level[chosen] < FINE]
         if coarse.size:
-            self.refine(coarse, keep_all=True)
+            self.refine(coarse)
         else:
             self.score(chosen)
         return False

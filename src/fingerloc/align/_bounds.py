@@ -54,7 +54,7 @@ from numpy.typing import NDArray
 __all__ = ["GROUP_LANES", "SUBS", "SUB_LANES", "SubBlocks", "pack_subblocks", "query_profile_rows", "reversed_bound", "semiglobal_bounds"]
 
 #: References side by side in a sweep of the kernel (one AVX-512 register of int8).
-GROUP_LANES = 64
+GROUP_LANES = 128
 #: References of a sub-block: the unit in which references are stored and gathered (one 64-bit word a column).
 SUB_LANES = 8
 #: Sub-blocks a sweep.

@@ -36,6 +36,7 @@ from ..align._bounds import SUB_LANES, SubBlocks, _count_bounds, reversed_bound,
 from ..align._cyclic_int import LANES8, _costs_blocks, _profiles
 
 __all__ = [
+    "COUNT_GROUPS",
     "NO_VIEW",
     "QueryRows",
     "SweepState",
@@ -43,11 +44,11 @@ __all__ = [
     "count_place_min_narrow",
     "cyclic_place_min",
     "exact_l1_place_min",
+    "group_count_place_min",
     "l1_place_min",
     "letter_counts",
     "open_places",
     "place_letter_counts",
-    "potential_place_min",
     "query_rows",
     "scaled",
     "semiglobal_cover",
@@ -247,81 +248,59 @@ def count_place_min_narrow(
     return _place_min(acc_h, place_start, per_place)
 
 
-#: Views a block of :func:`potential_place_min` (their letter counts gathered side by side).
-_POTENTIAL_BLOCK = 256
+#: Most letter groups of :func:`group_count_place_min` (letters whose potentials all agree share a group).
+COUNT_GROUPS = 4
 
 
 @njit(cache=True)
-def potential_place_min(
-    q: NDArray[np.int32],
-    rows: NDArray[np.uint8],
-    u: NDArray[np.int32],
-    w: NDArray[np.int32],
-    const: NDArray[np.int32],
-    places: NDArray[np.int64],
+def group_count_place_min(
+    q: NDArray[np.int16],
+    counts_t: NDArray[np.uint8],
+    letters: NDArray[np.int64],
+    group: NDArray[np.int64],
+    vsum: NDArray[np.int16],
+    qsum: NDArray[np.int16],
+    ca: NDArray[np.int16],
+    cb: NDArray[np.int16],
+    const2: NDArray[np.int16],
     place_start: NDArray[np.int64],
     per_place: NDArray[np.int64],
 ) -> NDArray[np.int64]:  # pragma: no cover - compiled
-    """Each of ``places``' least letter-count bound over its views with the potentials ``u``, ``w``, shape ``(len(places),)``.
+    """Each place's least letter-count bound over its views with ``K`` potentials, twice the bound, shape ``(P,)``.
 
-    ``rows[v, x]``: occurrences of letter ``x`` (of the letters the views use) in view ``v`` (layout
-    order); ``q``: the query's, the same letters. Per view the bound is ``max(0, max_k const[k] +
-    sum_x u[k, x] max(q_x - rows[v, x], 0) + w[k, x] max(rows[v, x] - q_x, 0))`` (``const``: the
-    query's letters no view has, ``sum u[k, x] q_x`` over them), integer units of the costs. The
-    views are gathered :data:`_POTENTIAL_BLOCK` at a time, their counts side by side.
+    The potentials (:func:`fingerloc.terms.bounds.count_potentials`, integer units ``u``, ``w``) are
+    the same for the letters of a group (``group[t]`` of ``letters[t]``, the letters the views use;
+    at most :data:`COUNT_GROUPS`). With ``A_g = sum |q_x - v_x|`` and ``D_g = sum (q_x - v_x)`` over
+    the letters of group ``g``, the letters in excess sum to ``(A_g + D_g) / 2`` in the query and
+    ``(A_g - D_g) / 2`` in the view, so twice potential ``k``'s bound is ``const2[k] + sum_g
+    ca[k, g] A_g + cb[k, g] D_g`` (``ca = u + w``, ``cb = u - w`` of the group; ``const2``: twice
+    ``sum u q_x`` over the query's letters no view has): one pass over the counts for every ``A_g``,
+    one pass a potential. ``vsum[g, v]``: the letters of group ``g`` in view ``v``; ``qsum[g]``: in
+    the query. In 16-bit lanes: the caller checks that no sum can pass 32767. The bound of a view
+    is the largest of its potentials' and 0.
     """
-    K, L = u.shape
-    n = 0
-    for p in places:
-        n += per_place[p]
-    views = np.empty(n, dtype=np.int64)
-    i = 0
-    for p in places:
-        for v in range(place_start[p], place_start[p] + per_place[p]):
-            views[i] = v
-            i += 1
-    per_view = np.empty(n, dtype=np.int32)
-    blk = _POTENTIAL_BLOCK
-    t = np.empty((L, blk), dtype=np.int32)
-    pos = np.empty(blk, dtype=np.int32)
-    neg = np.empty(blk, dtype=np.int32)
-    acc = np.empty((K, blk), dtype=np.int32)
-    for a in range(0, n, blk):
-        m = min(blk, n - a)
-        for j in range(m):
-            r = rows[views[a + j]]
-            for x in range(L):
-                t[x, j] = r[x]
-        for k in range(K):
-            for j in range(m):
-                acc[k, j] = const[k]
-        for x in range(L):
-            qx = q[x]
-            tx = t[x]
-            for j in range(m):
-                d = qx - tx[j]
-                pos[j] = max(d, 0)
-                neg[j] = max(-d, 0)
-            for k in range(K):
-                uk = u[k, x]
-                wk = w[k, x]
-                ak = acc[k]
-                for j in range(m):
-                    ak[j] += uk * pos[j] + wk * neg[j]
-        for j in range(m):
-            b = 0
-            for k in range(K):
-                b = max(b, acc[k, j])
-            per_view[a + j] = b
-    out = np.empty(places.size, dtype=np.int64)
-    i = 0
-    for t2 in range(places.size):
-        mm = NO_VIEW
-        for _ in range(per_place[places[t2]]):
-            mm = min(mm, int(per_view[i]))
-            i += 1
-        out[t2] = mm
-    return out
+    nv = counts_t.shape[1]
+    acc = np.zeros((COUNT_GROUPS, nv), dtype=np.int16)
+    for t in range(letters.size):
+        x = letters[t]
+        qx = q[x]
+        row = counts_t[x]
+        ag = acc[group[t]]
+        for i in range(nv):
+            c = np.int16(row[i])
+            ag[i] = np.int16(ag[i] + np.int16(max(qx, c) - min(qx, c)))
+    a0, a1, a2, a3 = acc[0], acc[1], acc[2], acc[3]
+    v0, v1, v2, v3 = vsum[0], vsum[1], vsum[2], vsum[3]
+    best = np.zeros(nv, dtype=np.int16)
+    for k in range(ca.shape[0]):  # D_g = qsum[g] - vsum[g, v]: the query's part is one number a potential
+        p0, p1, p2, p3 = ca[k, 0], ca[k, 1], ca[k, 2], ca[k, 3]
+        m0, m1, m2, m3 = cb[k, 0], cb[k, 1], cb[k, 2], cb[k, 3]
+        base = np.int16(const2[k] + m0 * qsum[0] + m1 * qsum[1] + m2 * qsum[2] + m3 * qsum[3])
+        for i in range(nv):
+            b = np.int16(base + np.int16(p0 * a0[i]) + np.int16(p1 * a1[i]) + np.int16(p2 * a2[i]) + np.int16(p3 * a3[i]))
+            b = np.int16(b - np.int16(m0 * v0[i]) - np.int16(m1 * v1[i]) - np.int16(m2 * v2[i]) - np.int16(m3 * v3[i]))
+            best[i] = max(best[i], b)
+    return _place_min(best, place_start, per_place)
 
 
 @njit(cache=True)

@@ -8,13 +8,10 @@ Each term gives up to four levels of bound, over a :class:`PlaceLayout`
 =========  =========================================  ==============================================
 level      ``Fp`` (cyclic, integer costs)             ``R``; mixtures and other terms
 =========  =========================================  ==============================================
-coarse     letter counts with three potentials        ``R``: the L1 distance to each view, its
-(every     (below), one pass over 8-bit counts        descriptor rounded to 1/(65535 // bins) (less
-place)                                                bins/steps + 2e-9, both roundings); others:
-                                                      the exact log-likelihood of every place
-middle     letter counts with every potential of      (none finer)
-           :func:`count_potentials` (the dual of the
-           transport of the letters in excess)
+coarse     letter counts (below) with every           ``R``: the L1 distance to each view, its
+(every     potential of :func:`count_potentials`,     descriptor rounded to 1/(65535 // bins) (less
+place)     one pass over 8-bit counts and one a       bins/steps + 2e-9, both roundings); others:
+           potential                                  the exact log-likelihood of every place
 fine       the semi-global bound of                   (none finer)
            :mod:`fingerloc.align._bounds`: the view
            whole against any substring of the query
@@ -37,7 +34,8 @@ splitting a pair's cost between its two letters, ``sum_x h(x) |n_a(x) - n_b(x)|`
 with ``h(x) = min(g(x), min_{y != x} s(x, y) / 2)``. Counts do not depend on the
 rotation, so the bound holds for the cyclic cost too. These are three
 feasible points of a linear programme's dual (:func:`count_potentials`); the
-middle level takes the best of more of them.
+coarse bound takes the best of more of them when the letters the views use
+fall in few groups of equal potentials (else it keeps these three).
 
 Every bound is a float at most the term's own value, rounding included (the
 count and semi-global bounds are exact sums of the costs' dyadic fractions;
@@ -58,14 +56,15 @@ from .._types import FArray, IArray
 from ..align._bounds import query_profile_rows
 from ..observation import Observation
 from ._bound_kernels import (
+    COUNT_GROUPS,
     SweepState,
     count_place_min,
     count_place_min_narrow,
     cyclic_place_min,
     exact_l1_place_min,
+    group_count_place_min,
     l1_place_min,
     letter_counts,
-    potential_place_min,
     query_rows,
     scaled,
     semiglobal_cover,
@@ -143,10 +142,6 @@ class TermBound:
         """A tighter bound at ``places`` (distinct, in that order); None: none finer."""
         return None
 
-    def mid(self, query: Any, places: IArray) -> FArray | None:
-        """A bound between the coarse and the fine one at ``places`` (distinct), cheap a place; None: none."""
-        return None
-
     def finer(self, query: Any, places: IArray) -> FArray | None:
         """A bound tighter still at ``places`` (distinct, their fine bounds computed); None: none finer."""
         return None
@@ -212,7 +207,7 @@ class FingerprintBound(TermBound):
         self.partial_fov_exact = not term.cyclic  # cropped references: no count bound for a partial field of view
         ints = integer_costs(cm.substitution, cm.indel)
         self.counts_t: Any = None  # (letters, views): uint8, or int16 for larger counts or costs
-        self.pot_u: Any = None  # (potentials, letters) of the middle bound, integer units; None: none
+        self.grouped: Any = None  # the letters in groups for every potential (:meth:`_group_letters`); None: three potentials
         if ints is not None and most.max(initial=0) < np.iinfo(np.int16).max:
             sc = ints[2]
             h2, c2 = 2 * sc * h_weight, 2 * sc * c_weight
@@ -221,13 +216,8 @@ class FingerprintBound(TermBound):
                 self.counts_t = counts_t.astype(np.uint8 if narrow else np.int16)
                 self.weights2 = (h2.astype(np.int32), c2.astype(np.int32), float(2 * sc))
                 self.most = most
-                pots = [(2 * sc * u, 2 * sc * w) for u, w in count_potentials(cm.substitution, cm.indel)]
-                pots = [(u, w) for u, w in pots if np.array_equal(u, np.round(u)) and np.array_equal(w, np.round(w))]
-                if pots:  # the middle bound: more potentials, on chosen places only (rows of the letters the views use)
-                    self.used_letters = np.flatnonzero(self.used)
-                    self.rows_u = np.ascontiguousarray(counts_t[self.used_letters].T.astype(np.uint8 if narrow else np.int16))
-                    self.pot_u = np.array([u for u, _ in pots], dtype=np.int32)
-                    self.pot_w = np.array([w for _, w in pots], dtype=np.int32)
+                if narrow:
+                    self._group_letters(cm, sc, counts_t)
         del counts_t
         # the semi-global bound: cyclic matching with integer costs, the views in sub-blocks in layout order
         self.sb = None
@@ -239,6 +229,52 @@ class FingerprintBound(TermBound):
             self.scale = scale
             self.place_of_view = np.repeat(layout.order, per_place[layout.order]).astype(np.int32)
             self.view_span = view_spans(views.place_start, per_place, n_views)
+
+    def _group_letters(self, cm: Any, sc: float, counts_t: Any) -> None:
+        """The coarse bound with every potential of :func:`count_potentials`, the letters the views use in groups.
+
+        Letters whose potentials all agree share a group; with at most
+        :data:`~fingerloc.terms._bound_kernels.COUNT_GROUPS` groups the bound of every potential costs
+        one pass over the counts and one a potential (:func:`~fingerloc.terms._bound_kernels.group_count_place_min`),
+        else the coarse bound keeps the three potentials of the module docstring.
+        """
+        pots = [(2 * sc * u, 2 * sc * w) for u, w in count_potentials(cm.substitution, cm.indel)]
+        pots = [(u, w) for u, w in pots if np.array_equal(u, np.round(u)) and np.array_equal(w, np.round(w))]
+        if not pots:
+            return
+        u_all = np.array([u for u, _ in pots], dtype=np.int64)
+        w_all = np.array([w for _, w in pots], dtype=np.int64)
+        letters = np.flatnonzero(self.used)
+        keys: dict[bytes, int] = {}
+        group = np.array([keys.setdefault(u_all[:, x].tobytes() + w_all[:, x].tobytes(), len(keys)) for x in letters], dtype=np.int64)
+        if len(keys) > COUNT_GROUPS:
+            return
+        ca = np.zeros((len(pots), COUNT_GROUPS), dtype=np.int64)
+        cb = np.zeros((len(pots), COUNT_GROUPS), dtype=np.int64)
+        vsum = np.zeros((COUNT_GROUPS, counts_t.shape[1]), dtype=np.int64)
+        for x, g in zip(letters.tolist(), group.tolist(), strict=True):
+            ca[:, g] = u_all[:, x] + w_all[:, x]
+            cb[:, g] = u_all[:, x] - w_all[:, x]
+            vsum[g] += counts_t[x]
+        vmax = vsum.max(axis=1)
+        if int(vmax.max(initial=0)) > np.iinfo(np.int16).max:
+            return
+        self.grouped = (letters, group, vsum.astype(np.int16), vmax, ca, cb, u_all)
+
+    def _grouped_least(self, q: IArray) -> IArray | None:
+        """:func:`~fingerloc.terms._bound_kernels.group_count_place_min` of a query's counts ``q``; None when a sum could pass 16 bits."""
+        letters, group, vsum, vmax, ca, cb, u_all = self.grouped
+        qsum = np.bincount(group, weights=q[letters], minlength=COUNT_GROUPS).astype(np.int64)
+        only = (q > 0) & ~self.used  # letters no view has: in excess in the query, whatever the view
+        const2 = 2 * (u_all[:, only] @ q[only].astype(np.int64))
+        worst = np.abs(const2) + np.abs(cb) @ np.maximum(qsum, vmax) + np.abs(ca) @ (qsum + vmax) + np.abs(cb) @ qsum
+        if int(worst.max(initial=0)) > np.iinfo(np.int16).max or int((qsum + vmax).max(initial=0)) > np.iinfo(np.int16).max:
+            return None
+        v = self.views
+        return group_count_place_min(
+            q.astype(np.int16), self.counts_t, letters, group, vsum, qsum.astype(np.int16), ca.astype(np.int16), cb.astype(np.int16),
+            const2.astype(np.int16), v.place_start, v.per_place,
+        )
 
     def prepare(self, obs: Observation) -> Any:
         from ..align._costs import N_LETTERS
@@ -271,6 +307,11 @@ class FingerprintBound(TermBound):
         if partial or self.counts_t is None:  # -lambda * 0 and -log(1 + 0): the largest there is
             return self._likelihood(np.where(self.views.per_place > 0, 0.0, np.inf))
         h2, c2, unit = self.weights2
+        if self.grouped is not None:
+            least = self._grouped_least(q)
+            if least is not None:
+                out = _scaled(least, 2.0 * unit)
+                return self._likelihood(out) if n else out
         letters = np.flatnonzero((q > 0) | self.used)
         wide = np.maximum(h2, c2)[letters].astype(np.int64) @ np.maximum(q[letters], self.most[letters])
         if self.counts_t.dtype == np.uint8 and wide <= np.iinfo(np.int16).max:  # no sum can pass 16 bits
@@ -288,21 +329,6 @@ class FingerprintBound(TermBound):
             return places
         v = self.views
         return semiglobal_cover(query[6], self.sb, query[7], places, v.place_start, v.per_place, self.place_of_view, self.view_span)
-
-    def mid(self, query: Any, places: IArray) -> FArray | None:
-        """The letter-count bound with every potential of :func:`count_potentials` (the coarse bound uses three)."""
-        q, partial = query[2], query[3]
-        if partial or self.pot_u is None:
-            return None
-        lu = self.used_letters
-        rest = np.ones(q.size, dtype=bool)
-        rest[lu] = False
-        const = (self.pot_u[:, rest] @ q[rest].astype(np.int64)).astype(np.int32)  # letters only the query has
-        least = potential_place_min(
-            q[lu].astype(np.int32), self.rows_u, self.pot_u[:, lu].copy(), self.pot_w[:, lu].copy(), const,
-            np.asarray(places, dtype=np.int64), self.views.place_start, self.views.per_place,
-        )
-        return self._likelihood(_scaled(least, self.weights2[2]))
 
     def fine(self, query: Any, places: IArray) -> FArray | None:
         places = np.asarray(places, dtype=np.int64)
