@@ -275,8 +275,8 @@ def test_scaled_values_and_the_unscored_mass_are_numpys(seed, n):
     ub = rng.normal(-30.0, 10.0, n)
     level = rng.integers(1, 4, n).astype(np.int8)
     want = np.exp(ub[level < 3] - 5.0).sum()
-    got = unscored_mass(ub, level, 5.0, 3)  # a bound: places 60 nats below count exp(-60) each
-    assert want * (1 - 1e-12) <= got <= want * (1 + 1e-12) + n * np.exp(-60.0)
+    got = unscored_mass(ub, level, 5.0, 3)  # a bound: each term at most 1.6 % above, places 60 nats below count exp(-60) each
+    assert want * (1 - 1e-12) <= got <= want * np.exp(1 / 64) + n * np.exp(-60.0)
     assert unscored_mass(ub, level, float(ub.max(initial=0.0)) + 61.0, 3) >= np.count_nonzero(level < 3) * np.exp(-60.0) * (1 - 1e-12)
     # the m best places, best first (ties of value in any order), and the open ones
     m = int(rng.integers(0, n + 1))

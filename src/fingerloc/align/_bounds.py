@@ -33,11 +33,11 @@ search needs are bounded, and builds their substitution profile
 ``s'(c, b) = s(c, b) - g(c) - g(b)`` for the rows of the query's letters
 (each bound runs many query rows of one letter, so the profile is built
 once a letter and a sweep, not stored: 64 bytes a letter where the codes
-take one). The profile is computed, not looked up: ``s'(c, b) = alpha(c) +
-beta(b) + sum_e delta_e(c) [b == x_e(c)]``, a row part, a column part and the
-few letters ``x_e(c)`` whose cost against ``c`` differs from the rest (the
-letter itself and, with feature-aware costs, its neighbours), so that the
-build is a few compare-and-add passes over the 64 lanes. Query letters
+take one). The profile is computed, not looked up: ``s'(c, b) = alpha(c) + sum_e
+delta_e(c) [b == x_e(c)]``, the row's most common value and the few letters
+``x_e(c)`` (and the wildcard) that differ from it (the letter itself, ``n``
+whose indel is half, and with feature-aware costs the letter's neighbours),
+so that the build is a few compare-and-add passes over the lanes. Query letters
 alike against every letter the references use (the same costs, the same
 indel) share one row: a laser-only map needs about 19 rows of the
 alphabet's 34.
@@ -65,11 +65,10 @@ class SubBlocks(NamedTuple):
     """References packed in sub-blocks for :func:`sweep_subblocks` (:func:`pack_subblocks`).
 
     The profile of row ``r`` against letter code ``b`` (the wildcard: code ``wild_code``) is
-    ``alpha[r] + beta[b] + sum_e exc_delta[r, e] * (b == exc_code[r, e])`` over ``e < n_exc[r]``.
+    ``alpha[r] + sum_e exc_delta[r, e] * (b == exc_code[r, e])`` over ``e < n_exc[r]``.
     """
 
     codes: NDArray[np.uint8]  # flat; sub-block s at start[s]: (length[s], SUB_LANES), column after column
-    beta: NDArray[np.int8]  # the same layout: beta of each code
     start: NDArray[np.int64]  # (n_sub + 1,): multiples of SUB_LANES
     length: NDArray[np.int64]  # (n_sub,): the longest reference of each sub-block
     gsum: NDArray[np.int32]  # (n_sub, SUB_LANES): sum of the indels of each reference, D[0, m_k]
@@ -81,8 +80,6 @@ class SubBlocks(NamedTuple):
     n_exc: NDArray[np.int64]  # (n_rows,)
     n_rows: int
     wild_code: int
-    wild_beta: int
-    code_beta: NDArray[np.int8]  # (N_LETTERS + 1,): beta of each code, the wildcard's last
 
     @property
     def n_refs(self) -> int:
@@ -92,7 +89,7 @@ class SubBlocks(NamedTuple):
     @property
     def nbytes(self) -> int:
         """Bytes held by the arrays."""
-        return int(self.codes.nbytes + self.beta.nbytes + self.gsum.nbytes + 8 * (self.start.size + self.length.size))
+        return int(self.codes.nbytes + self.gsum.nbytes + 8 * (self.start.size + self.length.size))
 
 
 def _letter_rows(codes: NDArray[np.uint8], sub: NDArray[np.int8], indel: NDArray[np.int8]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -120,31 +117,19 @@ def _mode(values: NDArray[np.int64]) -> int:
 
 def _decompose(
     rep: NDArray[np.int64], used: NDArray[np.int64], sub: NDArray[np.int8], indel: NDArray[np.int8]
-) -> tuple[NDArray[np.int8], NDArray[np.int8], int, NDArray[np.uint8], NDArray[np.int8], NDArray[np.int64]]:
-    """``s'(c, b) = alpha[row] + beta[b] + exceptions`` for the rows' letters ``rep`` against the ``used`` letters and the wildcard.
+) -> tuple[NDArray[np.int8], NDArray[np.uint8], NDArray[np.int8], NDArray[np.int64]]:
+    """``s'(c, b) = alpha[row] + exceptions`` for the rows' letters ``rep`` against the ``used`` letters and the wildcard.
 
-    ``beta[b] = -g(b)``; ``alpha`` the most common ``s(c, b) - g(c)`` of a row; the wildcard (``s' = -g(c)``)
-    gets the ``beta`` that agrees with the most rows. Returns alpha, beta (with the wildcard last), the
-    wildcard's beta, and each row's exceptions (codes, deltas, count).
+    ``alpha``: a row's most common value over those letters (the wildcard's ``-g(c)`` among them).
+    Returns alpha and each row's exceptions (codes, deltas, count); the wildcard's code is ``len(indel)``.
     """
-    n_letters = sub.shape[0]
-    wild = n_letters
-    beta = np.zeros(n_letters + 1, dtype=np.int64)
-    beta[:n_letters] = -indel.astype(np.int64)
-    vals = sub[np.ix_(rep, used)].astype(np.int64) - indel[rep].astype(np.int64)[:, None]  # s(c, b) - g(c)
+    wild = sub.shape[0]
+    vals = sub[np.ix_(rep, used)].astype(np.int64) - indel[rep].astype(np.int64)[:, None] - indel[used].astype(np.int64)[None, :]
+    vals = np.hstack([vals, -indel[rep].astype(np.int64)[:, None]])  # the wildcard costs nothing: s' = -g(c)
+    codes_all = [*used.tolist(), wild]
     alpha = np.array([_mode(v) for v in vals], dtype=np.int64)
-    beta[wild] = _mode(-indel[rep].astype(np.int64) - alpha)
-    codes: list[list[int]] = []
-    deltas: list[list[int]] = []
-    for r, c in enumerate(rep.tolist()):
-        cs = [int(b) for b, v in zip(used.tolist(), vals[r].tolist(), strict=True) if v != alpha[r]]
-        ds = [int(v - alpha[r]) for v in vals[r].tolist() if v != alpha[r]]
-        w = -int(indel[c]) - int(alpha[r]) - int(beta[wild])
-        if w:
-            cs.append(wild)
-            ds.append(w)
-        codes.append(cs)
-        deltas.append(ds)
+    codes = [[b for b, v in zip(codes_all, row.tolist(), strict=True) if v != a] for row, a in zip(vals, alpha.tolist(), strict=True)]
+    deltas = [[v - a for v in row.tolist() if v != a] for row, a in zip(vals, alpha.tolist(), strict=True)]
     most = max((len(c) for c in codes), default=0)
     exc_code = np.zeros((len(codes), max(most, 1)), dtype=np.uint8)
     exc_delta = np.zeros((len(codes), max(most, 1)), dtype=np.int8)
@@ -152,13 +137,13 @@ def _decompose(
         exc_code[r, : len(cs)] = cs
         exc_delta[r, : len(ds)] = ds
     n_exc = np.array([len(c) for c in codes], dtype=np.int64)
-    return alpha.astype(np.int8), beta.astype(np.int8), int(beta[wild]), exc_code, exc_delta, n_exc
+    return alpha.astype(np.int8), exc_code, exc_delta, n_exc
 
 
 @njit(cache=True)
 def _pack(
-    codes: NDArray[np.uint8], off: NDArray[np.int64], beta: NDArray[np.int8], indel: NDArray[np.int8], wild: int
-) -> tuple[NDArray[np.uint8], NDArray[np.int8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int32]]:  # pragma: no cover - compiled
+    codes: NDArray[np.uint8], off: NDArray[np.int64], indel: NDArray[np.int8], wild: int
+) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDArray[np.int64], NDArray[np.int32]]:  # pragma: no cover - compiled
     n_refs = off.size - 1
     n_sub = (n_refs + SUB_LANES - 1) // SUB_LANES
     length = np.zeros(n_sub, dtype=np.int64)
@@ -175,10 +160,7 @@ def _pack(
             b = codes[off[r] + j]
             out[start[s] + j * SUB_LANES + lane] = b
             gsum[s, lane] += indel[b]
-    bt = np.empty(out.size, dtype=np.int8)
-    for i in range(out.size):
-        bt[i] = beta[out[i]]
-    return out, bt, start, length, gsum
+    return out, start, length, gsum
 
 
 def pack_subblocks(
@@ -191,12 +173,10 @@ def pack_subblocks(
     """
     row_of, rep = _letter_rows(codes, sub8, indel8)
     used = (np.unique(codes) if codes.size else np.zeros(0, dtype=np.uint8)).astype(np.int64)
-    alpha, beta, wild_beta, exc_code, exc_delta, n_exc = _decompose(rep, used, sub8, indel8)
+    alpha, exc_code, exc_delta, n_exc = _decompose(rep, used, sub8, indel8)
     wild = int(sub8.shape[0])
-    packed, bt, start, length, gsum = _pack(codes, np.ascontiguousarray(off, dtype=np.int64), beta, indel8, wild)
-    return SubBlocks(
-        packed, bt, start, length, gsum, row_of, indel8.copy(), alpha, exc_code, exc_delta, n_exc, int(rep.size), wild, wild_beta, beta,
-    )
+    packed, start, length, gsum = _pack(codes, np.ascontiguousarray(off, dtype=np.int64), indel8, wild)
+    return SubBlocks(packed, start, length, gsum, row_of, indel8.copy(), alpha, exc_code, exc_delta, n_exc, int(rep.size), wild)
 
 
 @njit(cache=True, nogil=True)
@@ -296,7 +276,6 @@ def _sweep(
 @njit(cache=True)
 def _build(
     cc: NDArray[np.uint8],
-    bb: NDArray[np.int8],
     big: int,
     used: NDArray[np.int64],
     alpha: NDArray[np.int8],
@@ -305,14 +284,14 @@ def _build(
     n_exc: NDArray[np.int64],
     pb: NDArray[np.int8],
 ) -> None:  # pragma: no cover - compiled
-    """The profile rows ``used`` of a sweep's codes ``cc`` (and their betas ``bb``) into ``pb``, shape ``(len(used), big, GROUP_LANES)``."""
+    """The profile rows ``used`` of a sweep's codes ``cc`` (its first ``big`` columns) into ``pb``, shape ``(len(used), big, GROUP_LANES)``."""
     for r in range(used.size):
         row = used[r]
         a = alpha[row]
         p = pb[r]
         for j in range(big):
             for k in range(GROUP_LANES):
-                p[j, k] = np.int8(a + bb[j, k])
+                p[j, k] = a
         for e in range(n_exc[row]):
             x = exc_code[row, e]
             d = exc_delta[row, e]
@@ -328,7 +307,6 @@ def sweep_subblocks(
     used: NDArray[np.int64],
     subs: NDArray[np.int64],
     codes: NDArray[np.uint8],
-    beta: NDArray[np.int8],
     start: NDArray[np.int64],
     length: NDArray[np.int64],
     gsum: NDArray[np.int32],
@@ -337,7 +315,6 @@ def sweep_subblocks(
     exc_delta: NDArray[np.int8],
     n_exc: NDArray[np.int64],
     wild_code: int,
-    wild_beta: int,
 ) -> NDArray[np.int32]:  # pragma: no cover - compiled
     """The bounds of the references of sub-blocks ``subs``, ``SUBS`` sub-blocks a sweep, shape ``(ceil(len(subs) / SUBS), GROUP_LANES)``.
 
@@ -354,17 +331,10 @@ def sweep_subblocks(
         maxlen = max(maxlen, length[subs[t]])
     nu = used.size
     cc = np.empty(maxlen * GROUP_LANES, dtype=np.uint8)
-    bb = np.empty(maxlen * GROUP_LANES, dtype=np.int8)
     cc64 = cc.view(np.int64)
-    bb64 = bb.view(np.int64)
     codes64 = codes.view(np.int64)
-    beta64 = beta.view(np.int64)
-    fill = np.empty(2 * SUB_LANES, dtype=np.uint8)
-    for t in range(SUB_LANES):
-        fill[t] = wild_code
-        fill[SUB_LANES + t] = np.uint8(np.int8(wild_beta))
+    fill = np.full(SUB_LANES, wild_code, dtype=np.uint8)
     wild_c = fill.view(np.int64)[0]
-    wild_b = fill.view(np.int64)[1]
     scratch = np.empty(max(nu, 1) * maxlen * GROUP_LANES, dtype=np.int8)
     gs = np.zeros(GROUP_LANES, dtype=np.int32)
     hv = np.empty((maxlen, GROUP_LANES), dtype=np.int8)
@@ -380,7 +350,7 @@ def sweep_subblocks(
         big = 1
         for t in range(lo, hi):
             big = max(big, length[subs[t]])
-        for w in range(SUBS):  # the codes (and betas) of the sweep, column j at words j * SUBS ..
+        for w in range(SUBS):  # the codes of the sweep, column j at words j * SUBS ..
             m = 0
             if lo + w < hi:
                 s = subs[lo + w]
@@ -388,7 +358,6 @@ def sweep_subblocks(
                 a = start[s] // SUB_LANES
                 for j in range(m):
                     cc64[j * SUBS + w] = codes64[a + j]
-                    bb64[j * SUBS + w] = beta64[a + j]
                 for k in range(SUB_LANES):
                     gs[w * SUB_LANES + k] = gsum[s, k]
             else:
@@ -396,9 +365,8 @@ def sweep_subblocks(
                     gs[w * SUB_LANES + k] = 0
             for j in range(m, big):
                 cc64[j * SUBS + w] = wild_c
-                bb64[j * SUBS + w] = wild_b
         pb = scratch[: nu * big * GROUP_LANES].reshape((nu, big, GROUP_LANES))
-        _build(cc[: big * GROUP_LANES].reshape((big, GROUP_LANES)), bb[: big * GROUP_LANES].reshape((big, GROUP_LANES)), big, used, alpha, exc_code, exc_delta, n_exc, pb)
+        _build(cc[: big * GROUP_LANES].reshape((big, GROUP_LANES)), big, used, alpha, exc_code, exc_delta, n_exc, pb)
         _sweep(rows, gaps, pb, big, gs, out[c], hv, u1, u2, u3, u4, dl, best)
     return out
 
@@ -512,7 +480,7 @@ def reversed_bounds(
     codes: NDArray[np.uint8],
     off: NDArray[np.int64],
     views: NDArray[np.int64],
-    beta: NDArray[np.int8],
+    indel: NDArray[np.int8],
     alpha: NDArray[np.int8],
     exc_code: NDArray[np.uint8],
     exc_delta: NDArray[np.int8],
@@ -526,7 +494,7 @@ def reversed_bounds(
     twice: at most the cyclic cost too (a rotation of the view is such a substring), and large where
     the view has letters the query has not, where :func:`sweep_subblocks`' bound (the view whole
     against the query twice) lets the query's surplus go free. ``codes``/``off``: the views' letter
-    codes; ``beta``: :class:`SubBlocks`' beta of each code (the wildcard's last); the profile
+    codes; ``indel``: the integer indel of each letter; the profile
     arrays are those of :class:`SubBlocks`. The views are swept ``GROUP_LANES`` at a time, by length.
     """
     n = (rows.size + 1) // 2
@@ -545,7 +513,6 @@ def reversed_bounds(
     nr_max = 2 * maxlen - 1
     nu = used.size
     cc = np.empty((nr_max, GROUP_LANES), dtype=np.uint8)
-    bb = np.empty((nr_max, GROUP_LANES), dtype=np.int8)
     rowgap = np.empty((nr_max, GROUP_LANES), dtype=np.int8)
     scratch = np.empty(max(nu, 1) * nr_max * GROUP_LANES, dtype=np.int8)
     valid = np.empty(GROUP_LANES, dtype=np.int64)
@@ -557,7 +524,6 @@ def reversed_bounds(
     u4 = np.empty(GROUP_LANES, dtype=np.int8)
     dl = np.empty(GROUP_LANES, dtype=np.int32)
     best = np.empty(GROUP_LANES, dtype=np.int32)
-    wb = beta[wild_code]
     for lo in range(0, nv, GROUP_LANES):
         hi = min(nv, lo + GROUP_LANES)
         big = 1
@@ -572,14 +538,12 @@ def reversed_bounds(
                 if i < 2 * m - 1:
                     b = codes[a + (i % m)]
                     cc[i, k] = b
-                    bb[i, k] = beta[b]
-                    rowgap[i, k] = -beta[b]  # beta = -g for every letter
+                    rowgap[i, k] = indel[b]
                 else:
                     cc[i, k] = wild_code
-                    bb[i, k] = wb
                     rowgap[i, k] = 0
         pb = scratch[: nu * nr * GROUP_LANES].reshape((nu, nr, GROUP_LANES))
-        _build(cc[:nr], bb[:nr], nr, used, alpha, exc_code, exc_delta, n_exc, pb)
+        _build(cc[:nr], nr, used, alpha, exc_code, exc_delta, n_exc, pb)
         _sweep_rev(cls, pb, nr, rowgap, valid, gs0, lanes, hv, u1, u2, u3, u4, dl, best)
         for t in range(lo, hi):
             out[order[t]] = lanes[t - lo]
@@ -601,8 +565,8 @@ def sweep(query: tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int64]],
     """:func:`sweep_subblocks` of a query (:func:`query_profile_rows`) on the sub-blocks ``subs`` of ``sb``."""
     rows, gaps, used = query
     return sweep_subblocks(
-        rows, gaps, used, np.ascontiguousarray(subs, dtype=np.int64), sb.codes, sb.beta, sb.start, sb.length, sb.gsum,
-        sb.alpha, sb.exc_code, sb.exc_delta, sb.n_exc, sb.wild_code, sb.wild_beta,
+        rows, gaps, used, np.ascontiguousarray(subs, dtype=np.int64), sb.codes, sb.start, sb.length, sb.gsum,
+        sb.alpha, sb.exc_code, sb.exc_delta, sb.n_exc, sb.wild_code,
     )
 
 
@@ -616,7 +580,7 @@ def reversed_bound(
     """:func:`reversed_bounds` of a query (:func:`query_profile_rows`) against ``views`` of ``codes``/``off``, the profile of ``sb``."""
     rows, gaps, used = query
     return reversed_bounds(
-        rows, gaps, used, codes, off, np.ascontiguousarray(views, dtype=np.int64), sb.code_beta, sb.alpha, sb.exc_code, sb.exc_delta,
+        rows, gaps, used, codes, off, np.ascontiguousarray(views, dtype=np.int64), sb.indel, sb.alpha, sb.exc_code, sb.exc_delta,
         sb.n_exc, sb.wild_code,
     )
 

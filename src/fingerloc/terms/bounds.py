@@ -65,6 +65,7 @@ from ._bound_kernels import (
     group_count_place_min,
     l1_place_min,
     letter_counts,
+    neg_scaled,
     query_rows,
     scaled,
     semiglobal_cover,
@@ -289,6 +290,12 @@ class FingerprintBound(TermBound):
         state = None if self.sb is None else SweepState(int(self.sb.length.size))
         return obs, codes, q, partial, fp, rows, sg, state
 
+    def _bound_of(self, least: IArray, unit: float) -> FArray:
+        """The term's likelihood of the integer least costs ``least`` (units of ``1 / unit``): an upper bound where they bound the cost."""
+        if self.term.likelihood == "exp":  # type: ignore[attr-defined]
+            return neg_scaled(least, float(unit), float(self.term.lambda_), 0.0)  # type: ignore[attr-defined]
+        return self._likelihood(_scaled(least, unit))
+
     def _likelihood(self, d: FArray) -> FArray:
         return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
 
@@ -310,8 +317,7 @@ class FingerprintBound(TermBound):
         if self.grouped is not None:
             least = self._grouped_least(q)
             if least is not None:
-                out = _scaled(least, 2.0 * unit)
-                return self._likelihood(out) if n else out
+                return self._bound_of(least, 2.0 * unit)
         letters = np.flatnonzero((q > 0) | self.used)
         wide = np.maximum(h2, c2)[letters].astype(np.int64) @ np.maximum(q[letters], self.most[letters])
         if self.counts_t.dtype == np.uint8 and wide <= np.iinfo(np.int16).max:  # no sum can pass 16 bits
@@ -336,7 +342,7 @@ class FingerprintBound(TermBound):
             return self.exact(query, places)
         v = self.views
         least = semiglobal_views_min(query[6], self.sb, query[7], places, v.place_start, v.per_place, self.place_of_view, self.view_span)
-        return self._likelihood(_scaled(least, self.scale))
+        return self._bound_of(least, self.scale)
 
     def finer(self, query: Any, places: IArray) -> FArray | None:
         if self.sb is None or query[3]:
@@ -346,7 +352,7 @@ class FingerprintBound(TermBound):
             query[6], self.sb, query[7], self.codes, self.off, np.asarray(places, dtype=np.int64), v.place_start, v.per_place,
             self.place_of_view, self.view_span,
         )
-        return self._likelihood(_scaled(least, self.scale))
+        return self._bound_of(least, self.scale)
 
 
 class RangeBound(TermBound):
@@ -385,9 +391,9 @@ class RangeBound(TermBound):
         if q is None:
             return np.zeros(self.views.per_place.size)
         q16 = np.round(np.clip(q, 0.0, 1.0) * self.steps).astype(np.uint16)
-        d = _scaled(l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place), self.steps)
-        d = np.maximum(d - 2.0 * self.slack, 0.0)  # both the view's and the query's rounding
-        return np.asarray(self.term._likelihood_of(d), dtype=np.float64)  # type: ignore[attr-defined]
+        least = l1_place_min(self.desc_t, q16, self.views.place_start, self.views.per_place)
+        # less the most both roundings (the view's and the query's) can move the distance
+        return neg_scaled(least, float(self.steps), float(self.term.lambda_), 2.0 * self.slack)  # type: ignore[attr-defined]
 
 
 def count_potentials(substitution: FArray, indel: FArray) -> list[tuple[FArray, FArray]]:
