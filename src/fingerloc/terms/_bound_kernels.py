@@ -353,6 +353,8 @@ class SweepState:
         self.lanes = np.empty(n_sub * SUB_LANES, dtype=np.int32)  # valid where swept_at > 0
         self.swept_at = np.zeros(n_sub, dtype=np.int32)  # the call that swept each sub-block; 0: not swept
         self.calls = 0
+        #: the places the latest call covered and their least bounds (what :func:`semiglobal_views_min` reads first)
+        self.covered: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
 
 
 @njit(cache=True)
@@ -400,47 +402,50 @@ def _store(lanes: NDArray[np.int32], subs: NDArray[np.int64], out: NDArray[np.in
 
 @njit(cache=True)
 def _newly_covered(
-    subs: NDArray[np.int64], view_place: NDArray[np.int32], view_span: NDArray[np.int32], swept_at: NDArray[np.int32], call: int
-) -> NDArray[np.int64]:  # pragma: no cover - compiled
-    """The places whose views all lie in swept sub-blocks, one of them swept by ``call`` (``subs``: those).
+    subs: NDArray[np.int64], view_place: NDArray[np.int32], view_span: NDArray[np.int32], swept_at: NDArray[np.int32], call: int,
+    lanes: NDArray[np.int32],
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
+    """The places whose views all lie in swept sub-blocks, one of them swept by ``call`` (``subs``: those), and their least lane.
 
-    ``view_place``: the place of each view; ``view_span[v] = (first sub-block, last sub-block)`` of its
-    place's views, negated (-1 -) at the place's first view in each sub-block (the only view looked at).
+    ``view_place``: the place of each view; ``view_span[v] = (first view, views)`` of its place,
+    the first negated (-1 -) at the place's first view in each sub-block (the only view looked at).
     """
     nv = view_place.size
     out = np.empty(subs.size * SUB_LANES, dtype=np.int64)
+    least = np.empty(subs.size * SUB_LANES, dtype=np.int64)
     n = 0
     for s in subs:
         lo = s * SUB_LANES
         for v in range(lo, min(nv, lo + SUB_LANES)):
-            first = view_span[2 * v]
-            if first >= 0:  # not the place's first view in this sub-block
+            a = view_span[2 * v]
+            if a >= 0:  # not the place's first view in this sub-block
                 continue
-            first = -1 - first
-            last = view_span[2 * v + 1]
+            a = -1 - a
+            m = view_span[2 * v + 1]
             whole = True
-            for u in range(first, last + 1):  # every sub-block swept, and s the last this call swept
+            for u in range(a // SUB_LANES, (a + m - 1) // SUB_LANES + 1):  # every sub-block swept, s the last this call swept
                 x = swept_at[u]
                 whole = whole and x > 0 and not (u > s and x == call)
             if whole:
+                best = NO_VIEW
+                for w in range(a, a + m):
+                    best = min(best, int(lanes[w]))
                 out[n] = view_place[v]
+                least[n] = best
                 n += 1
-    return out[:n]
+    return out[:n], least[:n]
 
 
 def view_spans(place_start: NDArray[np.int64], per_place: NDArray[np.int64], n_views: int) -> NDArray[np.int32]:
     """:func:`_newly_covered`'s ``view_span`` (2 entries a view) for views in layout order (place ``p``: ``place_start[p] ..``)."""
     has = per_place > 0
     a, m = place_start[has], per_place[has]
-    first = a // SUB_LANES
-    last = (a + m - 1) // SUB_LANES
     span = np.empty((n_views, 2), dtype=np.int64)
     order = np.argsort(a, kind="stable")  # the views of the places in layout order
-    span[:, 0] = np.repeat(first[order], m[order])
-    span[:, 1] = np.repeat(last[order], m[order])
+    span[:, 0] = np.repeat(a[order], m[order])
+    span[:, 1] = np.repeat(m[order], m[order])
     v = np.arange(n_views)
-    start = np.repeat(a[order], m[order])
-    head = v == np.maximum(start, (v // SUB_LANES) * SUB_LANES)
+    head = v == np.maximum(span[:, 0], (v // SUB_LANES) * SUB_LANES)
     span[head, 0] = -1 - span[head, 0]
     return span.reshape(-1).astype(np.int32)
 
@@ -486,9 +491,12 @@ def semiglobal_cover(
     state.calls += 1
     subs = _new_subblocks(np.ascontiguousarray(places, dtype=np.int64), place_start, per_place, sb.length, state.swept_at, state.calls)
     if subs.size == 0:
+        state.covered = None
         return np.zeros(0, dtype=np.int64)
     _store(sweep(query, sb, subs), subs, state.lanes)
-    return _newly_covered(np.sort(subs), place_of_view, view_span, state.swept_at, state.calls)  # in order: memory read in order
+    covered, least = _newly_covered(np.sort(subs), place_of_view, view_span, state.swept_at, state.calls, state.lanes)  # memory in order
+    state.covered = (covered, least)
+    return covered
 
 
 def semiglobal_views_min(
@@ -506,6 +514,8 @@ def semiglobal_views_min(
     Sweeps what :func:`semiglobal_cover` has not swept yet (``state``), then reads the lanes.
     """
     places = np.ascontiguousarray(places, dtype=np.int64)
+    if state.covered is not None and np.array_equal(state.covered[0], places):  # those the latest sweep covered
+        return state.covered[1]
     least, ok = _cached_place_min(state.lanes, state.swept_at, places, place_start, per_place)
     if ok:
         return least
