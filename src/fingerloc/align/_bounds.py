@@ -530,18 +530,20 @@ def reversed_bounds(
         for t in range(lo, hi):
             big = max(big, lens[order[t]])
         nr = 2 * big - 1
+        for i in range(nr):
+            for k in range(GROUP_LANES):
+                cc[i, k] = wild_code
+                rowgap[i, k] = 0
         for k in range(GROUP_LANES):
             m = lens[order[lo + k]] if lo + k < hi else 0
             valid[k] = 2 * m - 1
-            a = off[views[order[lo + k]]] if lo + k < hi else 0
-            for i in range(nr):
-                if i < 2 * m - 1:
-                    b = codes[a + (i % m)]
-                    cc[i, k] = b
-                    rowgap[i, k] = indel[b]
-                else:
-                    cc[i, k] = wild_code
-                    rowgap[i, k] = 0
+            if m == 0:
+                continue
+            a = off[views[order[lo + k]]]
+            for i in range(2 * m - 1):  # the view, then the view again less its last letter
+                b = codes[a + i if i < m else a + i - m]
+                cc[i, k] = b
+                rowgap[i, k] = indel[b]
         pb = scratch[: nu * nr * GROUP_LANES].reshape((nu, nr, GROUP_LANES))
         _build(cc[:nr], nr, used, alpha, exc_code, exc_delta, n_exc, pb)
         _sweep_rev(cls, pb, nr, rowgap, valid, gs0, lanes, hv, u1, u2, u3, u4, dl, best)
