@@ -48,6 +48,20 @@ def cost_model(name, rng):
     return {"unit": CostModel(), "feature": CostModel.feature_aware()}.get(name) or random_costs(rng)
 
 
+def random_references(seed, n_refs, qlen, costs):
+    """References of 0-15 letters out of 7, packed in sub-blocks, and a query of those letters, integer costs."""
+    rng = np.random.default_rng(seed)
+    cm = cost_model(costs, rng)
+    sub8, indel8, _scale = integer_costs(cm.substitution, cm.indel)
+    letters = rng.choice(N_LETTERS, 7, replace=False)
+    lens = rng.integers(0, 16, n_refs)
+    off = np.zeros(n_refs + 1, dtype=np.int64)
+    np.cumsum(lens, out=off[1:])
+    codes = letters[rng.integers(0, letters.size, int(off[-1]))].astype(np.uint8)
+    query = letters[rng.integers(0, letters.size, qlen)].astype(np.uint8)
+    return rng, sub8, indel8, codes, off, pack_subblocks(codes, off, sub8, indel8), query
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     seed=st.integers(0, 2**31),
@@ -57,16 +71,7 @@ def cost_model(name, rng):
 )
 def test_sweeps_of_gathered_subblocks_are_the_plain_semiglobal_programme(seed, n_refs, qlen, costs):
     """Sub-blocks gathered in any order, SUBS a sweep: every lane is the plain programme's value."""
-    rng = np.random.default_rng(seed)
-    cm = cost_model(costs, rng)
-    sub8, indel8, _scale = integer_costs(cm.substitution, cm.indel)
-    letters = rng.choice(N_LETTERS, 7, replace=False)
-    lens = rng.integers(0, 16, n_refs)
-    off = np.zeros(n_refs + 1, dtype=np.int64)
-    np.cumsum(lens, out=off[1:])
-    codes = letters[rng.integers(0, letters.size, int(off[-1]))].astype(np.uint8)
-    sb = pack_subblocks(codes, off, sub8, indel8)
-    query = letters[rng.integers(0, letters.size, qlen)].astype(np.uint8)
+    rng, sub8, indel8, codes, off, sb, query = random_references(seed, n_refs, qlen, costs)
     subs = rng.permutation(sb.length.size)[: int(rng.integers(1, sb.length.size + 1))].astype(np.int64)
     got = sweep(query_profile_rows(query, sb), sb, subs).reshape(-1)
     for t, s in enumerate(subs):
@@ -106,16 +111,7 @@ def test_the_computed_profile_is_the_substitution_table(seed, costs):
 )
 def test_reversed_bounds_are_the_plain_programme_with_the_roles_swapped(seed, n_refs, qlen, costs):
     """The query whole against any substring of each view written twice: the plain programme with query and view swapped."""
-    rng = np.random.default_rng(seed)
-    cm = cost_model(costs, rng)
-    sub8, indel8, _scale = integer_costs(cm.substitution, cm.indel)
-    letters = rng.choice(N_LETTERS, 7, replace=False)
-    lens = rng.integers(0, 16, n_refs)
-    off = np.zeros(n_refs + 1, dtype=np.int64)
-    np.cumsum(lens, out=off[1:])
-    codes = letters[rng.integers(0, letters.size, int(off[-1]))].astype(np.uint8)
-    sb = pack_subblocks(codes, off, sub8, indel8)
-    query = letters[rng.integers(0, letters.size, qlen)].astype(np.uint8)
+    rng, sub8, indel8, codes, off, sb, query = random_references(seed, n_refs, qlen, costs)
     views = rng.permutation(n_refs)[: int(rng.integers(1, n_refs + 1))].astype(np.int64)
     got = reversed_bound(query_profile_rows(query, sb), sb, codes, off, views)
     for t, r in enumerate(views):

@@ -65,7 +65,7 @@ from .terms.range import RangeTerm
 
 __all__ = ["INDEX_MIN_PLACES", "POSTERIOR_TOL", "PlaceIndex", "SearchResult", "index_for", "place_layout"]
 
-#: Most views of a group (one block of the bound kernels, :data:`fingerloc.align._bounds.GROUP_LANES`).
+#: Most views of a group of the layout (its places side by side; the bound kernels take the views in layout order).
 GROUP_VIEWS = 64
 #: A bound below the k-th best score by less than this (relative) is refined anyway: rounding of sums.
 _MARGIN = 1e-9
@@ -219,9 +219,6 @@ class PlaceIndex:
             for name, t in model.terms_.items():
                 if self.weights[name] != 0.0:
                     self.bounds[name] = bound_for(t, self.layout)
-        self.group_sizes = self.layout.sizes()
-        self.group_of = np.empty(self.n_places, dtype=np.int64)
-        self.group_of[self.layout.order] = np.repeat(np.arange(self.layout.n_groups), self.group_sizes)
 
     # -- scoring ---------------------------------------------------------------------
     def _exact(self, prep: dict[str, Any], places: IArray) -> FArray:
@@ -496,9 +493,9 @@ _FULL_FRACTION = 0.4
 
 #: Places from which :func:`index_for` gives an index, or None: never (``localize`` then scores every place).
 #: None by default: on a campus of 10,000 look-alike laser places (``bench scale``) the exact top 5 through the
-#: index cost 6-8 CPU ms a query against 16-21 for the full scan, but ``localize`` also prints the posterior of
-#: its top places, and the posterior within :data:`POSTERIOR_TOL` through the index cost 21-32 ms (a broad
-#: posterior: about half the places must be scored). Set a number of places to have ``localize`` use it.
+#: index cost 1.7 CPU ms a query against 9.7 for the full scan, but ``localize`` also prints the posterior of its
+#: top places, and the posterior within :data:`POSTERIOR_TOL` needs nearly every place scored there (a broad
+#: posterior: such a query is handed to the full scan). Set a number of places to have ``localize`` use it.
 INDEX_MIN_PLACES: int | None = None
 #: The posterior tolerance ``localize`` asks of the index: every probability within this of the linear scan's.
 POSTERIOR_TOL = 1e-9

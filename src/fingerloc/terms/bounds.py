@@ -104,11 +104,6 @@ class PlaceLayout:
     def n_groups(self) -> int:
         return int(self.starts.size - 1)
 
-    def places_of(self, groups: IArray) -> IArray:
-        """The places of ``groups``, group after group (each in layout order)."""
-        g = np.asarray(groups, dtype=np.int64)
-        return self.order[_ranges(self.starts[g], self.starts[g + 1])]
-
     def sizes(self) -> IArray:
         """Places of each group, shape ``(G,)``."""
         return np.diff(self.starts)
@@ -178,8 +173,6 @@ class _Views:
         pos = np.cumsum(n) - n
         self.place_start = np.empty_like(per_place)
         self.place_start[layout.order] = pos
-        #: start of each group's views, (G + 1,)
-        self.group_start = np.append(pos, int(n.sum()))[layout.starts]
         self.has = per_place[layout.order] > 0
 
 
