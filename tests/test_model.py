@@ -136,6 +136,22 @@ def test_terms_and_weights():
     np.testing.assert_allclose(w.predict_log_proba(obs[:2]), _normalise(w.term_log_likelihoods(obs[:2])["Ex"]))
 
 
+def test_a_term_of_weight_zero_is_not_computed_for_the_posterior(monkeypatch):
+    """Its log-likelihoods add nothing: the posterior does not ask for them (an infinite one would give 0 * inf), the same bits."""
+    obs, labels = dataset()
+    w = PlaceModel(3, terms=("VE", "Ex"), weights={"VE": 0.0}).fit(obs, labels)
+    want = w.predict_log_proba(obs[:3])
+    assert np.array_equal(want, _normalise(w.term_log_likelihoods(obs[:3])["Ex"]))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a term of weight 0 was computed")
+
+    monkeypatch.setattr(w.terms_["VE"], "log_likelihood", refuse)
+    assert np.array_equal(w.predict_log_proba(obs[:3]), want)
+    everything = PlaceModel(3, terms=("VE", "Ex"), weights={"VE": 0.0, "Ex": 0.0}).fit(obs, labels)
+    assert np.array_equal(everything.predict_log_proba(obs[:3]), np.full((3, len(everything.classes_)), -np.log(len(everything.classes_))))
+
+
 def test_fp_exp_and_references():
     obs, labels = dataset(seed=4, noise=6.0)
     exp = PlaceModel(3, terms=("Fp",), fp_likelihood="exp").fit(obs, labels)

@@ -461,8 +461,9 @@ class PlaceModel(ParamsMixin):
         obs = _observations(observations)
         out: dict[str, FArray] = {}
         rotations = None
-        if self.rotate_mixtures and "Fp" in terms:
-            head = terms["Fp"].headings(obs)
+        fp = self.terms_.get("Fp")
+        if self.rotate_mixtures and fp is not None and any(isinstance(t, MixtureTerm) for t in terms.values()):
+            head = fp.headings(obs)
             rotations = None if head is None else -np.nan_to_num(head, nan=0.0)
         for name, t in terms.items():
             out[name] = t.log_likelihood(obs, rotations=rotations if isinstance(t, MixtureTerm) else None)
@@ -474,8 +475,12 @@ class PlaceModel(ParamsMixin):
         return self._term_log_likelihoods(self.terms_, observations)
 
     def _joint(self, terms: Mapping[str, FArray]) -> FArray:
-        total = sum(self._weight(t) * ll for t, ll in terms.items())
-        return np.asarray(total, dtype=np.float64) * self.__dict__.get("temper_", 1.0)
+        """``sum_t w_t ll_t`` over the terms of non-zero weight (one of weight 0 adds nothing), tempered."""
+        weighted = [self._weight(t) * ll for t, ll in terms.items() if self._weight(t) != 0.0]
+        if not weighted:
+            shape = next(iter(terms.values())).shape if terms else (0, len(self.classes_))
+            return np.zeros(shape)
+        return np.asarray(sum(weighted), dtype=np.float64) * self.__dict__.get("temper_", 1.0)
 
     def combine(self, term_log_likelihoods: Mapping[str, FArray]) -> FArray:
         """The weighted sum of per-term log-likelihoods (:meth:`term_log_likelihoods`' answer), shape ``(n, P)``.
@@ -492,7 +497,11 @@ class PlaceModel(ParamsMixin):
         ``log P(Loc) + sum_term w_term log P(term | Loc)`` up to a constant;
         :meth:`predict_log_proba` normalises it over the places.
         """
-        return self._joint(self.term_log_likelihoods(observations))
+        self._check_fitted()
+        weighted = {name: t for name, t in self.terms_.items() if self._weight(name) != 0.0}  # the others add nothing
+        if not weighted:
+            return np.zeros((len(_observations(observations)), len(self.classes_)))
+        return self._joint(self._term_log_likelihoods(weighted, observations))
 
     def predict_log_proba(self, observations: Sequence[Observation]) -> FArray:
         """``log P(Loc | observation)`` normalised over the learned places, shape ``(n, P)``."""

@@ -517,7 +517,8 @@ def _print_extras(res: dict[str, Any]) -> None:
         console.print(
             f"speed (load average {' '.join(f'{x:.2f}' for x in sp['load_average'])}): features "
             f"{sp['features_cpu_s']['median']:.3f} s CPU a 2048x1024 photo (median of {sp['features_cpu_s']['photos']}); "
-            f"localize {1000 * sp['localize_cpu_s']['median']:.1f} ms CPU a query against {sp['views']} views"
+            f"localize {1000 * sp['localize_cpu_s']['median']:.1f} ms CPU ({1000 * sp['localize_wall_s']['median']:.1f} ms wall, "
+            f"{sp.get('blas_threads') or '?'} BLAS threads) a query against {sp['views']} views"
         )
 
 

@@ -175,7 +175,8 @@ def speed(
     the queries are ``n_queries`` of the observations, answered one at a
     time (posterior and heading, as ``localize``), with the memo of verified
     pairs emptied after the fit (as in a new ``localize`` process). Times are CPU seconds
-    (``time.process_time``) with the load average at the start.
+    (``time.process_time``: every thread, the BLAS threads' waiting included) and, for localize,
+    wall seconds too, with the load average at the start and the BLAS threads (``blas_threads``).
     """
     from dataclasses import replace
 
@@ -217,11 +218,24 @@ def speed(
     clear_pair_cache()
     out["views"] = len(views)
     q = list(obs[:n_queries])
-    times = []
+    times, walls = [], []
     for o in q:
-        t0 = time.process_time()
+        w0, t0 = time.perf_counter(), time.process_time()
         logp = model.predict_log_proba([o])
         model.heading_sources([o], [model.classes_[int(np.argmax(logp[0]))]])
         times.append(time.process_time() - t0)
+        walls.append(time.perf_counter() - w0)
     out["localize_cpu_s"] = {"queries": len(times), "mean": float(np.mean(times)), "median": float(np.median(times))}
+    out["localize_wall_s"] = {"queries": len(walls), "mean": float(np.mean(walls)), "median": float(np.median(walls))}
+    out["blas_threads"] = _blas_threads()
     return out
+
+
+def _blas_threads() -> int | None:
+    """Threads of the BLAS numpy uses (their spinning counts in the process's CPU time), None when unknown."""
+    try:
+        from threadpoolctl import threadpool_info  # a dependency of scikit-learn (the bench extra)
+    except ImportError:
+        return None
+    blas = [int(i["num_threads"]) for i in threadpool_info() if i.get("user_api") == "blas"]
+    return max(blas) if blas else None
