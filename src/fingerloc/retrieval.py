@@ -411,10 +411,14 @@ class _Search:
                 sel = sel[np.argpartition(-ub[sel], cap - 1)[:cap]]
             elif at == COARSE:
                 sel = np.flatnonzero(lev == COARSE)  # a sweep's set-up once for all of them
+            chosen = cand[sel]
             if at == COARSE:
-                self.refine(cand[sel])
+                self.refine(chosen)
             else:
-                self.refine_more(cand[sel])
+                self.refine_more(chosen)
+            stuck = chosen[self.level[chosen] == at]
+            if stuck.size:  # a bound that could not go further (no term refines it): the score, which always can
+                self.score(stuck)
         all_p = np.concatenate(self.scored_p)
         return _finish(all_p, self.joint, k, self._mass(), self.true_col)
 
