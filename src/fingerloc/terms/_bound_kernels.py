@@ -7,12 +7,17 @@ The views of the places are stored in the index's layout order
 (:class:`fingerloc.terms.bounds.PlaceLayout`): place ``p`` holds the views
 ``place_start[p] .. place_start[p] + per_place[p] - 1``.
 
-* :func:`count_place_min`: the letter-count bound of every view (twice the
-  bound, integer units of the costs), least a place.
+* :func:`group_count_place_min`: the letter-count bound of every view with
+  every potential of the letters' transport (twice the bound, integer units
+  of the costs), least a place; :func:`count_place_min` (and its 16-bit
+  :func:`count_place_min_narrow`) with three potentials, where the letters
+  fall in too many groups.
 * :func:`l1_place_min`: the L1 distance of rounded range descriptors (steps),
   least a place.
-* :func:`semiglobal_place_min`: the semi-global bound of the views of chosen
-  groups (:mod:`fingerloc.align._bounds`), least a place.
+* :func:`semiglobal_cover` / :func:`semiglobal_views_min`: the semi-global
+  bound of chosen places' views (:mod:`fingerloc.align._bounds`), their
+  sub-blocks swept once a query (:class:`SweepState`), least a place;
+  :func:`semiglobal_finer_min`: the larger of it and the reversed bound.
 * :func:`cyclic_place_min`: the exact integer cyclic cost of a query against
   the views of chosen places (the int8 kernel of
   :mod:`fingerloc.align._cyclic_int` on a profile of the query's own letters,
@@ -22,6 +27,8 @@ The views of the places are stored in the index's layout order
   ``cityblock`` does, least a place.
 
 A place without views gets :data:`NO_VIEW` (integer passes) or ``inf``.
+:func:`top_places`, :func:`open_places` and :func:`unscored_mass` are the
+search's passes over every place's bound.
 """
 
 from __future__ import annotations

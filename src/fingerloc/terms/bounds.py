@@ -116,7 +116,7 @@ def _ranges(lo: IArray, hi: IArray) -> IArray:
 
 
 class TermBound:
-    """Bounds of one term over a layout: :meth:`prepare` once a query, then :meth:`coarse`, :meth:`fine`, :meth:`exact`."""
+    """Bounds of one term over a layout: :meth:`prepare` once a query, then :meth:`coarse`, :meth:`cover` and :meth:`fine`, :meth:`finer`, :meth:`exact`."""
 
     def __init__(self, term: Term, layout: PlaceLayout) -> None:
         self.term = term
@@ -131,7 +131,10 @@ class TermBound:
         raise NotImplementedError
 
     def cover(self, query: Any, places: IArray) -> IArray:
-        """``places`` and any others whose fine bounds come at no extra cost with theirs (``places`` first)."""
+        """The places whose fine bounds the work for ``places`` makes ready (theirs, unless ready before, and any that come free).
+
+        :meth:`fine` is then asked for those. Default: ``places``.
+        """
         return places
 
     def fine(self, query: Any, places: IArray) -> FArray | None:
