@@ -48,6 +48,15 @@ def cost_model(name, rng):
     return {"unit": CostModel(), "feature": CostModel.feature_aware()}.get(name) or random_costs(rng)
 
 
+#: The draws of :func:`random_references`: up to two sweeps of references and a query of 0-21 letters, three kinds of costs.
+REFERENCES = {
+    "seed": st.integers(0, 2**31),
+    "n_refs": st.integers(1, 2 * GROUP_LANES + 5),
+    "qlen": st.integers(0, 21),
+    "costs": st.sampled_from(["unit", "feature", "random"]),
+}
+
+
 def random_references(seed, n_refs, qlen, costs):
     """References of 0-15 letters out of 7, packed in sub-blocks, and a query of those letters, integer costs."""
     rng = np.random.default_rng(seed)
@@ -63,12 +72,7 @@ def random_references(seed, n_refs, qlen, costs):
 
 
 @settings(max_examples=30, deadline=None)
-@given(
-    seed=st.integers(0, 2**31),
-    n_refs=st.integers(1, 2 * GROUP_LANES + 5),
-    qlen=st.integers(0, 21),
-    costs=st.sampled_from(["unit", "feature", "random"]),
-)
+@given(**REFERENCES)
 def test_sweeps_of_gathered_subblocks_are_the_plain_semiglobal_programme(seed, n_refs, qlen, costs):
     """Sub-blocks gathered in any order, SUBS a sweep: every lane is the plain programme's value."""
     rng, sub8, indel8, codes, off, sb, query = random_references(seed, n_refs, qlen, costs)
@@ -103,12 +107,7 @@ def test_the_computed_profile_is_the_substitution_table(seed, costs):
 
 
 @settings(max_examples=30, deadline=None)
-@given(
-    seed=st.integers(0, 2**31),
-    n_refs=st.integers(1, 2 * GROUP_LANES + 5),
-    qlen=st.integers(0, 21),
-    costs=st.sampled_from(["unit", "feature", "random"]),
-)
+@given(**REFERENCES)
 def test_reversed_bounds_are_the_plain_programme_with_the_roles_swapped(seed, n_refs, qlen, costs):
     """The query whole against any substring of each view written twice: the plain programme with query and view swapped."""
     rng, sub8, indel8, codes, off, sb, query = random_references(seed, n_refs, qlen, costs)
