@@ -476,7 +476,8 @@ class PlaceModel(ParamsMixin):
 
     def _joint(self, terms: Mapping[str, FArray]) -> FArray:
         """``sum_t w_t ll_t`` over the terms of non-zero weight (one of weight 0 adds nothing), tempered."""
-        weighted = [self._weight(t) * ll for t, ll in terms.items() if self._weight(t) != 0.0]
+        weights = {t: self._weight(t) for t in terms}
+        weighted = [weights[t] * ll for t, ll in terms.items() if weights[t] != 0.0]
         if not weighted:
             shape = next(iter(terms.values())).shape if terms else (0, len(self.classes_))
             return np.zeros(shape)

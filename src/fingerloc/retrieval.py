@@ -10,8 +10,8 @@ How. The places are laid out so that look-alikes sit side by side
 spread feature, the range descriptor and the letter counts of their views).
 For one query, each term gives upper bounds of its log-likelihood at a
 place, each tighter and dearer than the last (:mod:`fingerloc.terms.bounds`):
-a coarse one at every place, a middle one, a fine one and a finer one at
-chosen places; their weighted sum bounds the joint log-likelihood. The
+a coarse one at every place, a fine one and a finer one at chosen places;
+their weighted sum bounds the joint log-likelihood. The
 search is best first: the places whose bound could still reach the ``k``-th
 best exact score get their next bound, the highest bounds first, and at the
 last level their exact score, until no bound left can reach it (in batches:
@@ -480,9 +480,9 @@ class _Search:
         return False
 
 
-#: Places scored first (the best coarse bounds among the places of the refined groups): the first threshold.
-_FIRST_SCORED = 8
+#: The first threshold: the places of the best coarse bounds refined, and of them the best scored (at least 2 k).
 _FIRST_REFINED = 256
+_FIRST_SCORED = 8
 #: Places scored a step afterwards, best bound first: the first batch, doubled each step up to the last.
 _SCORE_FIRST = 16
 _SCORE_BATCH = 64

@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 
 __all__ = ["GROUP_LANES", "SUBS", "SUB_LANES", "SubBlocks", "pack_subblocks", "query_profile_rows", "reversed_bound", "semiglobal_bounds"]
 
-#: References side by side in a sweep of the kernel (one AVX-512 register of int8).
+#: References side by side in a sweep of the kernel (two AVX-512 registers of int8: at 64 the sweep waits on its dependency chains).
 GROUP_LANES = 128
 #: References of a sub-block: the unit in which references are stored and gathered (one 64-bit word a column).
 SUB_LANES = 8
@@ -80,16 +80,6 @@ class SubBlocks(NamedTuple):
     n_exc: NDArray[np.int64]  # (n_rows,)
     n_rows: int
     wild_code: int
-
-    @property
-    def n_refs(self) -> int:
-        """References stored (the last sub-block may have empty lanes)."""
-        return int(self.gsum.shape[0] * SUB_LANES)
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes held by the arrays."""
-        return int(self.codes.nbytes + self.gsum.nbytes + 8 * (self.start.size + self.length.size))
 
 
 def _letter_rows(codes: NDArray[np.uint8], sub: NDArray[np.int8], indel: NDArray[np.int8]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
